@@ -1,0 +1,74 @@
+"""Fresnel reflectance of a conductor (complex index η = n + i k) against air.
+
+Exact unpolarised reflectance F = (Rs + Rp)/2 (Born & Wolf, *Principles of
+Optics*, 7th ed. 1999, §14.2), in the real-arithmetic form with
+a² + b² = √((n² − k² − sin²θ)² + 4n²k²), a² − b² = n² − k² − sin²θ
+(e.g. Heckbert 1991; pbrt-v3 ``FrConductor``), rewritten without
+cancellation:
+
+    Rs = ((a − cosθ)² + b²) / ((a + cosθ)² + b²)
+    Rp = Rs · ((a cosθ − sin²θ)² + (b cosθ)²) / ((a cosθ + sin²θ)² + (b cosθ)²)
+
+a² and b² are taken from the larger of (A ± t0)/2 and the other from
+a·b = n·k, so neither loses digits when k → 0 or when n < 1. The formula
+reduces to the dielectric Fresnel equations at k = 0 (including total
+reflection for n < 1), gives 1 at θ = 90°, and
+((n − 1)² + k²)/((n + 1)² + k²) at normal incidence.
+
+Schlick's approximation (Schlick 1994, "An inexpensive BRDF model for
+physically-based rendering", CGF 13(3)) is provided for comparison only.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from jkatana.models._safe import safe_div, safe_sqrt
+
+
+def fresnel_conductor(cos_theta: Float[Array, "*b"], n: Float[Array, "*b"], k: Float[Array, "*b"]
+                      ) -> Float[Array, "*b"]:
+    """Exact unpolarised Fresnel reflectance of air → conductor (n + i k).
+
+    **Arguments:** `cos_theta` (cosine of the angle of incidence, clipped to
+    [0, 1]), `n`, `k`; all broadcast together — pass ``cos[..., None]`` with
+    ``n, k`` of shape ``(wl,)`` to get ``(..., wl)``.
+
+    **Returns:** F ∈ [0, 1], finite with finite gradients everywhere
+    including θ = 90°, k = 0 (total reflection when n < 1) and n = 1.
+    """
+    c = jnp.clip(cos_theta, 0.0, 1.0)
+    c2 = c * c
+    s2 = 1.0 - c2
+    n2, k2 = n * n, k * k
+    t0 = n2 - k2 - s2
+    nk = n * k
+    A = safe_sqrt(t0 * t0 + 4.0 * nk * nk)  # a² + b²
+    pos = t0 >= 0
+    big = 0.5 * (A + jnp.abs(t0))  # a² if t0 ≥ 0 else b²: no cancellation
+    small = safe_div(nk * nk, big)  # the other one, from a b = n k
+    a2 = jnp.where(pos, big, small)
+    b2 = jnp.where(pos, small, big)
+    a = safe_sqrt(a2)
+    rs = safe_div((a - c) ** 2 + b2, (a + c) ** 2 + b2, fallback=1.0)
+    ac = a * c
+    bc2 = b2 * c2
+    ratio = safe_div((ac - s2) ** 2 + bc2, (ac + s2) ** 2 + bc2, fallback=1.0)
+    return 0.5 * rs * (1.0 + ratio)
+
+
+def fresnel_dielectric(cos_theta, eta):
+    """Unpolarised Fresnel reflectance air → dielectric of real index ``eta`` (k = 0 case)."""
+    return fresnel_conductor(cos_theta, eta, jnp.zeros_like(eta))
+
+
+def normal_incidence(n, k):
+    """F(0°) = ((n − 1)² + k²)/((n + 1)² + k²)."""
+    return ((n - 1.0) ** 2 + k * k) / ((n + 1.0) ** 2 + k * k)
+
+
+def fresnel_schlick(cos_theta, f0):
+    """Schlick (1994): F ≈ F0 + (1 − F0)(1 − cosθ)⁵ — an approximation, for comparison."""
+    c = jnp.clip(cos_theta, 0.0, 1.0)
+    return f0 + (1.0 - f0) * (1.0 - c) ** 5

@@ -1,0 +1,65 @@
+"""Directions and angles of the reflection geometry (SPEC §2).
+
+Directions are unit 3-vectors in the *local shading frame*, normal N = +z,
+last axis of length 3: L towards the light, V towards the viewer. From them:
+
+- θi = ∠(N, L), θr = ∠(N, V);
+- H = (L + V)/|L + V|, φ = ∠(N, H) the facet angle, θH = ∠(L, H) = ∠(V, H).
+
+Numerics (measured traps): in float32, ``acos(N·H)`` returns exactly 0 for
+φ = 1e-4 and is 2× off at 1e-3 — the heart of a μ = 0.05 lobe — and its
+derivative at N·H = 1 is infinite. The facet angle is therefore computed as
+``atan2(|N × (L+V)|, N · (L+V))``: exact for small angles, scale-invariant
+(so H needs no normalisation) and differentiable. L = −V makes H = 0/0,
+which an ε in the norm does not cure; it is detected explicitly and reported
+through ``valid`` so that models return 0 there with finite gradients.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from jkatana.models._safe import norm, safe_atan2, safe_div
+
+
+def facet_angle(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]) -> Float[Array, "*b"]:
+    """φ = ∠(N, H) via atan2(|N × (L+V)|, N·(L+V)), N = +z. 0 where L = −V."""
+    s = L + V
+    return safe_atan2(norm(s[..., :2]), s[..., 2])
+
+
+def half_vector_cos(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]):
+    """``(cos φ, cos θH, valid)`` with cos φ = N·H, cos θH = L·H = V·H.
+
+    ``valid`` is False where |L + V| is zero (L = −V): the half-vector is
+    undefined there and the cosines are returned as 0. Uses
+    ``cos θH = |L+V| / 2`` (exact for unit L, V), so no second normalisation.
+    """
+    s = L + V
+    length = norm(s)
+    valid = length > 0
+    cos_phi = safe_div(s[..., 2], length)
+    cos_theta_h = jnp.clip(0.5 * length, 0.0, 1.0)
+    return cos_phi, cos_theta_h, valid
+
+
+def in_plane(theta_i, theta_r):
+    """Unit L and V for the goniometer's in-plane geometry (SPEC §4).
+
+    The light is at incidence ``theta_i`` (radians) on the −x side, the
+    receiver at ``theta_r`` on the +x side; ``theta_r = theta_i`` is the
+    specular direction. Negative ``theta_r`` puts the receiver on the light's
+    side (back-scatter). Returns ``(L, V)`` with shape ``(*b, 3)``.
+    """
+    theta_i = jnp.asarray(theta_i)
+    theta_r = jnp.asarray(theta_r)
+    zero = jnp.zeros(jnp.broadcast_shapes(theta_i.shape, theta_r.shape), theta_i.dtype)
+    L = jnp.stack([-jnp.sin(theta_i) + zero, zero, jnp.cos(theta_i) + zero], axis=-1)
+    V = jnp.stack([jnp.sin(theta_r) + zero, zero, jnp.cos(theta_r) + zero], axis=-1)
+    return L, V
+
+
+def in_plane_angles(theta_i, theta_r):
+    """In-plane facet angle φ = (θr − θi)/2 and θH = (θi + θr)/2 (radians, signed φ)."""
+    return 0.5 * (theta_r - theta_i), 0.5 * (theta_i + theta_r)

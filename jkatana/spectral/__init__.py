@@ -1,0 +1,14 @@
+"""Spectral core: wavelength grids, optical constants, colorimetry."""
+
+from jkatana.spectral.colorimetry import (
+    cmfs as cmfs,
+    encode as encode,
+    illuminant as illuminant,
+    spectrum_to_xyz as spectrum_to_xyz,
+    to_display as to_display,
+    xyz_to_linear_rgb as xyz_to_linear_rgb,
+    xyz_to_rgb_matrix as xyz_to_rgb_matrix,
+    xyz_weights as xyz_weights,
+)
+from jkatana.spectral.grid import DEFAULT_GRID as DEFAULT_GRID, WavelengthGrid as WavelengthGrid, resample as resample
+from jkatana.spectral.optical_constants import OpticalTable as OpticalTable, iron as iron, load as load_optical_constants
