@@ -1,0 +1,25 @@
+"""Lighting: spectral environment maps, RGB upsampling, the Hosek–Wilkie sky, sampling, prefiltering.
+
+See :mod:`jkatana.light.envmap` for the orientation convention (Y up, image
+centre looks along −Z, row 0 = zenith).
+"""
+
+from jkatana.light.envmap import (
+    EnvMap as EnvMap,
+    direction_to_uv as direction_to_uv,
+    load_envmap as load_envmap,
+    texel_directions as texel_directions,
+    texel_solid_angles as texel_solid_angles,
+    uv_to_direction as uv_to_direction,
+)
+from jkatana.light.sky import (
+    hosek_wilkie_sky as hosek_wilkie_sky,
+    sun_direction as sun_direction,
+    sun_position as sun_position,
+)
+from jkatana.light.spectral_exr import read_spectral_exr as read_spectral_exr, write_spectral_exr as write_spectral_exr
+from jkatana.light.upsampling import (
+    UPSAMPLING_METHODS as UPSAMPLING_METHODS,
+    rgb_to_spectrum as rgb_to_spectrum,
+    round_trip_error as round_trip_error,
+)

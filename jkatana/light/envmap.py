@@ -1,0 +1,263 @@
+"""Spectral environment maps (equirectangular, world frame Y up).
+
+## Orientation convention
+
+jkatana's world frame is right-handed with **Y up**. An environment map is an
+equirectangular (latitude–longitude) image of ``H`` rows × ``W`` columns:
+
+- ``u = 0.5 + atan2(d_x, −d_z) / (2π)`` (column coordinate in [0, 1)),
+- ``v = acos(d_y) / π`` (row coordinate: ``v = 0`` is the zenith, row 0 is the
+  top of the image, ``v = 1`` the nadir),
+- texel ``(row j, column i)`` has its centre at ``((i + 0.5)/W, (j + 0.5)/H)``.
+
+So the **centre of the image looks along −Z**, the left/right edges along +Z,
+and ``u = 0.75`` looks along +X. Read as a compass (−Z = north, +X = east),
+``u − 0.5`` is the azimuth measured clockwise from north (east = 90°), which is
+how :mod:`jkatana.light.sky` places the sun; the image is seen from inside the
+sphere (east is to the right of north), as Poly Haven panoramas and the
+``latlong`` convention of Mitsuba 3 / pbrt-v4 (up to their choice of up axis) are.
+
+Radiance is spectral, last axis on a :class:`~jkatana.spectral.WavelengthGrid`,
+in the map's own units (W m⁻² sr⁻¹ nm⁻¹ for the built-in sky; for an upsampled
+RGB map, see :mod:`jkatana.light.upsampling`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from jkatana.errors import InputError
+from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
+
+
+def direction_to_uv(d: Float[Array, "*b 3"]) -> tuple[Float[Array, "*b"], Float[Array, "*b"]]:
+    """World direction (need not be unit) → equirectangular ``(u, v)`` in [0, 1].
+
+    ``u = 0.5 + atan2(d_x, −d_z)/(2π)``, ``v = acos(d_y/|d|)/π`` (row 0 = zenith).
+    Uses ``atan2`` for the polar angle as well (no ``acos`` precision loss near
+    the poles).
+    """
+    d = jnp.asarray(d)
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    u = 0.5 + jnp.arctan2(x, -z) / (2 * jnp.pi)
+    rho = jnp.sqrt(x * x + z * z)
+    v = jnp.arctan2(rho, y) / jnp.pi
+    return u, v
+
+
+def uv_to_direction(u, v) -> Float[Array, "*b 3"]:
+    """Equirectangular ``(u, v)`` → unit world direction (inverse of :func:`direction_to_uv`)."""
+    u, v = jnp.broadcast_arrays(jnp.asarray(u), jnp.asarray(v))
+    phi = (u - 0.5) * 2 * jnp.pi
+    theta = v * jnp.pi
+    s = jnp.sin(theta)
+    return jnp.stack([s * jnp.sin(phi), jnp.cos(theta), -s * jnp.cos(phi)], axis=-1)
+
+
+def texel_directions_np(height: int, width: int) -> np.ndarray:
+    """Unit directions of the texel centres, NumPy float64 ``(H, W, 3)``."""
+    phi = ((np.arange(width) + 0.5) / width - 0.5) * 2 * np.pi
+    theta = (np.arange(height) + 0.5) / height * np.pi
+    st, ct = np.sin(theta)[:, None], np.cos(theta)[:, None]
+    return np.stack(np.broadcast_arrays(st * np.sin(phi)[None], ct, -st * np.cos(phi)[None]), axis=-1)
+
+
+def texel_solid_angles_np(height: int, width: int) -> np.ndarray:
+    """Exact texel solid angles ``(2π/W)(cos θ_top − cos θ_bottom)``, NumPy float64 ``(H, W)`` (sum 4π)."""
+    edges = np.arange(height + 1) * (np.pi / height)
+    band = (np.cos(edges[:-1]) - np.cos(edges[1:])) * (2 * np.pi / width)
+    return np.broadcast_to(band[:, None], (height, width)).copy()
+
+
+def texel_directions(height: int, width: int, dtype=jnp.float32) -> Float[Array, "H W 3"]:
+    """Unit directions of the texel centres of an ``height × width`` map."""
+    return jnp.asarray(texel_directions_np(height, width), dtype)
+
+
+def texel_solid_angles(height: int, width: int, dtype=jnp.float32) -> Float[Array, "H W"]:
+    """Exact solid angle of each texel: ``(2π/W)·(cos θ_top − cos θ_bottom)`` (sums to 4π)."""
+    return jnp.asarray(texel_solid_angles_np(height, width), dtype)
+
+
+class EnvMap(eqx.Module):
+    """A spectral equirectangular environment map (see the module docstring for axes).
+
+    **Fields:**
+
+    - `radiance`: ``(H, W, wl)`` spectral radiance (float32 by default).
+    - `grid`: the wavelength grid of the last axis (static).
+    """
+
+    radiance: Float[Array, "H W wl"]
+    grid: WavelengthGrid = eqx.field(static=True, default=DEFAULT_GRID)
+
+    def __check_init__(self):
+        if self.radiance.ndim != 3 or self.radiance.shape[-1] != self.grid.size:
+            raise InputError(f"radiance must be (H, W, {self.grid.size}) for {self.grid}, "
+                             f"got {self.radiance.shape}", field="radiance")
+
+    @property
+    def height(self) -> int:
+        return self.radiance.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self.radiance.shape[1]
+
+    def directions(self) -> Float[Array, "H W 3"]:
+        """Unit directions of the texel centres."""
+        return texel_directions(self.height, self.width, self.radiance.dtype)
+
+    def solid_angles(self) -> Float[Array, "H W"]:
+        """Solid angle of every texel (sin θ weighting, exact per row; sums to 4π)."""
+        return texel_solid_angles(self.height, self.width, self.radiance.dtype)
+
+    def lookup(self, d: Float[Array, "*b 3"]) -> Float[Array, "*b wl"]:
+        """Bilinear radiance in direction ``d``: wraps in ``u``, clamps in ``v``.
+
+        Pure JAX: jittable, and differentiable in :attr:`radiance`.
+        """
+        u, v = direction_to_uv(d)
+        H, W = self.height, self.width
+        x = u * W - 0.5
+        y = jnp.clip(v * H - 0.5, 0.0, H - 1.0)
+        x0 = jnp.floor(x)
+        y0 = jnp.clip(jnp.floor(y), 0, H - 1)
+        fx = (x - x0).astype(self.radiance.dtype)[..., None]
+        fy = (y - y0).astype(self.radiance.dtype)[..., None]
+        i0 = jnp.mod(x0.astype(jnp.int32), W)
+        i1 = jnp.mod(i0 + 1, W)
+        j0 = y0.astype(jnp.int32)
+        j1 = jnp.minimum(j0 + 1, H - 1)
+        L = self.radiance
+        top = L[j0, i0] * (1 - fx) + L[j0, i1] * fx
+        bottom = L[j1, i0] * (1 - fx) + L[j1, i1] * fx
+        return top * (1 - fy) + bottom * fy
+
+    def lookup_nearest(self, d: Float[Array, "*b 3"]) -> Float[Array, "*b wl"]:
+        """Radiance of the texel containing ``d`` (piecewise constant: the density the sampler uses)."""
+        u, v = direction_to_uv(d)
+        i = jnp.mod(jnp.floor(u * self.width).astype(jnp.int32), self.width)
+        j = jnp.clip(jnp.floor(v * self.height).astype(jnp.int32), 0, self.height - 1)
+        return self.radiance[j, i]
+
+    def is_grey(self, rtol: float = 1e-6) -> bool:
+        """True when every texel's spectrum is flat (all bands equal to ``rtol``).
+
+        A grey map lets the renderer shade one band and broadcast. Not jittable
+        (returns a Python bool).
+        """
+        L = np.asarray(self.radiance)
+        mean = L.mean(axis=-1, keepdims=True)
+        return bool(np.all(np.abs(L - mean) <= rtol * np.maximum(np.abs(mean), np.finfo(L.dtype).tiny)))
+
+    def rotate(self, azimuth) -> "EnvMap":
+        """Rotate about +Y by ``azimuth`` radians (a feature at compass azimuth a moves to a + azimuth).
+
+        Fractional texel shifts are linearly interpolated (a slight blur; integer
+        multiples of ``2π/W`` are exact).
+        """
+        shift = jnp.asarray(azimuth) / (2 * jnp.pi) * self.width
+        k = jnp.floor(shift)
+        f = (shift - k).astype(self.radiance.dtype)
+        k = k.astype(jnp.int32)
+        idx = jnp.mod(jnp.arange(self.width) - k, self.width)
+        idx1 = jnp.mod(idx - 1, self.width)
+        L = self.radiance[:, idx] * (1 - f) + self.radiance[:, idx1] * f
+        return EnvMap(L, self.grid)
+
+    def scaled(self, factor) -> "EnvMap":
+        return EnvMap(self.radiance * factor, self.grid)
+
+    def xyz(self) -> Float[Array, "H W 3"]:
+        """CIE XYZ per texel, ``k = 1`` (radiance units × nm)."""
+        from jkatana.spectral.colorimetry import xyz_weights
+
+        return self.radiance @ jnp.asarray(xyz_weights(self.grid), self.radiance.dtype)
+
+    def luminance(self) -> Float[Array, "H W"]:
+        """CIE Y per texel (``k = 1``), the quantity the sampler's density follows."""
+        from jkatana.spectral.colorimetry import xyz_weights
+
+        return self.radiance @ jnp.asarray(xyz_weights(self.grid)[:, 1], self.radiance.dtype)
+
+    def irradiance(self, normal=(0.0, 1.0, 0.0)) -> Float[Array, "wl"]:
+        """Spectral irradiance on a plane with ``normal`` (texel quadrature, unoccluded)."""
+        n = jnp.asarray(normal, self.radiance.dtype)
+        n = n / jnp.linalg.norm(n)
+        cos = jnp.maximum(self.directions() @ n, 0.0)
+        return jnp.einsum("hw,hwl->l", cos * self.solid_angles(), self.radiance)
+
+
+def load_envmap(path: str | Path, grid: WavelengthGrid = DEFAULT_GRID, upsampling: str = "Jakob 2019",
+                scale: float = 1.0, *, colourspace: str = "sRGB", dtype=np.float32) -> EnvMap:
+    """Read an environment map into a spectral :class:`EnvMap`.
+
+    **Arguments:**
+
+    - `path`: a spectral OpenEXR in the Fichet et al. (2021) layout (resampled
+      to `grid`), an RGB OpenEXR (any compression the OpenEXR library reads,
+      DWAB included), or a Radiance ``.hdr`` (RGBE, through OpenImageIO).
+    - `grid`: target wavelength grid.
+    - `upsampling`: RGB → spectrum method name for RGB files (see
+      :data:`jkatana.light.upsampling.UPSAMPLING_METHODS`); ignored for spectral files.
+    - `scale`: multiplies the radiance.
+    - `colourspace`: the RGB primaries of an RGB file (linear; default sRGB/Rec. 709).
+
+    **Returns:** an :class:`EnvMap` with float32 (default) radiance.
+
+    Raises :class:`InputError` naming the file when it is missing, unreadable, or
+    not a 2:1-ish latitude–longitude image with RGB or spectral channels.
+    """
+    from jkatana.light import spectral_exr, upsampling as up
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("environment map not found", path=path)
+    suffix = path.suffix.lower()
+    if suffix == ".exr" and spectral_exr.is_spectral_exr(path):
+        L = spectral_exr.read_spectral_exr(path, grid)
+    else:
+        rgb = read_rgb_image(path)
+        L = up.rgb_to_spectrum(rgb, upsampling, grid, colourspace=colourspace)
+    L = np.nan_to_num(np.asarray(L, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    L = np.maximum(L, 0.0) * scale
+    return EnvMap(jnp.asarray(L, dtype), grid)
+
+
+def read_rgb_image(path: str | Path) -> np.ndarray:
+    """Linear RGB ``(H, W, 3)`` float32 from an RGB(A) OpenEXR or a Radiance ``.hdr``."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        from jkatana.io.exr import read_exr
+
+        channels, _ = read_exr(path)
+        names = {n.split(".")[-1].upper(): n for n in channels}
+        missing = [c for c in "RGB" if c not in names]
+        if missing:
+            raise InputError(f"EXR has no {'/'.join(missing)} channel(s) and is not spectral "
+                             f"(channels: {sorted(channels)[:8]})", path=path)
+        rgb = np.stack([channels[names[c]] for c in "RGB"], axis=-1).astype(np.float32)
+    elif suffix in (".hdr", ".pic", ".rgbe"):
+        try:
+            import OpenImageIO as oiio
+        except ImportError as err:  # pragma: no cover
+            raise InputError(f"reading .hdr needs OpenImageIO ({err})", path=path) from None
+        buf = oiio.ImageBuf(str(path))
+        if buf.has_error:
+            raise InputError(f"not a readable Radiance HDR ({buf.geterror()})", path=path)
+        px = buf.get_pixels(oiio.FLOAT)
+        if px is None or px.ndim != 3 or px.shape[2] < 3:
+            raise InputError("not an RGB image", path=path)
+        rgb = np.asarray(px[..., :3], np.float32)
+    else:
+        raise InputError(f"unsupported environment map type {suffix!r} (use .exr or .hdr)", path=path)
+    if rgb.ndim != 3 or rgb.shape[0] < 2 or rgb.shape[1] < 2:
+        raise InputError(f"image too small: {rgb.shape}", path=path)
+    return rgb

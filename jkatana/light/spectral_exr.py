@@ -1,0 +1,111 @@
+"""Spectral OpenEXR in the layout of Fichet, Pacanowski & Wilkie (2021).
+
+Fichet A., Pacanowski R., Wilkie A. (2021), "An OpenEXR Layout for Spectral
+Images", JCGT 10(3). Emissive images store one channel per wavelength named
+``S0.<λ>nm`` with a comma as decimal separator (``S0.550,000000nm``), plus
+``spectralLayoutVersion`` / ``emissiveUnits`` attributes. Reading and writing
+go through colour-science's implementation
+(``colour.io.read_spectral_image_Fichet2021`` /
+``write_spectral_image_Fichet2021``, colour-science 0.4.7, which uses
+OpenImageIO), so files interoperate with colour-science by construction; the
+tests check it both ways.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from jkatana.errors import InputError
+from jkatana.io.atomic import atomic_path
+from jkatana.spectral.grid import WavelengthGrid, resample
+
+_CHANNEL = re.compile(r"^S0\.(\d+(?:,\d+)?)(nm|um|pm|Hz)?$")
+_T_CHANNEL = re.compile(r"^T\.(\d+(?:,\d+)?)(nm|um|pm|Hz)?$")
+
+
+def _channel_names(path: Path) -> list[str]:
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(path), header_only=True) as f:
+            return list(f.header()["channels"].keys()) if "channels" in f.header() else list(f.channels().keys())
+    except Exception:
+        try:
+            with OpenEXR.File(str(path)) as f:
+                return list(f.channels().keys())
+        except Exception as err:
+            raise InputError(f"not a readable OpenEXR file ({err})", path=path) from None
+
+
+def is_spectral_exr(path: str | Path) -> bool:
+    """True when the EXR has emissive (``S0.*``) or reflective (``T.*``) spectral channels."""
+    names = _channel_names(Path(path))
+    return any(_CHANNEL.match(n) or _T_CHANNEL.match(n) for n in names)
+
+
+def read_spectral_exr_raw(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Wavelengths (nm) and values ``(H, W, n)`` of the ``S0`` (else ``T``) component, through colour-science."""
+    from colour.io import read_spectral_image_Fichet2021
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", path=path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            components = read_spectral_image_Fichet2021(str(path))
+    except Exception as err:
+        raise InputError(f"not a readable spectral EXR ({err})", path=path) from None
+    key = "S0" if "S0" in components else ("T" if "T" in components else None)
+    if key is None:
+        raise InputError(f"no S0 (emissive) or T (reflective) spectral component; found {sorted(components)}",
+                         path=path)
+    wl, values = components[key]
+    wl = np.asarray(wl, np.float64)
+    values = np.asarray(values, np.float32)
+    order = np.argsort(wl)
+    return wl[order], values[..., order]
+
+
+def read_spectral_exr(path: str | Path, grid: WavelengthGrid) -> np.ndarray:
+    """Spectral radiance ``(H, W, len(grid))`` resampled (linearly) onto ``grid``.
+
+    Raises :class:`InputError` when the file's wavelengths do not cover the grid.
+    """
+    wl, values = read_spectral_exr_raw(path)
+    if wl.size == grid.size and np.allclose(wl, grid.wavelengths, atol=1e-6):
+        return values
+    return resample(wl, values, grid, name=str(path)).astype(np.float32)
+
+
+def write_spectral_exr(path: str | Path, radiance, grid: WavelengthGrid | np.ndarray, *,
+                       bit_depth: str = "float32", emissive: bool = True) -> Path:
+    """Write ``radiance (H, W, wl)`` as a Fichet 2021 spectral EXR (through colour-science), atomically.
+
+    colour-science also writes an sRGB preview (``R``, ``G``, ``B``) that any
+    EXR viewer shows. ``emissive`` writes ``S0`` channels with
+    ``emissiveUnits = W.m^-2.sr^-1`` (per nm); otherwise ``T`` (reflectance).
+    """
+    from colour.io import Specification_Fichet2021, write_spectral_image_Fichet2021
+
+    wl = grid.wavelengths if isinstance(grid, WavelengthGrid) else np.asarray(grid, np.float64)
+    values = np.asarray(radiance, np.float32)
+    if values.ndim != 3 or values.shape[-1] != wl.size:
+        raise InputError(f"radiance must be (H, W, {wl.size}), got {values.shape}", path=path)
+    path = Path(path)
+    spec = Specification_Fichet2021(is_emissive=emissive)
+    with atomic_path(path) as tmp:
+        tmp_exr = Path(str(tmp) + ".exr") if Path(tmp).suffix.lower() != ".exr" else Path(tmp)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            ok = write_spectral_image_Fichet2021({"S0" if emissive else "T": (wl, values)}, str(tmp_exr),
+                                                 bit_depth, spec)
+        if not ok:
+            raise InputError("colour-science failed to write the spectral EXR", path=path)
+        if tmp_exr != Path(tmp):
+            tmp_exr.replace(tmp)
+    return path
