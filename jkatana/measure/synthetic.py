@@ -114,17 +114,36 @@ def green_values(theta_i_deg, theta_r_deg, region: str = "hiraji", params=None, 
     import jax
     import jax.numpy as jnp
 
-    from jkatana.models import Conductor, in_plane
+    from jkatana.models import Conductor
 
     w = band_weights(light_spectrum(light, grid), camera_sensitivity(camera, grid), grid)
     with jax.enable_x64(True):  # the simulator's truth is float64 whatever the global setting
         model = region_model(region, params)
         conductor = Conductor.from_table(optical_constants, grid, jnp.float64)
-        ti = jnp.deg2rad(jnp.asarray(theta_i_deg, jnp.float64))
-        tr = jnp.deg2rad(jnp.asarray(theta_r_deg, jnp.float64))
-        L, V = in_plane(ti, tr)
-        spectral = model.camera(L, V, conductor)  # C/E: the E=None form, camera units
-        return np.asarray(spectral @ jnp.asarray(w, jnp.float64), np.float64)
+        ti = jnp.asarray(theta_i_deg, jnp.float64)
+        tr = jnp.asarray(theta_r_deg, jnp.float64)
+        return np.asarray(_green(model, ti, tr, conductor, jnp.asarray(w, jnp.float64)), np.float64)
+
+
+def _green_impl(model, ti_deg, tr_deg, conductor, w):
+    import jax.numpy as jnp
+
+    from jkatana.models import in_plane
+
+    L, V = in_plane(jnp.deg2rad(ti_deg), jnp.deg2rad(tr_deg))
+    return model.camera(L, V, conductor) @ w  # C/E: the E=None form, camera units
+
+
+def _green(*args):
+    global _GREEN_JIT
+    if _GREEN_JIT is None:
+        import equinox as eqx
+
+        _GREEN_JIT = eqx.filter_jit(_green_impl)
+    return _GREEN_JIT(*args)
+
+
+_GREEN_JIT = None
 
 
 def true_angles(pairs, *, tilt_deg: float = 0.0, angle_jitter_deg: float = 0.0,

@@ -1,0 +1,175 @@
+"""Decode one capture into green photosites and reduce a region of interest.
+
+RAW files go through LibRaw (rawpy; Lukas Riechert's binding of LibRaw,
+libraw.org), never through a demosaic: the measurement is taken on the raw
+green photosites of the colour filter array — both G sites of a Bayer
+pattern (``raw_colors`` indices whose ``color_desc`` letter is ``G``), or
+every G site of another CFA. Per photosite:
+
+    x = (DN − black[c]) / (white − black[c])
+
+with the per-channel black level ``black_level_per_channel`` and the white
+level read from the file (a dark frame, when given, replaces the black level
+photosite by photosite). Photosites at or above the white level are
+*saturated*: they are counted, excluded from the mean and reported
+(``n_saturated``), never averaged in silently. The measurement is the mean of
+x over the ROI, divided by the exposure time (and times the manifest's
+gain), and its standard error s/√n with s the sample standard deviation.
+
+Linear 16-bit TIFF and OpenEXR captures are accepted too (see
+:mod:`jkatana.measure.manifest` for their black/white levels).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from jkatana.errors import InputError
+
+TIFF_SUFFIXES = (".tif", ".tiff")
+EXR_SUFFIXES = (".exr",)
+
+
+@dataclasses.dataclass
+class Frame:
+    """Green photosites of one capture.
+
+    ``dn``: the raw values (float64, H×W); ``green``: mask of green
+    photosites; ``black``: per-photosite black level (H×W); ``white``: white
+    level (scalar; ``inf`` when the format has none); ``shutter_s``: exposure
+    time stored in the file (0 if unknown).
+    """
+
+    dn: np.ndarray
+    green: np.ndarray
+    black: np.ndarray
+    white: float
+    shutter_s: float = 0.0
+    kind: str = "raw"
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.dn.shape
+
+
+def _read_raw(path: Path) -> Frame:
+    import rawpy
+
+    try:
+        with rawpy.imread(str(path)) as raw:
+            image = raw.raw_image_visible
+            if image is None or image.ndim != 2:
+                raise InputError("not a colour-filter-array RAW (no single-plane raw image); "
+                                 "convert it to a linear TIFF", path=path)
+            colors = np.array(raw.raw_colors_visible)
+            desc = raw.color_desc.decode("ascii", "replace")
+            green_idx = [i for i, ch in enumerate(desc) if ch == "G"]
+            if not green_idx:
+                raise InputError(f"the colour filter array has no green photosites ({desc})", path=path)
+            black_pc = np.asarray(raw.black_level_per_channel, np.float64)
+            dn = image.astype(np.float64)
+            white = float(raw.white_level)
+            shutter = float(raw.other.shutter_speed) if hasattr(raw, "other") else 0.0
+    except rawpy.LibRawError as err:
+        raise InputError(f"cannot decode RAW with LibRaw ({type(err).__name__}: {err})", path=path) from None
+    return Frame(dn=dn, green=np.isin(colors, green_idx), black=black_pc[colors], white=white,
+                 shutter_s=shutter if math.isfinite(shutter) and shutter > 0 else 0.0)
+
+
+def _read_tiff(path: Path, black: float | None, white: float | None) -> Frame:
+    import tifffile
+
+    try:
+        image = tifffile.imread(str(path))
+    except Exception as err:  # noqa: BLE001  (tifffile raises several kinds for bad files)
+        raise InputError(f"cannot read TIFF ({type(err).__name__}: {err})", path=path) from None
+    if image.dtype != np.uint16:
+        raise InputError(f"expects a linear 16-bit TIFF, got dtype {image.dtype}", path=path)
+    if image.ndim == 3 and image.shape[-1] in (3, 4):
+        image = image[..., 1]
+    elif image.ndim != 2:
+        raise InputError(f"expects one channel or RGB(A), got shape {image.shape}", path=path)
+    dn = image.astype(np.float64)
+    b = 0.0 if black is None else float(black)
+    return Frame(dn=dn, green=np.ones(dn.shape, bool), black=np.full(dn.shape, b),
+                 white=65535.0 if white is None else float(white), kind="tiff")
+
+
+def _read_exr(path: Path, black: float | None, white: float | None) -> Frame:
+    from jkatana.io.exr import read_exr
+
+    channels, _ = read_exr(path)
+    for name in ("G", "Y"):
+        if name in channels:
+            plane = channels[name]
+            break
+    else:
+        if len(channels) != 1:
+            raise InputError(f"no 'G' or 'Y' channel among {sorted(channels)}", path=path)
+        plane = next(iter(channels.values()))
+    dn = np.asarray(plane, np.float64)
+    b = 0.0 if black is None else float(black)
+    return Frame(dn=dn, green=np.ones(dn.shape, bool), black=np.full(dn.shape, b),
+                 white=math.inf if white is None else float(white), kind="exr")
+
+
+def read_frame(path: str | Path, *, black_level: float | None = None,
+               white_level: float | None = None) -> Frame:
+    """Decode ``path`` by extension (module docstring). Raises :class:`InputError` naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such file", path=path)
+    suffix = path.suffix.lower()
+    if suffix in TIFF_SUFFIXES:
+        return _read_tiff(path, black_level, white_level)
+    if suffix in EXR_SUFFIXES:
+        return _read_exr(path, black_level, white_level)
+    return _read_raw(path)
+
+
+@dataclasses.dataclass(frozen=True)
+class RoiStats:
+    """Mean of the normalised green photosites over the ROI(s), before /exposure."""
+
+    mean: float
+    stderr: float
+    n_pixels: int
+    n_saturated: int
+
+
+def roi_stats(frame: Frame, rois, *, dark: Frame | None = None) -> RoiStats:
+    """Reduce the green photosites inside ``rois`` (``[(x, y, w, h), ...]``) of ``frame``.
+
+    Raises :class:`InputError` (without a location: the caller adds the
+    manifest row and field ``roi``) when a rectangle leaves the frame or fewer
+    than two usable photosites remain (e.g. all saturated).
+    """
+    H, W = frame.shape
+    mask = np.zeros((H, W), bool)
+    for x, y, w, h in rois:
+        if x + w > W or y + h > H:
+            raise InputError(f"rectangle x={x} y={y} w={w} h={h} leaves the {W}×{H} frame")
+        mask[y:y + h, x:x + w] = True
+    mask &= frame.green
+    dn = frame.dn[mask]
+    black = frame.black[mask] if dark is None else dark.dn[mask]
+    saturated = dn >= frame.white
+    n_sat = int(saturated.sum())
+    keep = ~saturated
+    n = int(keep.sum())
+    scale = frame.white - frame.black[mask][keep] if math.isfinite(frame.white) else 1.0
+    x = (dn[keep] - black[keep]) / scale
+    if n < 2:
+        what = (f"all {n_sat} green photosites in the ROI are saturated" if n_sat and n == 0
+                else f"the ROI holds {n} usable green photosite(s) ({n_sat} saturated); need at least 2")
+        raise InputError(what)
+    mean = float(x.mean())
+    stderr = float(x.std(ddof=1) / math.sqrt(n))
+    return RoiStats(mean=mean, stderr=stderr, n_pixels=n, n_saturated=n_sat)
+
+
+__all__ = ["Frame", "RoiStats", "read_frame", "roi_stats"]
