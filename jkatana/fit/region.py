@@ -1,0 +1,274 @@
+"""Fit one region of a measurement table: values, convergence, Laplace intervals, quality per incidence.
+
+The entry point is :func:`fit_region`; :class:`FitData` is the fitting view
+of a measurement table (:class:`jkatana.measure.table.MeasurementTable` or
+plain arrays), and :class:`RegionFit` the result that
+:mod:`jkatana.fit.params` writes as the parameter file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jkatana.errors import InputError
+from jkatana.fit._model import ModelSpec, Terms, from_natural, green, prepare, to_natural
+from jkatana.fit._solve import (NoiseModel, closed_form_start, estimate_noise, laplace, residuals, solve,
+                                verdict)
+from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
+
+DEFAULT_CAMERA = "Nikon 5100 (NPL)"
+
+
+@dataclasses.dataclass
+class FitData:
+    """What a fit needs from a table: angles (degrees), values, per-point σ (optional), usable mask."""
+
+    theta_i_deg: np.ndarray
+    theta_r_deg: np.ndarray
+    value: np.ndarray
+    sigma: np.ndarray | None = None
+    usable: np.ndarray | None = None
+    region: str = "hiraji"
+    source: str | None = None
+
+    def __post_init__(self):
+        self.theta_i_deg = np.asarray(self.theta_i_deg, np.float64).ravel()
+        self.theta_r_deg = np.asarray(self.theta_r_deg, np.float64).ravel()
+        self.value = np.asarray(self.value, np.float64).ravel()
+        n = self.value.size
+        if self.theta_i_deg.size != n or self.theta_r_deg.size != n:
+            raise InputError(f"angles ({self.theta_i_deg.size}, {self.theta_r_deg.size}) and values ({n}) "
+                             "differ in length", path=self.source, field="value")
+        if n == 0:
+            raise InputError(f"no rows for region {self.region!r}", path=self.source, field="region")
+        if self.sigma is not None:
+            self.sigma = np.asarray(self.sigma, np.float64).ravel()
+        usable = np.isfinite(self.value) & np.isfinite(self.theta_i_deg) & np.isfinite(self.theta_r_deg)
+        if self.usable is not None:
+            usable &= np.asarray(self.usable, bool).ravel()
+        self.usable = usable
+        if not usable.any():
+            raise InputError("no usable (finite, unsaturated) values", path=self.source, field="value")
+
+    @classmethod
+    def from_table(cls, table, region: str | None = None, source=None) -> "FitData":
+        """From a :class:`~jkatana.measure.table.MeasurementTable` (saturated rows are excluded)."""
+        regions = list(table.regions())
+        if region is None:
+            if len(regions) != 1:
+                raise InputError(f"table has regions {regions}: choose one with --region",
+                                 path=source, field="region")
+            region = regions[0]
+        if region not in regions:
+            raise InputError(f"region {region!r} not in table (has {regions})", path=source, field="region")
+        t = table.select(region=region)
+        sigma = np.asarray(t.sigma, np.float64)
+        usable = np.asarray(t.n_saturated) == 0
+        return cls(t.theta_i_deg, t.theta_r_deg, t.value, sigma if np.any(sigma > 0) else None,
+                   usable, region=region, source=None if source is None else str(source))
+
+    @property
+    def incidences(self) -> np.ndarray:
+        return np.unique(np.round(self.theta_i_deg, 6))
+
+    def take(self, mask) -> "FitData":
+        mask = np.asarray(mask, bool)
+        return FitData(self.theta_i_deg[mask], self.theta_r_deg[mask], self.value[mask],
+                       None if self.sigma is None else self.sigma[mask], self.usable[mask],
+                       region=self.region, source=self.source)
+
+
+@dataclasses.dataclass(frozen=True)
+class Setup:
+    """Spectral setup of a fit: optical constants, grid, camera and light (names or arrays)."""
+
+    optical_constants: str = "Fe-Johnson"
+    grid: WavelengthGrid = DEFAULT_GRID
+    camera: Any = DEFAULT_CAMERA
+    light: Any = "D65"
+
+    def weights(self) -> np.ndarray:
+        from jkatana.measure.camera import band_weights, camera_sensitivity, light_spectrum
+
+        return band_weights(light_spectrum(self.light, self.grid), camera_sensitivity(self.camera, self.grid),
+                            self.grid)
+
+    def nk(self):
+        from jkatana.spectral.optical_constants import load
+
+        return load(self.optical_constants).on_grid(self.grid)
+
+    def describe(self) -> dict:
+        g = self.grid
+        return dict(optical_constants=str(self.optical_constants),
+                    grid=dict(start=float(g.start), stop=float(g.stop), step=float(g.step), size=int(g.size)),
+                    camera=self.camera if isinstance(self.camera, str) else "array",
+                    light=self.light if isinstance(self.light, (str, int, float)) else "array")
+
+
+@dataclasses.dataclass
+class RegionFit:
+    """Result of :func:`fit_region` (see :mod:`jkatana.fit.params` for the file form)."""
+
+    region: str
+    spec: ModelSpec
+    p: np.ndarray
+    values: dict
+    converged: bool
+    reasons: list
+    laplace: dict
+    noise: NoiseModel
+    diagnostics: dict
+    per_incidence: list
+    setup: Setup
+    data: FitData
+    terms: Terms = dataclasses.field(repr=False)
+    weight: np.ndarray = dataclasses.field(repr=False)
+    emcee: dict | None = None
+
+    def model(self, p=None) -> np.ndarray:
+        """Model green values at the data's geometry (at ``p`` or the optimum)."""
+        return np.asarray(green(jnp.asarray(self.p if p is None else p), self.terms, self.spec))
+
+
+def default_model(region: str) -> str:
+    return "hamon" if region == "hamon" else "hiraji"
+
+
+def _start(start, terms, y, w, spec, dtype):
+    if start is None or (isinstance(start, str) and start == "closed"):
+        return closed_form_start(terms, y, w, spec)
+    if isinstance(start, str) and start == "grid":
+        return grid_start(terms, y, w, spec)
+    if isinstance(start, dict):
+        return jnp.asarray(from_natural(start, spec), dtype)
+    return jnp.asarray(start, dtype)
+
+
+def grid_start(terms, y, w, spec: ModelSpec, mus=None):
+    """Coarse-grid start: for each μ on a log grid the best scale is linear; pick the lowest cost."""
+    mus = jnp.geomspace(1e-3, 0.5, 48) if mus is None else jnp.asarray(mus)
+    base = jnp.zeros(spec.size, y.dtype)
+
+    def cost_at(mu):
+        p = base.at[1].set(jnp.log(mu))
+        m1 = green(p, terms, spec)  # scale 1
+        a = jnp.sum(m1 * y * w * w) / jnp.maximum(jnp.sum((m1 * w) ** 2), jnp.finfo(y.dtype).tiny)
+        a = jnp.maximum(a, jnp.finfo(y.dtype).tiny)
+        r = (a * m1 - y) * w
+        return jnp.sum(r * r), jnp.log(a)
+
+    costs, logs = jax.vmap(cost_at)(mus)
+    i = jnp.argmin(jnp.where(jnp.isfinite(costs), costs, jnp.inf))
+    return base.at[0].set(logs[i]).at[1].set(jnp.log(mus[i]))
+
+
+def fit_arrays(terms: Terms, y, w, spec: ModelSpec, *, start=None, solver: str = "lm",
+               max_steps: int = 200, multistart: bool = False) -> dict:
+    """Solve from a start (closed form by default) with an optional grid multi-start; numpy dict out."""
+    dtype = y.dtype
+    starts = [_start(start, terms, y, w, spec, dtype)]
+    if multistart:
+        starts.append(grid_start(terms, y, w, spec))
+    best = None
+    for p0 in starts:
+        out = solve(terms, y, w, p0, spec=spec, solver=solver, max_steps=max_steps)
+        out = {k: np.asarray(v) for k, v in out.items()}
+        if best is None or (np.isfinite(out["cost"]) and not out["cost"] >= best["cost"]):
+            best = out
+    return best
+
+
+def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(), tilt: bool = False,
+               floor: bool = False, solver: str = "lm", noise: NoiseModel | str = "auto", start=None,
+               multistart: bool = False, max_steps: int = 200, per_incidence: bool = True,
+               birge: bool = True, dtype=jnp.float64, irls: bool = True) -> RegionFit:
+    """Fit eq. (3) (hiraji) or eq. (4) (hamon) to one region's data.
+
+    **Arguments:**
+
+    - `data`: :class:`FitData` (e.g. ``FitData.from_table(table, "hiraji")``).
+    - `model`: ``"hiraji"`` or ``"hamon"`` (default: the region's own).
+    - `setup`: optical constants, grid, camera, light (:class:`Setup`).
+    - `tilt`, `floor`: free sample tilt (degrees, towards the light) / constant floor.
+    - `solver`: ``"lm"`` (optimistix Levenberg–Marquardt), ``"dogleg"``, ``"gn"``
+      (Gauss–Newton) or ``"jaxopt"`` (jaxopt LM, Madsen–Nielsen stop).
+    - `noise`: a :class:`NoiseModel`, or ``"auto"`` to estimate it from the
+      table (:func:`~jkatana.fit._solve.estimate_noise`).
+    - `start`: None/"closed" (log-linear closed form), "grid", a dict of
+      natural values, or a parameter vector. `multistart`: also try the grid start.
+    - `per_incidence`: compute per-incidence quality and refits.
+    - `birge`: scale the covariance by max(1, χ²/dof).
+    - `dtype`: float64 (default). float32 works only with ``jax_enable_x64`` off
+      (lineax crashes on mixed dtypes otherwise; see the issue's trap):
+      run float32 fits in a separate process.
+    - `irls`: re-evaluate σ at the fitted model and refit once (σ from the data
+      biases the fit towards low-fluctuating points).
+
+    **Returns:** :class:`RegionFit`.
+    """
+    t0 = time.perf_counter()
+    model = model or default_model(data.region)
+    spec = ModelSpec(model, tilt, floor)
+    if dtype == jnp.float32 and jax.config.jax_enable_x64:
+        raise ValueError("float32 fits need jax_enable_x64 off (lineax fails on mixed dtypes); "
+                         "run them in a separate process")
+    n, k = setup.nk()
+    terms = prepare(model, data.theta_i_deg, data.theta_r_deg, n, k, setup.weights(), dtype)
+    if isinstance(noise, str):
+        if noise != "auto":
+            raise InputError(f"noise must be 'auto' or a NoiseModel, got {noise!r}", field="noise")
+        noise = estimate_noise(data.value[data.usable],
+                               None if data.sigma is None else data.sigma[data.usable])
+    y_np = np.where(data.usable, data.value, 0.0)
+    y = jnp.asarray(y_np, dtype)
+    use = jnp.asarray(data.usable)
+    w = jnp.where(use, 1.0 / noise.sigma(y), 0.0).astype(dtype)
+    out = fit_arrays(terms, y, w, spec, start=start, solver=solver, max_steps=max_steps, multistart=multistart)
+    steps = int(out["steps"])
+    if irls and np.all(np.isfinite(out["p"])):
+        m = green(jnp.asarray(out["p"]), terms, spec)
+        w = jnp.where(use, 1.0 / noise.sigma(m), 0.0).astype(dtype)
+        out2 = fit_arrays(terms, y, w, spec, start=out["p"], solver=solver, max_steps=max_steps)
+        # the cost check compares with the very first start, under the final weights
+        r0 = np.asarray(residuals(jnp.asarray(out["p0"]), (terms, y, w, spec)))
+        out2["cost0"] = 0.5 * float(np.sum(r0 * r0))
+        out2["p0"] = out["p0"]
+        steps += int(out2["steps"])
+        out = out2
+    ok, reasons = verdict(out, np.dtype(dtype))
+    n_used = int(np.sum(data.usable))
+    lap = laplace(out["jtj"], float(out["cost"]), n_used, out["p"], spec, birge=birge)
+    if not lap["ok"]:
+        reasons = reasons + ["Laplace covariance is singular (parameters not identifiable from these data)"]
+        ok = False
+    values = to_natural(out["p"], spec) if np.all(np.isfinite(out["p"])) else {n_: float("nan") for n_ in spec.names}
+    diagnostics = dict(solver=solver, steps=steps, cost=float(out["cost"]), cost_start=float(out["cost0"]),
+                       gn_decrement=float(out["decrement"]), grad_inf_norm=float(out["grad_norm"]),
+                       chi2_dof=lap["chi2_dof"], n_points=n_used, n_excluded=int(data.value.size - n_used),
+                       dof=max(1, n_used - spec.size), noise=noise.as_dict(),
+                       start=to_natural(out["p0"], spec) if np.all(np.isfinite(out["p0"])) else None,
+                       dtype=str(np.dtype(dtype)), reasons=reasons)
+    fit = RegionFit(region=data.region, spec=spec, p=np.asarray(out["p"], np.float64), values=values,
+                    converged=ok, reasons=reasons, laplace=lap, noise=noise, diagnostics=diagnostics,
+                    per_incidence=[], setup=setup, data=data, terms=terms, weight=np.asarray(w))
+    if per_incidence:
+        from jkatana.fit.quality import per_incidence as _pi
+
+        fit.per_incidence = _pi(fit, solver=solver, max_steps=max_steps)
+    fit.diagnostics["time_s"] = time.perf_counter() - t0
+    return fit
+
+
+def fit_table(table, region: str | None = None, **kwargs) -> RegionFit:
+    """Convenience: :func:`fit_region` on ``FitData.from_table(table, region)``."""
+    return fit_region(FitData.from_table(table, region), **kwargs)
+
+
+__all__ = ["FitData", "Setup", "RegionFit", "fit_region", "fit_table", "fit_arrays", "grid_start", "residuals"]

@@ -1,0 +1,227 @@
+"""Fit report: a Markdown page with PNG plots from a parameter file (and its table).
+
+Plots (matplotlib, Agg):
+
+- ``fit_per_incidence.png`` — measured vs model against the receiving angle,
+  one panel per incidence (the layout of the paper's Fig. 9), log and linear;
+- ``residuals.png`` — noise-weighted residuals vs receiving angle, per incidence;
+- ``quality_vs_incidence.png`` — χ²/dof and RMS misfit per incidence, and the
+  per-incidence refits of scale and μ with their 95 % intervals;
+- ``corner.png`` — the emcee posterior (corner package, Foreman-Mackey 2016)
+  with the Laplace 95 % intervals overlaid, when the file has an emcee section.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from jkatana.errors import InputError
+
+
+def _table_path(d: dict, params_path: Path, table=None) -> Path | None:
+    if table is not None:
+        return Path(table)
+    t = (d.get("data") or {}).get("table")
+    if not t:
+        return None
+    p = Path(t)
+    if not p.is_absolute() and not p.exists():
+        p = params_path.parent / p
+    return p
+
+
+def _refit_from_params(d: dict, table_path: Path):
+    """Rebuild the RegionFit's arrays (no solve) to plot the model at the file's values."""
+    from jkatana.fit._model import ModelSpec, from_natural
+    from jkatana.fit.region import FitData, Setup, default_model
+    from jkatana.fit._model import prepare
+    from jkatana.measure.table import read_table
+    from jkatana.spectral.grid import WavelengthGrid
+
+    table = read_table(table_path)
+    data = FitData.from_table(table, d["region"], source=table_path)
+    g = d.get("grid") or {}
+    grid = WavelengthGrid(g["start"], g["stop"], g["step"]) if g else WavelengthGrid(400, 700, 5)
+    setup = Setup(optical_constants=d["optical_constants"], grid=grid,
+                  camera=d.get("camera") or "Nikon 5100 (NPL)", light=d.get("light") or "D65")
+    opts = d.get("options") or {}
+    spec = ModelSpec(d.get("model") or default_model(d["region"]), bool(opts.get("tilt")), bool(opts.get("floor")))
+    n, k = setup.nk()
+    terms = prepare(spec.model, data.theta_i_deg, data.theta_r_deg, n, k, setup.weights())
+    p = from_natural(d["values"], spec)
+    return data, spec, terms, p
+
+
+def write_report(params_path, out_dir, *, table=None) -> Path:
+    """Write ``out_dir/report.md`` and its PNGs; returns the Markdown path."""
+    import json
+
+    import jax.numpy as jnp
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jkatana.fit._model import green
+    from jkatana.fit._solve import NoiseModel
+    from jkatana.fit.params import read_params
+    from jkatana.io.atomic import atomic_path, write_text
+
+    params_path = Path(params_path)
+    P = read_params(params_path)
+    d = P.raw
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    figs = []
+
+    def save(fig, name):
+        with atomic_path(out / name) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+        plt.close(fig)
+        figs.append(name)
+
+    tpath = _table_path(d, params_path, table)
+    scale_name = "chi" if P.model == "hiraji" else "beta"
+    if tpath is not None:
+        if not tpath.exists():
+            raise InputError("table named in the parameter file not found (pass --table)", path=tpath,
+                             field="data.table")
+        data, spec, terms, p = _refit_from_params(d, tpath)
+        m = np.asarray(green(jnp.asarray(p), terms, spec))
+        nz = d["diagnostics"].get("noise") or {}
+        noise = NoiseModel(**{k: nz[k] for k in ("relative", "absolute", "shot") if k in nz})
+        sig = np.asarray(noise.sigma(jnp.asarray(m)))
+        incs = data.incidences
+        ncol = min(3, len(incs))
+        nrow = int(np.ceil(len(incs) / ncol))
+        fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.2 * nrow), squeeze=False)
+        fig2, axes2 = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.0 * nrow), squeeze=False, sharey=True)
+        for ax, ax2, inc in zip(axes.flat, axes2.flat, incs):
+            mk = np.isclose(data.theta_i_deg, inc)
+            o = np.argsort(data.theta_r_deg[mk])
+            tr, y, mm = data.theta_r_deg[mk][o], data.value[mk][o], m[mk][o]
+            ax.plot(tr, y, ".", ms=2.5, color="0.3", label="measured")
+            ax.plot(tr, mm, "-", color="C3", lw=1.2, label="model")
+            ax.set_title(f"θi = {inc:g}°", fontsize=9)
+            ax.set_xlabel("receiving angle θr (°)", fontsize=8)
+            ax.set_ylabel("green ρg", fontsize=8)
+            pk = tr[np.argmax(mm)]
+            ax.set_xlim(pk - 12, pk + 12)
+            ins = ax.inset_axes([0.62, 0.55, 0.36, 0.4])
+            ins.semilogy(tr, np.clip(y, 1e-3 * np.max(y), None), ".", ms=1, color="0.3")
+            ins.semilogy(tr, np.clip(mm, 1e-3 * np.max(y), None), "-", color="C3", lw=0.8)
+            ins.tick_params(labelsize=5)
+            r = (mm - y) / sig[mk][o]
+            ax2.plot(tr, r, ".", ms=2, color="C0")
+            ax2.axhline(0, color="k", lw=0.6)
+            for s_ in (-2, 2):
+                ax2.axhline(s_, color="0.6", lw=0.5, ls="--")
+            ax2.set_title(f"θi = {inc:g}°", fontsize=9)
+            ax2.set_xlabel("θr (°)", fontsize=8)
+            ax2.set_ylabel("(model − data)/σ", fontsize=8)
+        axes[0, 0].legend(fontsize=7, loc="upper left")
+        for ax in list(axes.flat)[len(incs):] + list(axes2.flat)[len(incs):]:
+            ax.axis("off")
+        fig.suptitle(f"{P.region}: measured vs model ({P.model}, {P.optical_constants})", fontsize=10)
+        fig.tight_layout()
+        save(fig, "fit_per_incidence.png")
+        fig2.suptitle(f"{P.region}: normalised residuals (±2σ dashed)", fontsize=10)
+        fig2.tight_layout()
+        save(fig2, "residuals.png")
+
+    rows = d.get("per_incidence") or []
+    if rows:
+        inc = np.array([r["incidence_deg"] for r in rows])
+        fig, ax = plt.subplots(1, 3, figsize=(13, 3.6))
+        ax[0].plot(inc, [r["chi2_dof"] for r in rows], "o-")
+        ax[0].axhline(1.0, color="0.5", lw=0.8, ls="--")
+        ax[0].set_yscale("log")
+        ax[0].set_xlabel("incidence θi (°)")
+        ax[0].set_ylabel("χ²/dof of the global fit")
+        ax0b = ax[0].twinx()
+        ax0b.plot(inc, [r["rms_rel"] for r in rows], "s--", color="C1", ms=4)
+        ax0b.set_ylabel("RMS misfit / peak", color="C1")
+        for j, (name, axj) in enumerate(zip([scale_name, "mu"], ax[1:])):
+            v = [((r.get("refit") or {}).get("values") or {}).get(name, np.nan) for r in rows]
+            ci = [((r.get("refit") or {}).get("ci95") or {}).get(name, [np.nan, np.nan]) for r in rows]
+            v = np.array(v, float)
+            lo = np.array([c[0] if c[0] is not None else np.nan for c in ci], float)
+            hi = np.array([c[1] if c[1] is not None else np.nan for c in ci], float)
+            conv = np.array([bool((r.get("refit") or {}).get("converged")) for r in rows])
+            axj.errorbar(inc[conv], v[conv], yerr=[v[conv] - lo[conv], hi[conv] - v[conv]], fmt="o", capsize=3,
+                         label="per-incidence refit (95 %)")
+            if (~conv).any():
+                axj.plot(inc[~conv], v[~conv], "x", color="C3", label="refit NOT converged")
+            gv = d["values"][name]
+            glo, ghi = d["laplace"]["ci95"][name]
+            axj.axhspan(glo, ghi, color="C2", alpha=0.25)
+            axj.axhline(gv, color="C2", lw=1, label="global fit (95 %)")
+            axj.set_xlabel("incidence θi (°)")
+            axj.set_ylabel(name)
+            axj.legend(fontsize=7)
+        fig.suptitle(f"{P.region}: fit quality and parameters vs incidence", fontsize=10)
+        fig.tight_layout()
+        save(fig, "quality_vs_incidence.png")
+
+    em = d.get("emcee")
+    if em and em.get("samples"):
+        import corner
+
+        S = np.asarray(em["samples"], float)
+        names = em["names"]
+        fig = corner.corner(S, labels=names, quantiles=[0.025, 0.5, 0.975], show_titles=True,
+                            title_fmt=".4g", title_kwargs=dict(fontsize=8))
+        axes = np.array(fig.axes).reshape(len(names), len(names))
+        for i, n in enumerate(names):
+            lo, hi = d["laplace"]["ci95"][n]
+            axes[i, i].axvspan(lo, hi, color="C2", alpha=0.2)
+        fig.suptitle("emcee posterior (Laplace 95 % in green)", fontsize=9, y=1.0)
+        save(fig, "corner.png")
+
+    # ---- Markdown
+    lines = [f"# jkatana fit report — {P.region}", "",
+             f"- model: **{P.model}**, optical constants **{P.optical_constants}**, "
+             f"camera {d.get('camera')}, light {d.get('light')}",
+             f"- converged: **{P.converged}**" + ("" if P.converged else
+                                                  " — " + "; ".join(d["diagnostics"].get("reasons", []))),
+             f"- points: {d['diagnostics'].get('n_points')}, χ²/dof = {d['diagnostics'].get('chi2_dof'):.3f}, "
+             f"solver {d['diagnostics'].get('solver')}, {d['diagnostics'].get('steps')} steps",
+             f"- noise model: {d['diagnostics'].get('noise')}", "",
+             "| parameter | value | Laplace 95 % | emcee median | emcee 95 % |", "|---|---|---|---|---|"]
+    for name, v in d["values"].items():
+        lci = d["laplace"]["ci95"].get(name, [None, None])
+        med = (em or {}).get("median", {}).get(name)
+        eci = (em or {}).get("ci95", {}).get(name, [None, None])
+        f = lambda x: "—" if x is None else f"{x:.6g}"  # noqa: E731
+        lines.append(f"| {name} | {f(v)} | [{f(lci[0])}, {f(lci[1])}] | {f(med)} | [{f(eci[0])}, {f(eci[1])}] |")
+    if em:
+        dg = em["diagnostics"]
+        lines += ["", f"emcee: {dg['walkers']} walkers × {dg['steps']} steps, burn-in {dg['burn_in']}, "
+                      f"thin {dg['thin']}, acceptance {dg['acceptance_fraction']:.2f}, "
+                      f"τ = {[round(t, 1) for t in dg['tau']]}, n_eff ≈ {dg['n_eff']:.0f}, "
+                      f"chain long enough (N > 50 τ): **{dg['long_enough']}**"]
+    if rows:
+        lines += ["", "## Per incidence", "",
+                  f"| θi (°) | n | χ²/dof | RMS/peak | refit {scale_name} [95 %] | refit μ [95 %] | converged |",
+                  "|---|---|---|---|---|---|---|"]
+        for r in rows:
+            rf = r.get("refit") or {}
+            vals, ci = rf.get("values") or {}, rf.get("ci95") or {}
+
+            def cell(nm):
+                if nm not in vals:
+                    return "—"
+                lo, hi = ci.get(nm, [None, None])
+                return f"{vals[nm]:.5g} [{lo:.5g}, {hi:.5g}]" if lo is not None else f"{vals[nm]:.5g}"
+            lines.append(f"| {r['incidence_deg']:g} | {r['n']} | {r['chi2_dof']:.3g} | {r['rms_rel']:.3g} | "
+                         f"{cell(scale_name)} | {cell('mu')} | {rf.get('converged')} |")
+    lines += [""] + [f"![{f}]({f})" for f in figs] + [""]
+    md = out / "report.md"
+    write_text(md, "\n".join(lines))
+    write_text(out / "params.json", json.dumps(d, indent=2) + "\n")
+    return md
+
+
+__all__ = ["write_report"]
