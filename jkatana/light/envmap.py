@@ -171,6 +171,28 @@ class EnvMap(eqx.Module):
         L = self.radiance[:, idx] * (1 - f) + self.radiance[:, idx1] * f
         return EnvMap(L, self.grid)
 
+    def downsample(self, factor: int) -> "EnvMap":
+        """Box-filter by an integer ``factor`` in both axes, weighting by texel solid angle.
+
+        Power-preserving: ``Σ L Ω`` (every band) is unchanged up to rounding.
+        """
+        f = int(factor)
+        H, W = self.height, self.width
+        if f < 1 or H % f or W % f:
+            raise InputError(f"downsample factor {factor} must divide the map size {H}×{W}", field="factor")
+        om = texel_solid_angles_np(H, W)[:, :1]  # (H, 1)
+        L = np.asarray(self.radiance, np.float64) * om[..., None]
+        L = L.reshape(H // f, f, W // f, f, -1).sum(axis=(1, 3))
+        om2 = texel_solid_angles_np(H // f, W // f)[:, :1]
+        return EnvMap(jnp.asarray(L / om2[..., None], self.radiance.dtype), self.grid)
+
+    def resample_grid(self, grid: WavelengthGrid) -> "EnvMap":
+        """Linearly resample the spectral axis onto ``grid`` (must lie within the map's range)."""
+        from jkatana.spectral.grid import resample
+
+        L = resample(self.grid.wavelengths, np.asarray(self.radiance, np.float64), grid, name="envmap")
+        return EnvMap(jnp.asarray(L, self.radiance.dtype), grid)
+
     def scaled(self, factor) -> "EnvMap":
         return EnvMap(self.radiance * factor, self.grid)
 
