@@ -1,10 +1,43 @@
-"""Measurements: goniometer protocol, RAW ingestion (rawpy), measurement tables, synthetic goniometer."""
+"""Measurements: goniometer protocol, RAW ingestion (rawpy), measurement tables, synthetic goniometer.
 
-from jkatana.measure.camera import band_weights as band_weights, green_sensitivity as green_sensitivity
-from jkatana.measure.protocol import Protocol as Protocol, paper_protocol as paper_protocol
-from jkatana.measure.synthetic import NoiseModel as NoiseModel, simulate_table as simulate_table
-from jkatana.measure.table import (
-    MeasurementTable as MeasurementTable,
-    read_table as read_table,
-    write_table as write_table,
-)
+Modules:
+
+- :mod:`~jkatana.measure.protocol`: the paper's capture protocol and user protocols;
+- :mod:`~jkatana.measure.manifest`: the capture manifest (CSV/TOML) format;
+- :mod:`~jkatana.measure.decode`: RAW (rawpy/LibRaw), TIFF and EXR decoding, ROI statistics;
+- :mod:`~jkatana.measure.ingest`: manifest → :class:`MeasurementTable`;
+- :mod:`~jkatana.measure.table`: the measurement table and its CSV/Parquet files;
+- :mod:`~jkatana.measure.camera`: camera green sensitivity and band weights (ρ = (C/E) @ w);
+- :mod:`~jkatana.measure.synthetic`: in-memory synthetic campaigns;
+- :mod:`~jkatana.measure.goniometer`: synthetic campaigns written as DNG files + manifest.
+
+Names are imported lazily, so that decoding worker processes do not pay for
+colour-science and JAX.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "band_weights": "camera", "green_sensitivity": "camera",
+    "Protocol": "protocol", "paper_protocol": "protocol", "reduced_protocol": "protocol",
+    "NoiseModel": "synthetic", "simulate_table": "synthetic",
+    "MeasurementTable": "table", "read_table": "table", "write_table": "table",
+    "read_manifest": "manifest", "measure": "ingest", "measure_to_file": "ingest",
+    "Sensor": "goniometer", "simulate_campaign": "goniometer", "write_dng": "goniometer",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(f"jkatana.measure.{_EXPORTS[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'jkatana.measure' has no attribute {name!r}")
+
+
+def __dir__():
+    return __all__

@@ -75,7 +75,9 @@ def _read_raw(path: Path) -> Frame:
             white = float(raw.white_level)
             shutter = float(raw.other.shutter_speed) if hasattr(raw, "other") else 0.0
     except rawpy.LibRawError as err:
-        raise InputError(f"cannot decode RAW with LibRaw ({type(err).__name__}: {err})", path=path) from None
+        detail = err.args[0].decode("utf-8", "replace") if err.args and isinstance(err.args[0], bytes) else str(err)
+        hint = " — truncated or damaged file?" if isinstance(err, (rawpy.LibRawIOError, rawpy.LibRawDataError)) else ""
+        raise InputError(f"cannot decode RAW with LibRaw ({type(err).__name__}: {detail}){hint}", path=path) from None
     return Frame(dn=dn, green=np.isin(colors, green_idx), black=black_pc[colors], white=white,
                  shutter_s=shutter if math.isfinite(shutter) and shutter > 0 else 0.0)
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import math
+import multiprocessing
 from pathlib import Path
 from typing import Callable
 
@@ -111,7 +112,9 @@ def measure(manifest: str | Path | Manifest, *, workers: int = 1,
             if progress:
                 progress(len(entries))
     else:
-        with cf.ProcessPoolExecutor(max_workers=workers) as pool:
+        # LibRaw is built with OpenMP: fork() after it is loaded can deadlock, so use forkserver.
+        context = multiprocessing.get_context("forkserver")
+        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
             chunk = max(1, min(32, len(jobs) // (4 * workers)))
             for entries, res in zip(jobs, pool.map(_measure_file, [manifest.path] * len(jobs), jobs,
                                                    chunksize=chunk)):
@@ -129,7 +132,7 @@ def measure(manifest: str | Path | Manifest, *, workers: int = 1,
     return MeasurementTable.from_columns(**cols).validate(manifest.path)
 
 
-def measure_to_file(manifest: str | Path, output: str | Path, *, workers: int = 1,
+def measure_to_file(manifest: str | Path | Manifest, output: str | Path, *, workers: int = 1,
                     progress: Callable[[int], None] | None = None) -> MeasurementTable:
     """:func:`measure`, then write the table atomically (nothing is written on error)."""
     table = measure(manifest, workers=workers, progress=progress)
