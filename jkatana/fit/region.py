@@ -75,7 +75,8 @@ class FitData:
 
     @property
     def incidences(self) -> np.ndarray:
-        return np.unique(np.round(self.theta_i_deg, 6))
+        """Incidence angles (degrees) that have usable rows."""
+        return np.unique(np.round(self.theta_i_deg[self.usable], 6))
 
     def take(self, mask) -> "FitData":
         mask = np.asarray(mask, bool)
