@@ -80,7 +80,8 @@ def simulate_run(args: argparse.Namespace) -> int:
 def measure_add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("manifest", type=Path, help="capture manifest (CSV or TOML)")
     p.add_argument("-o", "--output", required=True, type=Path, help="measurement table (.csv or .parquet)")
-    p.add_argument("-j", "--workers", type=int, default=2, help="decoding processes (default 2)")
+    p.add_argument("-j", "--workers", type=int, default=0,
+                   help="decoding processes (default 0 = auto: 2 when the captures are large, else 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -92,7 +93,8 @@ def measure_run(args: argparse.Namespace) -> int:
 
     manifest = read_manifest(args.manifest)
     with _progress(len(manifest), "measure", args.quiet, unit="row") as bar:
-        table = measure_to_file(manifest, args.output, workers=args.workers, progress=bar.update)
+        table = measure_to_file(manifest, args.output, workers=args.workers or None,
+                                progress=bar.update)
     sat = int(np.count_nonzero(table.n_saturated))
     print(f"wrote {len(table)} rows to {args.output}"
           + (f"; {sat} rows had saturated photosites (excluded from their means, see n_saturated)" if sat else ""),

@@ -36,16 +36,19 @@ EXR_SUFFIXES = (".exr",)
 
 @dataclasses.dataclass
 class Frame:
-    """Green photosites of one capture.
+    """Photosites of one capture, undecoded (values are converted only inside ROIs).
 
-    ``dn``: the raw values (float64, H×W); ``green``: mask of green
-    photosites; ``black``: per-photosite black level (H×W); ``white``: white
-    level (scalar; ``inf`` when the format has none); ``shutter_s``: exposure
-    time stored in the file (0 if unknown).
+    ``dn``: the raw values (H×W, integer or float, as stored); ``colors``: the
+    CFA colour index per photosite (H×W) or None when every photosite is
+    green (TIFF/EXR); ``green_colors``: which colour indices are green;
+    ``black``: black level per colour index (or a 1-vector); ``white``: white
+    level (``inf`` when the format has none); ``shutter_s``: exposure time
+    stored in the file (0 if unknown).
     """
 
     dn: np.ndarray
-    green: np.ndarray
+    colors: np.ndarray | None
+    green_colors: tuple[int, ...]
     black: np.ndarray
     white: float
     shutter_s: float = 0.0
@@ -54,6 +57,14 @@ class Frame:
     @property
     def shape(self) -> tuple[int, int]:
         return self.dn.shape
+
+    def crop(self, y0: int, y1: int, x0: int, x1: int):
+        """``(dn float64, green mask, black per photosite)`` of a window."""
+        dn = self.dn[y0:y1, x0:x1].astype(np.float64)
+        if self.colors is None:
+            return dn, np.ones(dn.shape, bool), np.full(dn.shape, float(self.black[0]))
+        c = self.colors[y0:y1, x0:x1]
+        return dn, np.isin(c, self.green_colors), self.black[c]
 
 
 def _read_raw(path: Path) -> Frame:
@@ -65,21 +76,21 @@ def _read_raw(path: Path) -> Frame:
             if image is None or image.ndim != 2:
                 raise InputError("not a colour-filter-array RAW (no single-plane raw image); "
                                  "convert it to a linear TIFF", path=path)
-            colors = np.array(raw.raw_colors_visible)
             desc = raw.color_desc.decode("ascii", "replace")
-            green_idx = [i for i, ch in enumerate(desc) if ch == "G"]
+            green_idx = tuple(i for i, ch in enumerate(desc) if ch == "G")
             if not green_idx:
                 raise InputError(f"the colour filter array has no green photosites ({desc})", path=path)
-            black_pc = np.asarray(raw.black_level_per_channel, np.float64)
-            dn = image.astype(np.float64)
-            white = float(raw.white_level)
+            # raw_image_visible views LibRaw's buffer, valid only while the file is open: copy
+            frame = Frame(dn=np.array(image), colors=np.array(raw.raw_colors_visible, np.uint8),
+                          green_colors=green_idx, black=np.asarray(raw.black_level_per_channel, np.float64),
+                          white=float(raw.white_level))
             shutter = float(raw.other.shutter_speed) if hasattr(raw, "other") else 0.0
     except rawpy.LibRawError as err:
         detail = err.args[0].decode("utf-8", "replace") if err.args and isinstance(err.args[0], bytes) else str(err)
         hint = " — truncated or damaged file?" if isinstance(err, (rawpy.LibRawIOError, rawpy.LibRawDataError)) else ""
         raise InputError(f"cannot decode RAW with LibRaw ({type(err).__name__}: {detail}){hint}", path=path) from None
-    return Frame(dn=dn, green=np.isin(colors, green_idx), black=black_pc[colors], white=white,
-                 shutter_s=shutter if math.isfinite(shutter) and shutter > 0 else 0.0)
+    frame.shutter_s = shutter if math.isfinite(shutter) and shutter > 0 else 0.0
+    return frame
 
 
 def _read_tiff(path: Path, black: float | None, white: float | None) -> Frame:
@@ -95,9 +106,8 @@ def _read_tiff(path: Path, black: float | None, white: float | None) -> Frame:
         image = image[..., 1]
     elif image.ndim != 2:
         raise InputError(f"expects one channel or RGB(A), got shape {image.shape}", path=path)
-    dn = image.astype(np.float64)
     b = 0.0 if black is None else float(black)
-    return Frame(dn=dn, green=np.ones(dn.shape, bool), black=np.full(dn.shape, b),
+    return Frame(dn=image, colors=None, green_colors=(), black=np.array([b]),
                  white=65535.0 if white is None else float(white), kind="tiff")
 
 
@@ -113,9 +123,8 @@ def _read_exr(path: Path, black: float | None, white: float | None) -> Frame:
         if len(channels) != 1:
             raise InputError(f"no 'G' or 'Y' channel among {sorted(channels)}", path=path)
         plane = next(iter(channels.values()))
-    dn = np.asarray(plane, np.float64)
     b = 0.0 if black is None else float(black)
-    return Frame(dn=dn, green=np.ones(dn.shape, bool), black=np.full(dn.shape, b),
+    return Frame(dn=np.asarray(plane), colors=None, green_colors=(), black=np.array([b]),
                  white=math.inf if white is None else float(white), kind="exr")
 
 
@@ -151,19 +160,28 @@ def roi_stats(frame: Frame, rois, *, dark: Frame | None = None) -> RoiStats:
     than two usable photosites remain (e.g. all saturated).
     """
     H, W = frame.shape
-    mask = np.zeros((H, W), bool)
     for x, y, w, h in rois:
         if x + w > W or y + h > H:
             raise InputError(f"rectangle x={x} y={y} w={w} h={h} leaves the {W}×{H} frame")
-        mask[y:y + h, x:x + w] = True
-    mask &= frame.green
-    dn = frame.dn[mask]
-    black = frame.black[mask] if dark is None else dark.dn[mask]
+    # convert only the bounding box of the ROIs (a 10-Mpixel frame stays uint16 elsewhere)
+    y0, y1 = min(r[1] for r in rois), max(r[1] + r[3] for r in rois)
+    x0, x1 = min(r[0] for r in rois), max(r[0] + r[2] for r in rois)
+    values, green, black_px = frame.crop(y0, y1, x0, x1)
+    mask = np.zeros(values.shape, bool)
+    for x, y, w, h in rois:  # union: overlapping rectangles count each photosite once
+        mask[y - y0:y - y0 + h, x - x0:x - x0 + w] = True
+    mask &= green
+    dn = values[mask]
+    black_all = black_px[mask]
+    if dark is not None:
+        black = dark.crop(y0, y1, x0, x1)[0][mask]
+    else:
+        black = black_all
     saturated = dn >= frame.white
     n_sat = int(saturated.sum())
     keep = ~saturated
     n = int(keep.sum())
-    scale = frame.white - frame.black[mask][keep] if math.isfinite(frame.white) else 1.0
+    scale = frame.white - black_all[keep] if math.isfinite(frame.white) else 1.0
     x = (dn[keep] - black[keep]) / scale
     if n < 2:
         what = (f"all {n_sat} green photosites in the ROI are saturated" if n_sat and n == 0

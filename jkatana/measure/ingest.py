@@ -13,6 +13,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import math
 import multiprocessing
+import os
 from pathlib import Path
 from typing import Callable
 
@@ -83,14 +84,24 @@ def _raise(manifest: Manifest, error: tuple) -> None:
     raise InputError(message, path=manifest.path, row=row, field=field)
 
 
-def measure(manifest: str | Path | Manifest, *, workers: int = 1,
+def auto_workers(manifest: Manifest, *, min_bytes: int = 64 * 2**20) -> int:
+    """2 decoding processes (or the usable cores, if fewer) when the captures total more
+    than ``min_bytes``; else 1 — for small frames a process pool costs more than it saves
+    (benchmarks/bench_measure.py)."""
+    files = {e.file for e in manifest.entries}
+    total = sum(f.stat().st_size for f in files)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return min(2, cores) if total > min_bytes else 1
+
+
+def measure(manifest: str | Path | Manifest, *, workers: int | None = None,
             progress: Callable[[int], None] | None = None) -> MeasurementTable:
     """Ingest every capture of ``manifest`` into a :class:`MeasurementTable`.
 
     **Arguments:**
 
     - `manifest`: a manifest path (CSV/TOML) or a parsed :class:`Manifest`.
-    - `workers`: processes to decode with (1 = in this process).
+    - `workers`: processes to decode with (1 = in this process; None = :func:`auto_workers`).
     - `progress`: called with the number of *captures* (manifest rows) just finished.
 
     **Returns:** the table, rows in manifest order. Raises :class:`InputError`
@@ -98,6 +109,8 @@ def measure(manifest: str | Path | Manifest, *, workers: int = 1,
     """
     if not isinstance(manifest, Manifest):
         manifest = read_manifest(manifest)
+    if workers is None:
+        workers = auto_workers(manifest)
     groups: dict[Path, list[Entry]] = {}
     for e in manifest.entries:
         groups.setdefault(e.file, []).append(e)
@@ -132,7 +145,7 @@ def measure(manifest: str | Path | Manifest, *, workers: int = 1,
     return MeasurementTable.from_columns(**cols).validate(manifest.path)
 
 
-def measure_to_file(manifest: str | Path | Manifest, output: str | Path, *, workers: int = 1,
+def measure_to_file(manifest: str | Path | Manifest, output: str | Path, *, workers: int | None = None,
                     progress: Callable[[int], None] | None = None) -> MeasurementTable:
     """:func:`measure`, then write the table atomically (nothing is written on error)."""
     table = measure(manifest, workers=workers, progress=progress)
