@@ -1,0 +1,92 @@
+"""Film: spectra → CIE XYZ → display RGB → transfer (SPEC eqs. 6–8), and image files.
+
+- XYZ normalisation: ``k = 1/∫ȳ dλ`` on the render grid, so a flat spectrum of
+  radiance 1 has Y = 1 (the same normalisation as Mitsuba 3's film).
+- Display: :func:`jkatana.spectral.colorimetry.to_display` (the colourspace's
+  XYZ→RGB matrix, no chromatic adaptation, then its transfer or a gamma).
+- Files: a linear XYZ OpenEXR (channels X, Y, Z, plus ``mask``; spectral
+  channels in the Fichet et al. 2021 layout on request, through
+  :mod:`jkatana.light.spectral_exr` when present) and an 8-bit PNG; both carry
+  the scene, the grid, samples and timing (EXR header attributes / PNG text
+  chunks). Writes are atomic.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from jkatana.io.atomic import atomic_path
+from jkatana.io.exr import write_exr
+from jkatana.spectral.colorimetry import colourspace as _colourspace
+from jkatana.spectral.colorimetry import encode, to_png8, xyz_to_linear_rgb, xyz_weights
+from jkatana.spectral.grid import WavelengthGrid
+
+
+def film_weights(grid: WavelengthGrid) -> np.ndarray:
+    """``(wl, 3)`` weights: XYZ = S @ W with W = x̄ȳz̄ Δλ / Σ ȳ Δλ."""
+    w = xyz_weights(grid)
+    return w / w[:, 1].sum()
+
+
+def auto_exposure(xyz: np.ndarray, mask: np.ndarray | None = None, key: float = 0.18,
+                  percentile: float = 50.0) -> float:
+    """Exposure that maps the ``percentile`` of Y (over ``mask`` or the whole frame) to ``key``."""
+    Y = xyz[..., 1] if mask is None or not mask.any() else xyz[..., 1][mask]
+    ref = float(np.percentile(Y[np.isfinite(Y)], percentile)) if Y.size else 0.0
+    return key / ref if ref > 0 else 1.0
+
+
+def display(xyz: np.ndarray, colourspace: str = "sRGB", transfer: str | float | None = None,
+            exposure: float = 1.0) -> np.ndarray:
+    """``(H, W, 3)`` XYZ → display-encoded RGB in [0, 1]."""
+    _colourspace(colourspace)  # raises InputError for an unknown name
+    rgb = xyz_to_linear_rgb(np.asarray(xyz, np.float64) * exposure, colourspace)
+    return encode(rgb, colourspace if transfer is None else transfer)
+
+
+def _text(meta: dict) -> dict[str, str]:
+    return {k: v if isinstance(v, str) else json.dumps(v, default=str) for k, v in meta.items()}
+
+
+def write_png(path: str | Path, display_rgb: np.ndarray, meta: dict | None = None) -> Path:
+    """8-bit PNG with ``meta`` as tEXt chunks (atomic)."""
+    from PIL import Image, PngImagePlugin
+
+    info = PngImagePlugin.PngInfo()
+    for k, v in _text(meta or {}).items():
+        info.add_text(k, v)
+    with atomic_path(path) as tmp:
+        Image.fromarray(to_png8(display_rgb)).save(tmp, format="PNG", pnginfo=info)
+    return Path(path)
+
+
+def write_xyz_exr(path: str | Path, xyz: np.ndarray, mask: np.ndarray | None = None,
+                  meta: dict | None = None) -> Path:
+    """Linear XYZ float32 EXR (channels X, Y, Z[, mask]) with ``meta`` as string attributes."""
+    ch = {"X": xyz[..., 0], "Y": xyz[..., 1], "Z": xyz[..., 2]}
+    if mask is not None:
+        ch["mask"] = mask.astype(np.float32)
+    return write_exr(path, ch, header=_text(meta or {}))
+
+
+def write_spectral_exr(path: str | Path, spectra: np.ndarray, grid: WavelengthGrid,
+                       meta: dict | None = None) -> Path:
+    """Spectral radiance EXR in the Fichet et al. (2021) layout (``S0.<λ>nm`` channels)."""
+    try:
+        from jkatana.light.spectral_exr import write_spectral_exr as _write
+
+        try:
+            return _write(path, spectra, grid, header=_text(meta or {}))
+        except TypeError:
+            return _write(path, spectra, grid)
+    except ImportError:
+        ch = {}
+        for i, wl in enumerate(grid.wavelengths):
+            ch[f"S0.{wl:g}nm".replace(".", ",", 1).replace("S0,", "S0.")] = spectra[..., i]
+        hdr = _text(meta or {})
+        hdr["spectralLayoutVersion"] = "1.0"
+        hdr["emissiveUnits"] = "W.m^-2.sr^-1"
+        return write_exr(path, ch, header=hdr)

@@ -1,0 +1,175 @@
+"""One frame: G-buffer → per-pixel materials → jitted shading across local devices → XYZ image.
+
+The pixel axis is split into fixed-size calls of ``devices × chunk`` pixels,
+each call running :func:`jkatana.render.shading.shade` under
+``jax.shard_map`` over a 1-D device mesh (on CPU, several host devices come
+from ``XLA_FLAGS=--xla_force_host_platform_device_count=N``, which the CLI
+sets to the core count). Fixed call shapes mean one compilation per
+(plan, chunk) whatever the view's coverage; JAX's asynchronous dispatch keeps
+both devices busy while Python queues the next call.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import NamedSharding, PartitionSpec as PS
+
+from jkatana.render.camera import Camera
+from jkatana.render.gbuffer import GBuffer, gbuffer_mesh, gbuffer_sphere
+from jkatana.render.shading import Environment, Light, Material, Pixels, Plan, background, shade
+
+DEFAULT_CHUNK = 16384
+
+
+def sample_map(maps: jax.Array, uv: jax.Array) -> jax.Array:
+    """Bilinear lookup of a ``(H, W, C)`` reflectance map at UVs ``(P, 2)`` (clamped at the borders).
+
+    Convention (as :mod:`jkatana.maps`): column ↔ u (along the blade), row ↔ v
+    (across; row 0 at v = 0, the mune). Differentiable in ``maps``.
+    """
+    H, W = maps.shape[0], maps.shape[1]
+    x = jnp.clip(uv[:, 0] * W - 0.5, 0.0, W - 1.0)
+    y = jnp.clip(uv[:, 1] * H - 0.5, 0.0, H - 1.0)
+    x0 = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, max(W - 2, 0))
+    y0 = jnp.clip(jnp.floor(y).astype(jnp.int32), 0, max(H - 2, 0))
+    x1 = jnp.minimum(x0 + 1, W - 1)
+    y1 = jnp.minimum(y0 + 1, H - 1)
+    fx = (x - x0).astype(maps.dtype)[:, None]
+    fy = (y - y0).astype(maps.dtype)[:, None]
+    top = maps[y0, x0] * (1 - fx) + maps[y0, x1] * fx
+    bot = maps[y1, x0] * (1 - fx) + maps[y1, x1] * fx
+    return top * (1 - fy) + bot * fy
+
+
+@dataclasses.dataclass
+class Frame:
+    """A rendered frame: ``xyz (H, W, 3)`` linear, ``mask``, optional spectra, timings (s) and stats."""
+
+    xyz: np.ndarray
+    mask: np.ndarray
+    spectra: np.ndarray | None
+    timing: dict
+    stats: dict
+
+
+def devices():
+    return jax.local_devices()
+
+
+@functools.lru_cache(maxsize=32)
+def _compiled(plan: Plan, n_dev: int, chunk: int):
+    mesh = jax.make_mesh((n_dev,), ("d",), devices=jax.local_devices()[:n_dev])
+
+    def per_device(mat, env, lights, px, maps_uv, cmf, key):
+        key = jax.random.fold_in(key, jax.lax.axis_index("d"))
+        return shade(plan, mat, env, lights, px, cmf, key)
+
+    f = jax.shard_map(per_device, mesh=mesh,
+                      in_specs=(PS(), PS(), PS(), PS("d"), PS(), PS(), PS()),
+                      out_specs=(PS("d"), PS("d") if plan.spectral and not plan.factored else PS()),
+                      check_vma=False)
+    return jax.jit(f), mesh
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled_background(spectral: bool):
+    return jax.jit(lambda env, d, cmf: background(env, d, cmf, spectral))
+
+
+def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels,
+                 cmf, key, *, n_devices: int | None = None, chunk: int = DEFAULT_CHUNK):
+    """Shade ``P`` pixels in fixed-size sharded calls; returns ``(xyz (P, 3), spectra or None)`` as NumPy."""
+    n_dev = n_devices or len(jax.local_devices())
+    P = px.normal.shape[0]
+    chunk = int(min(chunk, max(256, -(-P // n_dev))))
+    chunk = -(-chunk // 256) * 256
+    call = n_dev * chunk
+    n_calls = max(1, -(-P // call))
+    pad = n_calls * call - P
+    dtype = px.normal.dtype
+
+    def padded(a, fill):
+        if pad == 0:
+            return a
+        fill_arr = jnp.broadcast_to(jnp.asarray(fill, a.dtype), (pad,) + a.shape[1:])
+        return jnp.concatenate([a, fill_arr])
+
+    px = Pixels(padded(px.position, 0.0), padded(px.normal, [0.0, 0.0, 1.0]), padded(px.view, [0.0, 0.0, 1.0]),
+                padded(px.w, 1.0), padded(px.mu0, 0.05), padded(px.mu1, 0.05))
+    f, mesh = _compiled(plan, n_dev, chunk)
+    rep = NamedSharding(mesh, PS())
+    split = NamedSharding(mesh, PS("d"))
+    mat, env, lights, cmf = jax.device_put((mat, env, lights, jnp.asarray(cmf, dtype)), rep)
+    outs = []
+    for i in range(n_calls):
+        sl = slice(i * call, (i + 1) * call)
+        chunk_px = jax.device_put(jax.tree.map(lambda a: a[sl], px), split)
+        outs.append(f(mat, env, lights, chunk_px, None, cmf, jax.device_put(jax.random.fold_in(key, i), rep)))
+    xyz = np.concatenate([np.asarray(o[0]) for o in outs])[:P]
+    spec = None
+    if outs[0][1] is not None:
+        spec = np.concatenate([np.asarray(o[1]) for o in outs])[:P]
+    return xyz, spec
+
+
+def gbuffer(geometry, camera: Camera) -> GBuffer:
+    """G-buffer of a trimesh mesh or of ``("sphere", center, radius)``."""
+    if isinstance(geometry, tuple) and geometry[0] == "sphere":
+        return gbuffer_sphere(camera, geometry[1], geometry[2])
+    return gbuffer_mesh(geometry, camera)
+
+
+def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | None, geometry,
+                 camera: Camera, maps, cmf, *, seed: int = 0, dtype=jnp.float32,
+                 n_devices: int | None = None, chunk: int = DEFAULT_CHUNK, gb: GBuffer | None = None) -> Frame:
+    """Render one frame.
+
+    **Arguments:**
+
+    - `plan`, `mat`, `env`, `lights`: see :mod:`jkatana.render.shading`.
+    - `geometry`: a ``trimesh.Trimesh`` with UVs, or ``("sphere", center, radius)``.
+    - `camera`: :class:`~jkatana.render.camera.Camera`.
+    - `maps`: ``(H, W, 3)`` array of (w, μ0, μ1) sampled at the pixels' UV.
+    - `cmf`: ``(wl, 3)`` film weights (:func:`jkatana.render.film.film_weights`).
+
+    **Returns:** a :class:`Frame`.
+    """
+    t0 = time.perf_counter()
+    gb = gb if gb is not None else gbuffer(geometry, camera)
+    t1 = time.perf_counter()
+    H, W = gb.mask.shape
+    m = gb.mask.reshape(-1)
+    sel = np.nonzero(m)[0]
+    xyz = np.zeros((H * W, 3), np.float32)
+    spectra = np.zeros((H * W, env.basis.shape[-1]), np.float32) if plan.spectral and not plan.factored else None
+    key = jax.random.PRNGKey(seed)
+    if len(sel):
+        uv = jnp.asarray(gb.uv.reshape(-1, 2)[sel], dtype)
+        mp = sample_map(jnp.asarray(maps, dtype), uv)
+        px = Pixels(jnp.asarray(gb.position.reshape(-1, 3)[sel], dtype),
+                    jnp.asarray(gb.normal.reshape(-1, 3)[sel], dtype),
+                    jnp.asarray(gb.view.reshape(-1, 3)[sel], dtype),
+                    mp[:, 0], mp[:, 1], mp[:, 2])
+        x, s = shade_pixels(plan, mat, env, lights, px, cmf, key, n_devices=n_devices, chunk=chunk)
+        xyz[sel] = x
+        if spectra is not None and s is not None:
+            spectra[sel] = s
+    t2 = time.perf_counter()
+    bg = np.nonzero(~m)[0]
+    if len(bg):
+        bx, bs = _compiled_background(spectra is not None)(env, jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype),
+                                                           jnp.asarray(cmf, dtype))
+        xyz[bg] = np.asarray(bx)
+        if spectra is not None:
+            spectra[bg] = np.asarray(bs)
+    t3 = time.perf_counter()
+    timing = {"gbuffer_s": t1 - t0, "shade_s": t2 - t1, "background_s": t3 - t2, "total_s": t3 - t0}
+    stats = {"pixels_shaded": int(len(sel)), "coverage": float(len(sel) / (H * W))}
+    return Frame(xyz.reshape(H, W, 3), gb.mask, None if spectra is None else spectra.reshape(H, W, -1),
+                 timing, stats)

@@ -1,0 +1,121 @@
+"""Visibility: a G-buffer from ray casting (trimesh, Embree through embreex when installed).
+
+One primary ray per pixel centre. The G-buffer holds, per pixel, the hit
+position, the interpolated shading normal (turned to face the camera), a
+tangent frame (∂P/∂u Gram–Schmidt-orthogonalised against the normal), the UV
+and a mask. An analytic sphere (for validation against Mitsuba and for
+benchmarks) gets an exact G-buffer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import trimesh
+
+from jkatana.errors import InputError
+from jkatana.render.camera import Camera
+
+
+@dataclasses.dataclass
+class GBuffer:
+    """Per-pixel geometry; arrays are ``(H, W, ...)``; values outside ``mask`` are 0."""
+
+    mask: np.ndarray        # (H, W) bool
+    position: np.ndarray    # (H, W, 3)
+    normal: np.ndarray      # (H, W, 3) shading normal, facing the camera
+    tangent: np.ndarray     # (H, W, 3) along +u
+    uv: np.ndarray          # (H, W, 2)
+    view: np.ndarray        # (H, W, 3) unit direction from the surface to the camera
+    ray: np.ndarray         # (H, W, 3) primary ray directions (for the background)
+
+    @property
+    def coverage(self) -> float:
+        return float(self.mask.mean())
+
+
+def _intersector(mesh: trimesh.Trimesh):
+    try:
+        from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+        return RayMeshIntersector(mesh), "embree"
+    except Exception:  # embreex missing: trimesh's rtree-based intersector
+        from trimesh.ray.ray_triangle import RayMeshIntersector
+
+        return RayMeshIntersector(mesh), "triangle"
+
+
+def gbuffer_mesh(mesh: trimesh.Trimesh, camera: Camera) -> GBuffer:
+    """Ray-cast ``mesh`` from ``camera`` (first hit per pixel).
+
+    Requires per-vertex UVs (``mesh.visual.uv``); the tangent comes from the
+    triangle's UV derivatives.
+    """
+    uv_v = getattr(mesh.visual, "uv", None)
+    if uv_v is None or len(uv_v) != len(mesh.vertices):
+        raise InputError("mesh has no per-vertex UVs (needed for the reflectance map)", field="mesh")
+    origin, dirs = camera.rays()
+    H, W, _ = dirs.shape
+    d = dirs.reshape(-1, 3)
+    o = np.broadcast_to(origin, d.shape)
+    isect, _ = _intersector(mesh)
+    loc, idx_ray, idx_tri = isect.intersects_location(o, d, multiple_hits=False)
+    n = H * W
+    mask = np.zeros(n, bool)
+    pos = np.zeros((n, 3))
+    nrm = np.zeros((n, 3))
+    tan = np.zeros((n, 3))
+    uv = np.zeros((n, 2))
+    if len(idx_ray):
+        tri = mesh.faces[idx_tri]
+        bary = trimesh.triangles.points_to_barycentric(mesh.vertices[tri], loc)
+        vn = mesh.vertex_normals[tri]
+        ns = np.einsum("pk,pkc->pc", bary, vn)
+        ng = mesh.face_normals[idx_tri]
+        ns = np.where(np.linalg.norm(ns, axis=-1, keepdims=True) > 1e-12, ns, ng)
+        ns /= np.linalg.norm(ns, axis=-1, keepdims=True)
+        # face the camera (two-sided shading: the blade is seen from both flats)
+        flip = np.sum(ns * d[idx_ray], -1) > 0
+        ns[flip] *= -1
+        t_uv = uv_v[tri]
+        uvp = np.einsum("pk,pkc->pc", bary, t_uv)
+        # tangent from UV derivatives: dP = T du + B dv
+        p0, p1, p2 = (mesh.vertices[tri[:, i]] for i in range(3))
+        e1, e2 = p1 - p0, p2 - p0
+        du1, dv1 = t_uv[:, 1, 0] - t_uv[:, 0, 0], t_uv[:, 1, 1] - t_uv[:, 0, 1]
+        du2, dv2 = t_uv[:, 2, 0] - t_uv[:, 0, 0], t_uv[:, 2, 1] - t_uv[:, 0, 1]
+        det = du1 * dv2 - du2 * dv1
+        T = (e1 * dv2[:, None] - e2 * dv1[:, None]) / np.where(np.abs(det) > 1e-20, det, 1.0)[:, None]
+        T -= np.sum(T * ns, -1, keepdims=True) * ns
+        tl = np.linalg.norm(T, axis=-1, keepdims=True)
+        fallback = np.cross(ns, [0.0, 0.0, 1.0]) + 1e-9
+        T = np.where(tl > 1e-12, T / np.maximum(tl, 1e-30), fallback / np.linalg.norm(fallback, axis=-1, keepdims=True))
+        mask[idx_ray] = True
+        pos[idx_ray], nrm[idx_ray], tan[idx_ray], uv[idx_ray] = loc, ns, T, uvp
+    view = np.where(mask[:, None], -d, 0.0)
+    return GBuffer(mask.reshape(H, W), pos.reshape(H, W, 3), nrm.reshape(H, W, 3), tan.reshape(H, W, 3),
+                   uv.reshape(H, W, 2), view.reshape(H, W, 3), dirs)
+
+
+def gbuffer_sphere(camera: Camera, center=(0.0, 0.0, 0.0), radius: float = 1.0) -> GBuffer:
+    """Exact G-buffer of a sphere (UV: u = longitude / 2π, v = colatitude / π)."""
+    origin, dirs = camera.rays()
+    H, W, _ = dirs.shape
+    oc = origin - np.asarray(center, np.float64)
+    b = dirs @ oc
+    c = oc @ oc - radius * radius
+    disc = b * b - c
+    mask = disc > 0
+    t = -b - np.sqrt(np.maximum(disc, 0.0))
+    mask &= t > 0
+    pos = origin + t[..., None] * dirs
+    n = (pos - np.asarray(center)) / radius
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    u = 0.5 + np.arctan2(n[..., 0], n[..., 2]) / (2 * np.pi)
+    v = np.arccos(np.clip(n[..., 1], -1, 1)) / np.pi
+    tan = np.stack([n[..., 2], np.zeros_like(u), -n[..., 0]], -1)
+    tl = np.linalg.norm(tan, axis=-1, keepdims=True)
+    tan = np.where(tl > 1e-9, tan / np.maximum(tl, 1e-30), [1.0, 0.0, 0.0])
+    z = lambda a: np.where(mask[..., None] if a.ndim == 3 else mask, a, 0.0)  # noqa: E731
+    return GBuffer(mask, z(pos), z(n), z(tan), z(np.stack([u, v], -1)), z(-dirs), dirs)

@@ -1,0 +1,315 @@
+"""From a validated :class:`~jkatana.render.scene.Scene` to frames and files.
+
+:func:`prepare` loads everything once (mesh, map, region parameter files,
+optical constants, environment and its sampling tables) and decides the
+static shading :class:`~jkatana.render.shading.Plan` (effects on demand);
+:func:`render_view` renders one camera / environment rotation;
+:func:`write_outputs` writes the EXR (linear XYZ) and PNG with metadata.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+import platform
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jkatana.errors import InputError
+from jkatana.render.camera import Camera
+from jkatana.render.film import auto_exposure, display, film_weights, write_png, write_spectral_exr, write_xyz_exr
+from jkatana.render.frame import Frame, render_frame
+from jkatana.render.scene import Scene
+from jkatana.render.shading import MIRROR_MU, Environment, Light, Material, Plan, build_environment, fresnel_table
+from jkatana.spectral.grid import WavelengthGrid
+
+
+@dataclasses.dataclass
+class Prepared:
+    """Everything a frame needs, loaded and on device."""
+
+    scene: Scene
+    grid: WavelengthGrid
+    dtype: object
+    geometry: object
+    maps: np.ndarray           # (H, W, 3): w, mu0, mu1
+    material: Material
+    env: Environment
+    env_info: dict
+    lights: Light | None
+    plan: Plan
+    cmf: np.ndarray
+    load_s: float
+
+
+def _grid(scene: Scene) -> WavelengthGrid:
+    s = scene.spectral
+    try:
+        return WavelengthGrid(s["start"], s["stop"], s["step"])
+    except (ValueError, InputError) as err:
+        raise InputError(str(err), path=scene.path, field="spectral") from None
+
+
+def load_geometry(scene: Scene):
+    g = scene.geometry
+    if g["kind"] == "sphere":
+        return ("sphere", g["center"], g["radius"])
+    if g["mesh"] == "builtin:katana":
+        from jkatana.shape.katana import default_blade
+
+        return default_blade()
+    import trimesh
+
+    try:
+        mesh = trimesh.load(g["mesh"], force="mesh", process=False)
+    except Exception as err:  # trimesh raises many types for bad files
+        raise InputError(f"not a readable mesh ({err})", path=g["mesh"], field="geometry.mesh") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise InputError("no triangles", path=g["mesh"], field="geometry.mesh")
+    uv = getattr(mesh.visual, "uv", None)
+    if uv is None or len(uv) != len(mesh.vertices):
+        raise InputError("mesh has no per-vertex UVs (needed for the reflectance map)", path=g["mesh"],
+                         field="geometry.mesh")
+    return mesh
+
+
+def load_maps(scene: Scene, geometry) -> tuple[np.ndarray, float, float]:
+    """``(maps (H, W, 3) of w, μ0, μ1; χ; β)`` with region parameter files applied."""
+    mat = scene.material
+    if mat["map"] is None:
+        u = mat["uniform"]
+        maps = np.array([[[u["w"], u["mu0"], u["mu1"]]]], np.float32).repeat(2, 0).repeat(2, 1)
+        chi, beta = 79000.0, 43000.0
+    else:
+        from jkatana.maps.reflectance_map import default_map, read_map
+
+        rmap = default_map() if mat["map"] == "builtin" else read_map(mat["map"])
+        _check_map_size(rmap.shape, geometry, mat["map"])
+        maps = np.stack([rmap.w, rmap.mu0, rmap.mu1], -1).astype(np.float32)
+        chi, beta = float(np.median(rmap.chi)), float(np.median(rmap.beta))
+    for region, ch, scale_name in (("hiraji", 1, "chi"), ("hamon", 2, "beta")):
+        if mat[region] is None:
+            continue
+        from jkatana.fit.params import read_params
+
+        p = read_params(mat[region])
+        if p.model != region:
+            raise InputError(f"is a {p.model!r} parameter file, expected {region!r}", path=mat[region],
+                             field=f"material.{region}")
+        # keep the map's spatial modulation (hada), rescaled to the fitted μ
+        base = maps[..., ch]
+        maps[..., ch] = base * (p.mu / max(float(np.median(base)), 1e-12))
+        if region == "hiraji":
+            chi = p.scale
+        else:
+            beta = p.scale
+    return maps, chi, beta
+
+
+def _check_map_size(shape, geometry, where):
+    """A map's (rows across, columns along) must not be transposed w.r.t. the mesh's UV domain."""
+    if isinstance(geometry, tuple):
+        return
+    H, W = shape
+    mesh = geometry
+    uv = np.asarray(mesh.visual.uv)
+    tri = mesh.faces
+    # physical length per unit u and per unit v, from the triangles' UV Jacobians
+    p = mesh.vertices[tri]
+    t = uv[tri]
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    d1, d2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    ok = np.abs(det) > 1e-12
+    if not ok.any():
+        return
+    Pu = (e1[ok] * d2[ok, 1:2] - e2[ok] * d1[ok, 1:2]) / det[ok, None]
+    Pv = (e2[ok] * d1[ok, 0:1] - e1[ok] * d2[ok, 0:1]) / det[ok, None]
+    along, across = np.median(np.linalg.norm(Pu, axis=-1)), np.median(np.linalg.norm(Pv, axis=-1))
+    if along <= 0 or across <= 0:
+        return
+    mesh_aspect = along / across        # metres along u per metre across v
+    map_aspect = W / H                  # map columns per row
+    if (mesh_aspect > 2 and map_aspect < 1) or (mesh_aspect < 0.5 and map_aspect > 1):
+        raise InputError(f"map is {H}×{W} (rows across v × columns along u) but the mesh's UV domain is "
+                         f"{mesh_aspect:.1f}× longer along u than across v: size does not match the mesh "
+                         f"(transposed map?)", path=None if where == "builtin" else where, field="material.map")
+
+
+def load_environment(scene: Scene, grid: WavelengthGrid) -> np.ndarray:
+    e = scene.environment
+    if e["type"] == "sky":
+        from jkatana.light.sky import hosek_wilkie_sky
+
+        env = hosek_wilkie_sky(e["elevation_deg"], e["azimuth_deg"], e["turbidity"], e["albedo"],
+                               e["resolution"], grid, sun=e["sun"])
+        return np.asarray(env.radiance, np.float32)
+    if e["type"] in ("exr", "hdr"):
+        from jkatana.light.envmap import load_envmap
+
+        env = load_envmap(e["path"], grid, upsampling=e["upsampling"], scale=e["scale"],
+                          colourspace=e["colourspace"])
+        return np.asarray(env.radiance, np.float32)
+    H, W = e["resolution"]
+    return np.full((H, W, grid.size), e["radiance"], np.float32)
+
+
+def rotation_y(deg: float) -> np.ndarray:
+    """Right-handed rotation about +Y used as world → map: rotating the environment by ``deg``
+    moves a feature at compass azimuth a to a + deg (azimuth clockwise from −Z towards +X)."""
+    a = math.radians(deg)
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None,
+            rank: int | None = None, env_radiance: np.ndarray | None = None) -> Prepared:
+    """Load the scene's assets and decide the shading plan (effects on demand)."""
+    t0 = time.perf_counter()
+    grid = _grid(scene)
+    dtype = jnp.float64 if scene.render["precision"] == "float64" else jnp.float32
+    if dtype == jnp.float64 and not jax.config.jax_enable_x64:
+        jax.config.update("jax_enable_x64", True)
+    geometry = load_geometry(scene)
+    maps, chi, beta = load_maps(scene, geometry)
+    from jkatana.spectral.optical_constants import load as load_oc
+
+    try:
+        n, k = load_oc(scene.material["optical_constants"]).on_grid(grid)
+    except InputError as err:
+        raise InputError(str(err), field="material.optical_constants") from None
+    mat = Material(fresnel_table(jnp.asarray(n, dtype), jnp.asarray(k, dtype)), jnp.asarray(chi, dtype),
+                   jnp.asarray(beta, dtype))
+    mode = mode or scene.render["mode"]
+    samples = samples or scene.render["samples"]
+    radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
+    env_rank = (rank or scene.render["rank"]) if mode == "lowrank" else None
+    mus = ()
+    if mode == "prefiltered":
+        lo = max(float(np.min(maps[..., 1:])), 1e-3)
+        hi = max(float(np.max(maps[..., 1:])), lo * 1.01)
+        mus = tuple(np.geomspace(lo, hi, 4))
+    env, factored, resid = build_environment(radiance, rank=env_rank,
+                                             rotation=rotation_y(scene.environment["rotation_deg"]),
+                                             prefilter_mus=mus, dtype=dtype)
+    # effects on demand: decided here, on the host, from the data
+    w = maps[..., 0]
+    hiraji = bool((w > 0).any())
+    hamon = bool((w < 1).any())
+    mirror = hiraji and float(np.max(np.where(w > 0, maps[..., 1], 0.0))) < MIRROR_MU
+    lights = None
+    if scene.lights:
+        from jkatana.spectral.colorimetry import illuminant
+
+        vec = np.array([lt["vector"] for lt in scene.lights], np.float64)
+        kind = np.array([0.0 if lt["type"] == "point" else 1.0 for lt in scene.lights])
+        spec = np.stack([illuminant(lt["spectrum"], grid) / 100.0 * lt["intensity"] for lt in scene.lights])
+        lights = Light(jnp.asarray(vec, dtype), jnp.asarray(kind, dtype), jnp.asarray(spec, dtype))
+    plan = Plan(mode=mode, samples=int(samples), hiraji=hiraji, hamon=hamon, mirror=mirror,
+                env_sampling=True, factored=factored, lights=len(scene.lights),
+                calibration=scene.material["calibration"],
+                spectral=bool(scene.output["spectral"]) and not factored)
+    env_info = {"channels": int(env.channels.shape[-1]), "factored": factored, "rank_residual": resid,
+                "grey": bool(factored and env_rank is None), "resolution": list(radiance.shape[:2])}
+    return Prepared(scene, grid, dtype, geometry, maps, mat, env, env_info, lights, plan,
+                    film_weights(grid), time.perf_counter() - t0)
+
+
+def camera_for(scene: Scene, view: int = 0, views: int = 1) -> Camera:
+    """The scene's camera; with ``views > 1`` the ``view``-th of ``views`` azimuths evenly around the target."""
+    c = scene.camera
+    w, h = c["resolution"]
+    roll = math.radians(c["roll_deg"])
+    if c["type"] == "orbit":
+        az = c["azimuth_deg"] + 360.0 * view / views
+        cam = Camera.orbit(c["target"], c["distance"], az, c["elevation_deg"], fov_deg=c["fov_deg"],
+                           width=w, height=h, up=(0.0, 1.0, 0.0))
+    else:
+        pos = np.subtract(c["position"], c["look_at"]) @ rotation_y(-360.0 * view / views).T + c["look_at"]
+        cam = Camera(tuple(pos), c["look_at"], c["up"], c["fov_deg"], w, h)
+    if roll:
+        right, up, _ = cam.frame()
+        new_up = math.cos(roll) * up + math.sin(roll) * right
+        cam = dataclasses.replace(cam, up=tuple(new_up))
+    return cam
+
+
+def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, lights: int = 1,
+                *, seed: int | None = None) -> Frame:
+    """Render one view (camera azimuth step) under one lighting (environment rotation step)."""
+    scene = prep.scene
+    env = prep.env
+    if lights > 1 or light:
+        rot = rotation_y(scene.environment["rotation_deg"] + 360.0 * light / lights)
+        env = dataclasses.replace(env, rotation=jnp.asarray(rot, prep.dtype)) if False else \
+            Environment(env.channels, env.basis, jnp.asarray(rot, prep.dtype), env.cdf, env.texel_p,
+                        env.prefiltered, env.prefilter_mus)
+    cam = camera_for(scene, view, views)
+    s = scene.render["seed"] if seed is None else seed
+    return render_frame(prep.plan, prep.material, env, prep.lights, prep.geometry, cam, prep.maps, prep.cmf,
+                        seed=s + 7919 * view + 104729 * light, dtype=prep.dtype, chunk=scene.render["chunk"])
+
+
+def exposure_for(prep: Prepared, frame: Frame) -> float:
+    e = prep.scene.film["exposure"]
+    if e != "auto":
+        return float(e)
+    if frame.mask.any():
+        return auto_exposure(frame.xyz, frame.mask, key=0.85, percentile=99.5)
+    return auto_exposure(frame.xyz, None, key=0.18, percentile=50.0)
+
+
+def metadata(prep: Prepared, frame: Frame, exposure: float, extra: dict | None = None) -> dict:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        ver = version("jkatana")
+    except PackageNotFoundError:  # pragma: no cover
+        ver = "unknown"
+    p = prep.plan
+    return {
+        "jkatana_version": ver,
+        "jkatana_scene": prep.scene.to_toml_text(),
+        "jkatana_grid": f"{prep.grid.start:g}-{prep.grid.stop:g} nm step {prep.grid.step:g} ({prep.grid.size})",
+        "jkatana_mode": p.mode,
+        "jkatana_samples": int(p.samples),
+        "jkatana_plan": json.dumps(dataclasses.asdict(p)),
+        "jkatana_environment": json.dumps(prep.env_info),
+        "jkatana_timing": json.dumps({k: round(v, 4) for k, v in frame.timing.items()}),
+        "jkatana_exposure": float(exposure),
+        "jkatana_devices": f"{len(jax.local_devices())} x {jax.default_backend()}",
+        "jkatana_xyz_normalisation": "k = 1/sum(ybar dlambda): flat radiance 1 -> Y = 1",
+        "jkatana_machine": platform.node(),
+        **(extra or {}),
+    }
+
+
+def write_outputs(prep: Prepared, frame: Frame, stem: Path, extra: dict | None = None) -> dict:
+    """Write ``stem.exr`` (linear XYZ + mask), ``stem.png`` and, on request, ``stem_spectral.exr``."""
+    stem = Path(stem)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    ex = exposure_for(prep, frame)
+    meta = metadata(prep, frame, ex, extra)
+    film = prep.scene.film
+    rgb = display(frame.xyz, film["colourspace"], film["transfer"], exposure=ex)
+    paths = {}
+    if frame.spectra is not None:
+        paths["spectral"] = write_spectral_exr(stem.with_name(stem.name + "_spectral.exr"), frame.spectra,
+                                               prep.grid, meta)
+    paths["exr"] = write_xyz_exr(stem.with_suffix(".exr"), frame.xyz, frame.mask, meta)
+    # the PNG last: its presence marks a finished frame (batch resume)
+    paths["png"] = write_png(stem.with_suffix(".png"), rgb, meta)
+    return paths
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_prepare(scene_path: str, mode, samples):  # pragma: no cover - used by dask workers
+    from jkatana.render.scene import load_scene
+
+    return prepare(load_scene(scene_path), mode=mode, samples=samples)

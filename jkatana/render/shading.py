@@ -1,0 +1,614 @@
+"""Spectral shading of G-buffer pixels under an environment (JAX, jitted).
+
+Every visible pixel carries a normal N, a view direction V (towards the
+camera) and the reflectance-map parameters at its UV (w, μ0, μ1). The
+outgoing radiance is the rendering equation with the paper's blended BRDF
+(Mochizuki et al., eq. 5)::
+
+    L_o(λ) = ∫ [w f_hiraji + (1 − w) f_hamon](L, V, λ) cos θi L_env(L, λ) dL
+             + Σ_lights f(L_j, V, λ) cos θi E_j(λ) / r_j²
+
+with f·cos θi from :meth:`jkatana.models.Hiraji.brdf_cos` /
+:meth:`jkatana.models.Hamon.brdf_cos` (normalised convention unless a
+calibration is given). The integral is estimated by one of four modes, all
+static (trace-time) choices recorded in a :class:`Plan`:
+
+- ``"reference"`` — importance sampling of the lobe mixture (Gaussian facet
+  normals, exact pdf) and of the environment (piecewise-constant luminance
+  density), combined with multiple importance sampling, balance heuristic
+  (Veach & Guibas 1995). Unbiased; its error is measured against a converged
+  frame by ``benchmarks/bench_render.py``.
+- ``"paper"`` — the paper's method (§5): a fixed number of jittered reflection
+  rays around the mirror direction (stratified facet normals in a disk of
+  radius 2.5 μ), averaged with Gaussian weights D(φ, μ). Biased (truncated,
+  self-normalised) but cheap; 30 rays in the paper.
+- ``"prefiltered"`` — split-sum: the environment pre-convolved with the
+  reflection lobe for a few μ, looked up at the mirror direction and
+  multiplied by the Fresnel factor (Karis 2013, "Real Shading in Unreal
+  Engine 4"). No noise, an approximation whose error is measured.
+- ``"lowrank"`` — ``"reference"`` sampling, but with the environment
+  projected on its first ``rank`` principal spectra (SVD over texels), so that
+  per sample only ``rank`` channels are looked up and the Fresnel factor is
+  folded into a (cos θ, rank, XYZ) table. A grey environment is exactly rank 1:
+  the renderer detects it and always runs one band (:func:`env_basis`).
+
+Effects on demand (all decided on the host before tracing, so a switched-off
+effect is absent from the compiled program): no hamon pixels → no
+Torrance–Sparrow term; all hiraji μ0 below ``MIRROR_MU`` → a mirror lookup,
+no lobe sampling; no point lights → none evaluated.
+
+Spectra leave the jitted function as CIE XYZ with ``k = 1/∫ȳ dλ`` (a flat
+spectrum of 1 has Y = 1; Mitsuba 3's film uses the same normalisation), and
+optionally as spectra.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from jkatana.light.envmap import direction_to_uv, uv_to_direction
+from jkatana.models import Hamon, Hiraji
+from jkatana.models.fresnel import fresnel_conductor
+from jkatana.models.geometry import facet_angle, half_vector_cos
+
+LN2 = math.log(2.0)
+#: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
+MIRROR_MU = 1e-4
+#: Cosine samples of the Fresnel table (linear interpolation error < 1e-6 for iron).
+FRESNEL_TABLE = 1024
+MODES = ("reference", "paper", "prefiltered", "lowrank")
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """Static (trace-time) choices of what the shader computes.
+
+    **Fields:**
+
+    - `mode`: one of :data:`MODES`.
+    - `samples`: lobe samples per pixel (``"reference"``/``"lowrank"``: pairs of
+      one lobe sample and one environment sample; ``"paper"``: jittered rays).
+    - `hiraji`, `hamon`: whether any pixel has w > 0 / w < 1.
+    - `mirror`: hiraji treated as a perfect mirror (μ0 < MIRROR_MU everywhere).
+    - `env_sampling`: importance-sample the environment too (MIS).
+    - `factored`: shade in the environment's spectral basis (rank = its channels).
+    - `lights`: number of point/directional lights (0: none evaluated).
+    - `calibration`: ``None`` for the normalised convention, else K (see models).
+    - `spectral`: also return spectra (full mode only).
+    """
+
+    mode: str = "reference"
+    samples: int = 64
+    hiraji: bool = True
+    hamon: bool = True
+    mirror: bool = False
+    env_sampling: bool = True
+    factored: bool = False
+    lights: int = 0
+    calibration: float | None = None
+    spectral: bool = False
+
+
+class Environment(eqx.Module):
+    """Environment lighting as the shader sees it.
+
+    **Fields:**
+
+    - `channels`: ``(H, W, J)``: spectral radiance (J = wavelengths, `basis`
+      unused) or coefficients on a spectral basis.
+    - `basis`: ``(J, wl)`` spectra such that radiance = channels @ basis.
+    - `rotation`: ``(3, 3)`` world → map rotation applied to every lookup.
+    - `cdf`: ``(H·W,)`` cumulative texel probabilities for sampling.
+    - `texel_p`: ``(H, W)`` texel probabilities (sum 1).
+    - `prefiltered`: ``(M, H', W', J)`` lobe-convolved maps for ``prefilter_mus`` (or empty).
+    - `prefilter_mus`: ``(M,)`` μ of each prefiltered level.
+    """
+
+    channels: Float[Array, "H W J"]
+    basis: Float[Array, "J wl"]
+    rotation: Float[Array, "3 3"]
+    cdf: Float[Array, "HW"]
+    texel_p: Float[Array, "H W"]
+    prefiltered: Float[Array, "M h w J"]
+    prefilter_mus: Float[Array, "M"]
+
+
+class Light(NamedTuple):
+    """Point (``kind`` 0: position, intensity W sr⁻¹ nm⁻¹) or directional (1: direction to light, irradiance)."""
+
+    vector: Float[Array, "n 3"]
+    kind: Float[Array, "n"]
+    spectrum: Float[Array, "n wl"]
+
+
+class Pixels(NamedTuple):
+    """G-buffer pixels (flattened, padded): world position, normal, view direction, per-pixel material."""
+
+    position: Float[Array, "P 3"]
+    normal: Float[Array, "P 3"]
+    view: Float[Array, "P 3"]
+    w: Float[Array, "P"]
+    mu0: Float[Array, "P"]
+    mu1: Float[Array, "P"]
+
+
+# ---------------------------------------------------------------- environment
+
+
+def bilinear_equirect(image: Float[Array, "H W C"], d: Float[Array, "*b 3"]) -> Float[Array, "*b C"]:
+    """Bilinear lookup of an equirectangular ``(H, W, C)`` image in direction ``d``.
+
+    Same convention and filtering as :meth:`jkatana.light.envmap.EnvMap.lookup`
+    (wrap in u, clamp in v), for any number of channels (spectral bands or
+    basis coefficients).
+    """
+    u, v = direction_to_uv(d)
+    H, W = image.shape[0], image.shape[1]
+    x = u * W - 0.5
+    y = jnp.clip(v * H - 0.5, 0.0, H - 1.0)
+    x0 = jnp.floor(x)
+    y0 = jnp.floor(y)
+    fx = (x - x0).astype(image.dtype)[..., None]
+    fy = (y - y0).astype(image.dtype)[..., None]
+    i0 = jnp.mod(x0.astype(jnp.int32), W)
+    i1 = jnp.mod(i0 + 1, W)
+    j0 = jnp.clip(y0.astype(jnp.int32), 0, H - 1)
+    j1 = jnp.minimum(j0 + 1, H - 1)
+    top = image[j0, i0] * (1 - fx) + image[j0, i1] * fx
+    bottom = image[j1, i0] * (1 - fx) + image[j1, i1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5):
+    """Spectral factorisation of an environment: ``radiance ≈ coeffs @ basis``.
+
+    ``rank=None`` keeps the full spectra (identity basis) unless the map is grey
+    (every texel a multiple of one spectrum to ``grey_rtol``), which is exactly
+    rank 1. Otherwise the first ``rank`` right singular vectors of the
+    ``(H·W, wl)`` radiance matrix (principal spectra, Eckart–Young optimal in
+    the least-squares sense).
+
+    **Returns:** ``(coeffs (H, W, J), basis (J, wl), factored: bool, rel_residual)``.
+    """
+    L = np.asarray(radiance, np.float64)
+    H, W, nwl = L.shape
+    flat = L.reshape(-1, nwl)
+    # rank-1 test on a subsample (cheap): the leading singular value carries all the energy
+    step = max(1, flat.shape[0] // 20000)
+    _, s, vt = np.linalg.svd(flat[::step], full_matrices=False)
+    energy = np.sqrt(np.sum(s[1:] ** 2)) / max(s[0], 1e-300)
+    if rank is None and energy > grey_rtol:
+        return L.astype(np.float32), np.eye(nwl, dtype=np.float32), False, 0.0
+    r = 1 if rank is None else int(rank)
+    basis = vt[:r]
+    if basis[0].sum() < 0:
+        basis = -basis
+    coeffs = flat @ basis.T
+    resid = np.linalg.norm(flat - coeffs @ basis) / max(np.linalg.norm(flat), 1e-300)
+    return (coeffs.reshape(H, W, r).astype(np.float32), basis.astype(np.float32), True, float(resid))
+
+
+def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation=None,
+                      prefilter_mus=(), prefilter_resolution: int = 256, dtype=jnp.float32):
+    """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
+
+    The sampling density is the texel's CIE Y × sin θ (piecewise constant in
+    (u, v)), the standard equirectangular construction (Pharr, Jakob &
+    Humphreys, *PBRT* 4th ed., §12.5.2).
+
+    **Returns:** ``(environment, factored, rel_residual)``.
+    """
+    from jkatana.spectral.colorimetry import cmfs
+
+    radiance = np.asarray(radiance, np.float64)
+    H, W, nwl = radiance.shape
+    coeffs, basis, factored, resid = env_basis(radiance, rank)
+    ybar = cmfs_for(nwl)
+    lum = np.maximum(radiance @ ybar, 0.0)
+    theta = (np.arange(H) + 0.5) / H * np.pi
+    weight = lum * np.sin(theta)[:, None] + 1e-12 * lum.max()
+    p = weight / weight.sum()
+    cdf = np.cumsum(p.ravel())
+    cdf /= cdf[-1]
+    rot = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
+    if len(prefilter_mus):
+        pre = prefilter(coeffs, np.asarray(prefilter_mus), prefilter_resolution)
+    else:
+        pre = np.zeros((0, 1, 1, coeffs.shape[-1]), np.float32)
+    del cmfs
+    env = Environment(jnp.asarray(coeffs, dtype), jnp.asarray(basis, dtype), jnp.asarray(rot, dtype),
+                      jnp.asarray(cdf, dtype), jnp.asarray(p, dtype), jnp.asarray(pre, dtype),
+                      jnp.asarray(np.asarray(prefilter_mus, np.float64), dtype))
+    return env, factored, resid
+
+
+_YBAR_CACHE: dict[int, np.ndarray] = {}
+
+
+def cmfs_for(nwl: int, grid=None) -> np.ndarray:
+    """ȳ on the grid with ``nwl`` samples (the default grid when it matches), for sampling densities."""
+    from jkatana.spectral import DEFAULT_GRID
+    from jkatana.spectral.colorimetry import cmfs
+
+    grid = grid or (DEFAULT_GRID if nwl == DEFAULT_GRID.size else DEFAULT_GRID.with_count(nwl))
+    return np.asarray(cmfs(grid)[:, 1])
+
+
+def sample_environment(env: Environment, u1, u2, u3):
+    """Draw directions from the texel density: ``(d_world, pdf_solid_angle)``."""
+    H, W = env.texel_p.shape
+    idx = jnp.clip(jnp.searchsorted(env.cdf, u1, side="right"), 0, H * W - 1)
+    j, i = idx // W, idx % W
+    u = (i.astype(u2.dtype) + u2) / W
+    v = (j.astype(u3.dtype) + u3) / H
+    d_map = uv_to_direction(u, v)
+    pdf = env_pdf_map(env, d_map)
+    return d_map @ env.rotation, pdf  # map → world (rotation is orthonormal)
+
+
+def env_pdf_map(env: Environment, d_map):
+    """Solid-angle density of :func:`sample_environment` at map direction ``d_map``."""
+    H, W = env.texel_p.shape
+    u, v = direction_to_uv(d_map)
+    i = jnp.mod(jnp.floor(u * W).astype(jnp.int32), W)
+    j = jnp.clip(jnp.floor(v * H).astype(jnp.int32), 0, H - 1)
+    sin_t = jnp.sqrt(jnp.maximum(1.0 - d_map[..., 1] ** 2, 0.0))
+    dens = env.texel_p[j, i] * (H * W) / (2.0 * jnp.pi * jnp.pi)
+    return jnp.where(sin_t > 1e-6, dens / jnp.maximum(sin_t, 1e-6), 0.0)
+
+
+def env_lookup(env: Environment, d_world):
+    """Environment channels in world direction ``d_world`` (rotation applied)."""
+    return bilinear_equirect(env.channels, d_world @ env.rotation.T)
+
+
+def prefilter(channels: np.ndarray, mus: np.ndarray, resolution: int = 256, n_dirs: int = 1024,
+              seed: int = 0) -> np.ndarray:
+    """Pre-convolve an environment with the reflection lobe of the paper's facet distribution.
+
+    For each μ and each output texel direction R, the average of the map over
+    mirror directions of facet normals drawn from D(φ, μ) cos φ about R
+    (normal incidence form of the lobe, as in Karis 2013's split sum).
+    Quadrature: ``n_dirs`` fixed stratified samples of the lobe, bilinear
+    lookups. Output ``(M, resolution/2, resolution, J)``.
+    """
+    ch = jnp.asarray(channels, jnp.float32)
+    h, w = resolution // 2, resolution
+    R = np.asarray(_texel_dirs(h, w)).reshape(-1, 3)
+    n = int(math.isqrt(n_dirs))
+    g = (np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="ij"), -1).reshape(-1, 2) + 0.5) / n
+    out = []
+    for mu in np.asarray(mus, np.float64):
+        sigma = max(mu, 1e-6) / math.sqrt(2 * LN2)
+        phi = np.minimum(sigma * np.sqrt(-2 * np.log1p(-g[:, 0] * (1 - math.exp(-(math.pi / 2) ** 2 / (2 * sigma**2))))),
+                         math.pi / 2)
+        psi = 2 * math.pi * g[:, 1]
+        # reflection about a facet tilted by φ at normal view: L tilted by 2φ
+        t = 2 * phi
+        local = np.stack([np.sin(t) * np.cos(psi), np.sin(t) * np.sin(psi), np.cos(t)], -1)
+        weight = np.where(t < math.pi / 2, np.cos(t), 0.0)  # cos θi of the reflected ray at normal view
+        local, weight = jnp.asarray(local, jnp.float32), jnp.asarray(weight / weight.sum(), jnp.float32)
+
+        @jax.jit
+        def conv(Rc):
+            t_, b_ = _basis(Rc)
+            d = local[None, :, 0:1] * t_[:, None] + local[None, :, 1:2] * b_[:, None] + local[None, :, 2:3] * Rc[:, None]
+            return jnp.einsum("pkc,k->pc", bilinear_equirect(ch, d), weight)
+
+        res = [np.asarray(conv(jnp.asarray(R[i:i + 4096], jnp.float32))) for i in range(0, R.shape[0], 4096)]
+        out.append(np.concatenate(res).reshape(h, w, -1))
+    return np.stack(out).astype(np.float32)
+
+
+def _texel_dirs(h, w):
+    u = (np.arange(w) + 0.5) / w
+    v = (np.arange(h) + 0.5) / h
+    return uv_to_direction(jnp.asarray(u)[None, :], jnp.asarray(v)[:, None])
+
+
+def _lookup_prefiltered(env: Environment, mu, R_world):
+    """Linear interpolation in μ between prefiltered levels (clamped to the range)."""
+    mus = env.prefilter_mus
+    M = mus.shape[0]
+    pos = jnp.interp(mu, mus, jnp.arange(M, dtype=mus.dtype))
+    k0 = jnp.clip(jnp.floor(pos).astype(jnp.int32), 0, M - 1)
+    k1 = jnp.minimum(k0 + 1, M - 1)
+    f = (pos - k0)[..., None]
+    d = R_world @ env.rotation.T
+    levels = jax.vmap(lambda img: bilinear_equirect(img, d))(env.prefiltered)  # (M, P, J)
+    P = R_world.shape[0]
+    a = levels[k0, jnp.arange(P)]
+    b = levels[k1, jnp.arange(P)]
+    return a * (1 - f) + b * f
+
+
+# ---------------------------------------------------------------- geometry helpers
+
+
+def _basis(n):
+    """Orthonormal tangent frame (t, b) for unit normals n (Duff et al. 2017, JCGT 6(1))."""
+    sign = jnp.where(n[..., 2] >= 0, 1.0, -1.0).astype(n.dtype)
+    a = -1.0 / (sign + n[..., 2])
+    b = n[..., 0] * n[..., 1] * a
+    t = jnp.stack([1.0 + sign * n[..., 0] ** 2 * a, sign * b, -sign * n[..., 0]], -1)
+    bt = jnp.stack([b, sign + n[..., 1] ** 2 * a, -n[..., 1]], -1)
+    return t, bt
+
+
+def _to_local(v, t, b, n):
+    return jnp.stack([jnp.sum(v * t, -1), jnp.sum(v * b, -1), jnp.sum(v * n, -1)], -1)
+
+
+def _to_world(v, t, b, n):
+    return v[..., 0:1] * t + v[..., 1:2] * b + v[..., 2:3] * n
+
+
+def fresnel_table(n, k, size: int = FRESNEL_TABLE):
+    """F(cos θ, λ) on ``size`` cosines uniformly in [0, 1] (exact conductor Fresnel, differentiable in n, k)."""
+    c = jnp.linspace(0.0, 1.0, size, dtype=n.dtype)
+    return fresnel_conductor(c[:, None], n, k)
+
+
+def _table_lookup(table, cos):
+    """Linear interpolation of a ``(T, ...)`` table at cosines in [0, 1]."""
+    T = table.shape[0]
+    x = jnp.clip(cos, 0.0, 1.0) * (T - 1)
+    i0 = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, T - 2)
+    f = (x - i0).astype(table.dtype)
+    f = f.reshape(f.shape + (1,) * (table.ndim - 1))
+    return table[i0] * (1 - f) + table[i0 + 1] * f
+
+
+# ---------------------------------------------------------------- lobe sampling
+
+
+def _rayleigh_sample(mu, u1, u2):
+    """Facet normal (local, N = +z) with φ ~ Rayleigh(σ = μ/√(2 ln 2)): density ∝ D(φ, μ) φ."""
+    sigma = jnp.maximum(mu, 1e-7) / math.sqrt(2 * LN2)
+    phi = sigma * jnp.sqrt(-2.0 * jnp.log1p(-jnp.minimum(u1, 1 - 1e-7)))
+    psi = 2 * jnp.pi * u2
+    s = jnp.sin(phi)
+    return jnp.stack([s * jnp.cos(psi), s * jnp.sin(psi), jnp.cos(phi)], -1), phi
+
+
+def _pdf_h(mu, phi):
+    """Solid-angle density of :func:`_rayleigh_sample` at facet angle φ (0 beyond π/2)."""
+    sigma2 = (jnp.maximum(mu, 1e-7) ** 2) / (2 * LN2)
+    d = jnp.exp(-jnp.minimum(phi * phi / (2 * sigma2), 80.0))
+    return jnp.where(phi < jnp.pi / 2, d / (2 * jnp.pi * sigma2) / jnp.sinc(phi / jnp.pi), 0.0)
+
+
+def _pdf_L(mu, L, V):
+    """Density of reflected directions L = reflect(V, h) with h from :func:`_rayleigh_sample`."""
+    phi = facet_angle(L, V)
+    _, cos_th, valid = half_vector_cos(L, V)
+    return jnp.where(valid & (cos_th > 0), _pdf_h(mu, phi) / (4.0 * jnp.maximum(cos_th, 1e-7)), 0.0)
+
+
+def _reflect(V, h):
+    return 2.0 * jnp.sum(V * h, -1, keepdims=True) * h - V
+
+
+# ---------------------------------------------------------------- BRDF (f·cos θi) per region
+
+
+class Material(eqx.Module):
+    """Differentiable material inputs: Fresnel table and the fitted scales (calibrated convention)."""
+
+    ftable: Float[Array, "T wl"]
+    chi: Float[Array, ""]
+    beta: Float[Array, ""]
+
+
+def _norms(plan: Plan, mat: Material, px: Pixels):
+    """Per-pixel lobe scales: N(μ) (normalised convention) or χ/K, β/K (calibrated). Hoisted out of the sample loop."""
+    from jkatana.models.microfacet import gaussian_normalisation
+
+    if plan.calibration is None:
+        n0 = gaussian_normalisation(px.mu0) if (plan.hiraji and not plan.mirror) else None
+        n1 = gaussian_normalisation(px.mu1) if plan.hamon else None
+        return n0, n1
+    return mat.chi / plan.calibration, mat.beta / plan.calibration
+
+
+def _fcos_scalar(plan: Plan, mat: Material, px: Pixels, L, V, norms):
+    """Scalar parts of f·cos θi (without Fresnel) per lobe with the Fresnel cosine: [(a, cos), ...].
+
+    Same expressions as :meth:`Hiraji.brdf_cos` / :meth:`Hamon.brdf_cos`,
+    split so that the Fresnel factor comes from a table.
+    """
+    out = []
+    if plan.hiraji and not plan.mirror:
+        cos_i, cos_th, d = Hiraji(mat.chi, px.mu0)._terms(L, V)
+        scale = norms[0] / (4.0 * jnp.maximum(cos_th, 1e-7)) if plan.calibration is None else norms[0]
+        out.append((px.w * scale * d, cos_i))
+    if plan.hamon:
+        cos_th, dg = Hamon(mat.beta, px.mu1)._terms(L, V)
+        scale = norms[1] / 4.0 if plan.calibration is None else norms[1]
+        out.append(((1.0 - px.w) * scale * dg, cos_th))
+    return out
+
+
+def _lobe_pdf(plan: Plan, px: Pixels, L, V):
+    """Mixture density of the lobe sampler (hiraji w, hamon 1 − w)."""
+    p = 0.0
+    if plan.hiraji and not plan.mirror:
+        p = p + _mix_w(plan, px) * _pdf_L(px.mu0, L, V)
+    if plan.hamon:
+        p = p + (1.0 - _mix_w(plan, px)) * _pdf_L(px.mu1, L, V)
+    return p
+
+
+def _mix_w(plan: Plan, px: Pixels):
+    """Probability of sampling the hiraji lobe."""
+    if plan.mirror or not plan.hiraji:
+        return jnp.zeros_like(px.w)
+    if not plan.hamon:
+        return jnp.ones_like(px.w)
+    return px.w
+
+
+# ---------------------------------------------------------------- the shader
+
+
+def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels,
+          cmf: Float[Array, "wl 3"], key) -> tuple[Array, Array | None]:
+    """Radiance of G-buffer pixels → ``(XYZ (P, 3), spectra (P, wl) or None)``.
+
+    ``cmf`` are the XYZ weights (x̄ȳz̄ Δλ / ∫ȳ). Pure JAX; jit with ``plan``
+    static. Differentiable in ``mat``, ``env.channels``/``env.basis``, ``lights``
+    and ``px`` (normals, maps).
+    """
+    dtype = px.normal.dtype
+    P = px.normal.shape[0]
+    N = px.normal
+    t, b = _basis(N)
+    Vl = _to_local(px.view, t, b, N)
+    factored = plan.factored
+    norms = _norms(plan, mat, px)
+    if factored:
+        # (T, J, 3): Fresnel folded with the basis spectra and the CMFs
+        xtable = jnp.einsum("tl,jl,lc->tjc", mat.ftable, env.basis, cmf)
+        J = env.channels.shape[-1]
+        acc = jnp.zeros((P, 3), dtype)
+    else:
+        acc = jnp.zeros((P, env.channels.shape[-1]), dtype)
+
+    def radiance_terms(Ll, Lw, weight):
+        """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space."""
+        terms = _fcos_scalar(plan, mat, px, Ll, Vl, norms)
+        E = env_lookup(env, Lw)  # (P, J)
+        total = 0.0
+        for a, c in terms:
+            if factored:
+                total = total + (a * weight)[:, None] * jnp.einsum("pjc,pj->pc", _table_lookup(xtable, c), E)
+            else:
+                total = total + (a * weight)[:, None] * _table_lookup(mat.ftable, c) * E
+        return total
+
+    # --- mirror hiraji: one deterministic lookup
+    if plan.hiraji and plan.mirror:
+        Rl = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
+        Rw = _to_world(Rl, t, b, N)
+        E = env_lookup(env, Rw)
+        cos = jnp.clip(Vl[:, 2], 0.0, 1.0)
+        wv = jnp.where(Vl[:, 2] > 0, px.w, 0.0)
+        if factored:
+            acc = acc + wv[:, None] * jnp.einsum("pjc,pj->pc", _table_lookup(xtable, cos), E)
+        else:
+            acc = acc + wv[:, None] * _table_lookup(mat.ftable, cos) * E
+
+    lobe = (plan.hiraji and not plan.mirror) or plan.hamon
+    if plan.mode == "prefiltered" and lobe:
+        # split sum: F(cos θv) × prefiltered env at the mirror direction, per lobe
+        Rl = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
+        Rw = _to_world(Rl, t, b, N)
+        cos = jnp.clip(Vl[:, 2], 0.0, 1.0)
+        for on, weight, mu in ((plan.hiraji and not plan.mirror, px.w, px.mu0), (plan.hamon, 1.0 - px.w, px.mu1)):
+            if not on:
+                continue
+            E = _lookup_prefiltered(env, mu, Rw)
+            wv = jnp.where(Vl[:, 2] > 0, weight, 0.0)
+            if factored:
+                acc = acc + wv[:, None] * jnp.einsum("pjc,pj->pc", _table_lookup(xtable, cos), E)
+            else:
+                acc = acc + wv[:, None] * _table_lookup(mat.ftable, cos) * E
+    elif plan.mode == "paper" and lobe:
+        S = plan.samples
+        nu = max(1, int(round(math.sqrt(S))))
+        nv = -(-S // nu)
+
+        def body(carry, k):
+            acc_, wsum = carry
+            kk = jax.random.fold_in(key, k)
+            j = jax.random.uniform(kk, (P, 3), dtype)
+            su = ((k // nv) + j[:, 0]) / nu
+            sv = ((k % nv) + j[:, 1]) / nv
+            # lobe choice per sample (mixture), then a stratified point in the disk φ ≤ 2.5 μ
+            use0 = j[:, 2] < _mix_w(plan, px)
+            mu = jnp.where(use0, px.mu0, px.mu1)
+            phi = 2.5 * mu * jnp.sqrt(su)
+            psi = 2 * jnp.pi * sv
+            s = jnp.sin(phi)
+            h = jnp.stack([s * jnp.cos(psi), s * jnp.sin(psi), jnp.cos(phi)], -1)
+            Ll = _reflect(Vl, h)
+            Lw = _to_world(Ll, t, b, N)
+            gauss = jnp.exp(-LN2 * (phi / jnp.maximum(mu, 1e-7)) ** 2)
+            pdf = _lobe_pdf(plan, px, Ll, Vl)
+            ok = (Ll[:, 2] > 0) & (pdf > 0)
+            g = jnp.where(ok, gauss / jnp.where(ok, pdf, 1.0), 0.0)  # Gaussian weight × 1/pdf → throughput
+            return (acc_ + radiance_terms(Ll, Lw, g), wsum + gauss), None
+
+        (lob, wsum), _ = jax.lax.scan(body, (jnp.zeros_like(acc), jnp.zeros((P,), dtype)), jnp.arange(S))
+        acc = acc + lob / jnp.maximum(wsum, 1e-30)[:, None]
+    elif lobe:  # reference / lowrank: MIS of lobe and environment sampling
+        S = plan.samples
+
+        def body(acc_, k):
+            kk = jax.random.fold_in(key, k)
+            r = jax.random.uniform(kk, (P, 6), dtype)
+            use0 = r[:, 0] < _mix_w(plan, px)
+            mu = jnp.where(use0, px.mu0, px.mu1)
+            h, _ = _rayleigh_sample(mu, r[:, 1], r[:, 2])
+            Ll = _reflect(Vl, h)
+            Lw = _to_world(Ll, t, b, N)
+            pb = _lobe_pdf(plan, px, Ll, Vl)
+            pe = env_pdf_map(env, Lw @ env.rotation.T) if plan.env_sampling else 0.0
+            ok = (Ll[:, 2] > 0) & (pb > 0)
+            wgt = jnp.where(ok, 1.0 / jnp.where(ok, pb + pe, 1.0), 0.0)
+            acc_ = acc_ + radiance_terms(Ll, Lw, wgt)
+            if plan.env_sampling:
+                Lw2, pe2 = sample_environment(env, r[:, 3], r[:, 4], r[:, 5])
+                Ll2 = _to_local(Lw2, t, b, N)
+                pb2 = _lobe_pdf(plan, px, Ll2, Vl)
+                ok2 = (Ll2[:, 2] > 0) & (pe2 > 0)
+                wgt2 = jnp.where(ok2, 1.0 / jnp.where(ok2, pb2 + pe2, 1.0), 0.0)
+                acc_ = acc_ + radiance_terms(Ll2, Lw2, wgt2)
+            return acc_, None
+
+        lob, _ = jax.lax.scan(body, jnp.zeros_like(acc), jnp.arange(S))
+        acc = acc + lob / S
+
+    # --- analytic lights (point: kind 0, directional: kind 1)
+    if plan.lights and lights is not None:
+        for j in range(plan.lights):
+            vec, kind, spec = lights.vector[j], lights.kind[j], lights.spectrum[j]
+            to_l = vec[None, :] - px.position
+            r2 = jnp.sum(to_l * to_l, -1)
+            d_point = to_l / jnp.sqrt(jnp.maximum(r2, 1e-20))[:, None]
+            d_dir = jnp.broadcast_to(vec / jnp.linalg.norm(vec), d_point.shape)
+            Lw = jnp.where(kind > 0.5, d_dir, d_point)
+            falloff = jnp.where(kind > 0.5, 1.0, 1.0 / jnp.maximum(r2, 1e-20))
+            Ll = _to_local(Lw, t, b, N)
+            terms = _fcos_scalar(plan, mat, px, Ll, Vl, norms)
+            if plan.hiraji and plan.mirror:
+                pass  # a delta lobe never sees a point light
+            for a, c in terms:
+                Fs = _table_lookup(mat.ftable, c) * spec[None, :]
+                if factored:
+                    acc = acc + (a * falloff)[:, None] * (Fs @ cmf)
+                else:
+                    acc = acc + (a * falloff)[:, None] * Fs @ _unbasis(env)
+    if factored:
+        return acc, None
+    spectra = acc @ env.basis  # identity when not factored
+    return spectra @ cmf, (spectra if plan.spectral else None)
+
+
+def _unbasis(env: Environment):
+    """Pseudo-inverse map from spectra to the accumulator's channels (identity in full mode)."""
+    return env.basis.T
+
+
+def background(env: Environment, directions, cmf, spectral: bool = False):
+    """XYZ (and spectra) of the environment seen directly along camera rays."""
+    E = env_lookup(env, directions) @ env.basis
+    return E @ cmf, (E if spectral else None)
