@@ -82,6 +82,11 @@ def measure_add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, type=Path, help="measurement table (.csv or .parquet)")
     p.add_argument("-j", "--workers", type=int, default=0,
                    help="decoding processes (default 0 = auto: 2 when the captures are large, else 1)")
+    p.add_argument("--plot", type=Path, default=None, metavar="PNG",
+                   help="also draw the table (value vs θr per incidence, log scale) to this PNG")
+    p.add_argument("--overlay", type=Path, default=None, metavar="TABLE",
+                   help="with --plot: draw this table (e.g. a simulation's truth.csv) as lines, "
+                        "and write PNG's '-residuals' companion")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -95,6 +100,14 @@ def measure_run(args: argparse.Namespace) -> int:
     with _progress(len(manifest), "measure", args.quiet, unit="row") as bar:
         table = measure_to_file(manifest, args.output, workers=args.workers or None,
                                 progress=bar.update)
+    if args.plot is not None:
+        from jkatana.measure.plot import plot_residuals, plot_table
+        from jkatana.measure.table import read_table
+
+        overlay = read_table(args.overlay) if args.overlay is not None else None
+        plot_table(table, args.plot, overlay=overlay, title=str(args.manifest))
+        if overlay is not None:
+            plot_residuals(table, overlay, args.plot.with_name(args.plot.stem + "-residuals.png"))
     sat = int(np.count_nonzero(table.n_saturated))
     print(f"wrote {len(table)} rows to {args.output}"
           + (f"; {sat} rows had saturated photosites (excluded from their means, see n_saturated)" if sat else ""),

@@ -65,7 +65,7 @@ class Sensor:
 
     **Arguments:**
 
-    - `width`, `height`: frame size in photosites (even; default 64×64).
+    - `width`, `height`: frame size in photosites (even, at least 24; default 64×64).
     - `bits`: 16 (default, effectively unquantised) or 14 (the EOS 40D).
     - `black`: black level per RGGB position; None → 4096·(1, 1.0005, 0.9995, 1)
       at 16 bits, 1024·(…) at 14 bits (slightly different per channel, as in real cameras).
@@ -83,8 +83,9 @@ class Sensor:
     gain: float = 1.0e4
 
     def __post_init__(self):
-        if self.width < 8 or self.height < 8 or self.width % 2 or self.height % 2:
-            raise InputError(f"frame must be even and at least 8×8, got {self.width}×{self.height}", field="size")
+        if self.width < 24 or self.height < 24 or self.width % 2 or self.height % 2:
+            raise InputError(f"frame must be even and at least 24×24 (LibRaw refuses frames under 22 "
+                             f"photosites a side), got {self.width}×{self.height}", field="size")
         if self.bits not in (12, 14, 16):
             raise InputError(f"bits must be 12, 14 or 16, got {self.bits}", field="bits")
         if self.full_well_e is not None and not self.full_well_e > 0:
@@ -162,6 +163,8 @@ def write_dng(path: str | Path, image: np.ndarray, *, black=(0, 0, 0, 0), white:
     image = np.ascontiguousarray(image, np.uint16)
     if image.ndim != 2:
         raise InputError(f"a CFA mosaic is 2-D, got shape {image.shape}", path=path)
+    if min(image.shape) < 22:
+        raise InputError(f"LibRaw refuses frames under 22 photosites a side, got {image.shape}", path=path)
     identity = (1, 1, 0, 1, 0, 1, 0, 1, 1, 1, 0, 1, 0, 1, 0, 1, 1, 1)  # ColorMatrix1 = I (SRATIONAL)
     tags = [
         (50706, "B", 4, (1, 4, 0, 0), True),            # DNGVersion
