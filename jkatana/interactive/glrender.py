@@ -1,0 +1,318 @@
+"""The GL side: pyrender scene, a program cache that serves jkatana's shaders, float textures.
+
+pyrender chooses shaders by file name through its renderer's
+``ShaderProgramCache`` and binds only its own uniforms and 8-bit textures.
+:class:`BakedProgramCache` (a subclass, installed on the renderer) serves
+``mesh.vert``/``mesh.frag`` from ``jkatana/interactive/shaders`` as
+:class:`BakedProgram` objects, whose ``_bind`` also binds jkatana's float
+textures (RGBA32F 3-D and 2-D-array textures, on units 8–15, above the ones pyrender
+allocates from 0) and sets jkatana's uniforms. Every other shader pyrender
+asks for is served from pyrender's own directory. jkatana's static switches
+(rank, roughness, blend) are added to the defines, so each combination is its
+own compiled program. Uniform names are checked once at link time
+(:meth:`BakedProgram.check_uniforms`): pyrender's ``set_uniform`` ignores
+misspelt names silently.
+
+:class:`SampleCountRenderer` is pyrender's ``Renderer`` with the sample count
+of its offscreen framebuffer as a parameter (pyrender hard-codes 4× MSAA,
+2–4× slower on llvmpipe); 0 gives single-sample rendering, which is what the
+reference renderer computes (one ray through each pixel centre).
+
+Import this module only after :func:`jkatana.interactive.gl.import_pyrender`
+(it imports pyrender and PyOpenGL).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from jkatana.interactive.gl import import_pyrender
+
+pyrender = import_pyrender()
+
+from OpenGL import GL  # noqa: E402
+from pyrender.renderer import Renderer  # noqa: E402
+from pyrender.shader_program import ShaderProgram, ShaderProgramCache  # noqa: E402
+
+from jkatana.interactive.bake import MAX_RANK, Baked  # noqa: E402
+
+SHADER_DIR = Path(__file__).parent / "shaders"
+_PYRENDER_SHADERS = Path(pyrender.__file__).parent / "shaders"
+_OWN = {"mesh.vert", "mesh.frag"}
+_UNIT0 = 8
+
+#: Uniforms the fragment shader must expose (checked after linking).
+UNIFORMS = ("jk_lut", "jk_map", "jk_transfer", "jk_xyz_to_rgb", "jk_env_rot", "jk_exposure",
+            "jk_log_mu_first", "jk_log_mu_step", "jk_n_levels", "jk_n_cos", "jk_n_transfer", "cam_pos")
+
+
+def _tex_array(data: np.ndarray) -> int:
+    """Upload ``(layers, H, W, 4)`` float32 as a GL_TEXTURE_2D_ARRAY RGBA32F, bilinear, s repeat, t clamp."""
+    data = np.ascontiguousarray(data, np.float32)
+    layers, h, w, _ = data.shape
+    tex = GL.glGenTextures(1)
+    GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, tex)
+    GL.glTexImage3D(GL.GL_TEXTURE_2D_ARRAY, 0, GL.GL_RGBA32F, w, h, layers, 0, GL.GL_RGBA, GL.GL_FLOAT, data)
+    for p, v in ((GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
+                 (GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT), (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE)):
+        GL.glTexParameteri(GL.GL_TEXTURE_2D_ARRAY, p, v)
+    GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, 0)
+    return int(tex)
+
+
+def _tex_3d(data: np.ndarray) -> int:
+    """Upload ``(D, H, W, 4)`` float32 as a GL_TEXTURE_3D RGBA32F, trilinear, s repeat, t and r clamp."""
+    data = np.ascontiguousarray(data, np.float32)
+    d, h, w, _ = data.shape
+    tex = GL.glGenTextures(1)
+    GL.glBindTexture(GL.GL_TEXTURE_3D, tex)
+    GL.glTexImage3D(GL.GL_TEXTURE_3D, 0, GL.GL_RGBA32F, w, h, d, 0, GL.GL_RGBA, GL.GL_FLOAT, data)
+    for p, v in ((GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
+                 (GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT), (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE),
+                 (GL.GL_TEXTURE_WRAP_R, GL.GL_CLAMP_TO_EDGE)):
+        GL.glTexParameteri(GL.GL_TEXTURE_3D, p, v)
+    GL.glBindTexture(GL.GL_TEXTURE_3D, 0)
+    return int(tex)
+
+
+def _tex_2d(data: np.ndarray, wrap_s=GL.GL_CLAMP_TO_EDGE) -> int:
+    data = np.ascontiguousarray(data, np.float32)
+    h, w, _ = data.shape
+    tex = GL.glGenTextures(1)
+    GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
+    GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA32F, w, h, 0, GL.GL_RGBA, GL.GL_FLOAT, data)
+    for p, v in ((GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
+                 (GL.GL_TEXTURE_WRAP_S, wrap_s), (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE)):
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, p, v)
+    GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+    return int(tex)
+
+
+def _rgba(x: np.ndarray) -> np.ndarray:
+    pad = np.zeros(x.shape[:-1] + (4 - x.shape[-1],), x.dtype)
+    return np.concatenate([x, pad], -1)
+
+
+class ShadingState:
+    """What the shaders read: baked tables, reflectance map, and per-frame settings.
+
+    - `baked`: :class:`jkatana.interactive.bake.Baked`; `refl_map`: ``(H, W, 3)`` w, μ0, μ1.
+    - per frame: `exposure`, `env_rotation` (radians about +Y, rotates the light with respect to the blade),
+      and the static switches `rank` (≤ baked rank), `rough`, `blend`.
+    """
+
+    def __init__(self, baked: Baked, refl_map: np.ndarray, *, exposure: float = 1.0, rank: int | None = None,
+                 rough: bool = True, blend: bool = True):
+        self.baked = baked
+        self.refl_map = np.asarray(refl_map, np.float64)
+        self.exposure = float(exposure)
+        self.env_rotation = 0.0
+        self.rank = baked.rank if rank is None else int(rank)
+        if not 1 <= self.rank <= baked.rank:
+            raise ValueError(f"rank must be 1..{baked.rank} (baked), got {self.rank}")
+        self.rough = bool(rough)
+        self.blend = bool(blend)
+        self._textures: dict[object, tuple[int, ...]] = {}
+
+    def defines(self) -> dict:
+        return {"JK_RANK": self.rank, "JK_ROUGH": int(self.rough), "JK_BLEND": int(self.blend)}
+
+    def env_rot_matrix(self) -> np.ndarray:
+        """World → environment-map rotation (about +Y by −env_rotation: the light turns by +env_rotation)."""
+        c, s = np.cos(-self.env_rotation), np.sin(-self.env_rotation)
+        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+    def textures(self) -> tuple[int, ...]:
+        """GL texture ids in the current context (uploaded on first use)."""
+        import OpenGL.contextdata
+
+        key = OpenGL.contextdata.getContext()
+        if key not in self._textures:
+            b = self.baked
+            n_mu, rank, H, W, _ = b.env.shape
+            lut = np.zeros((3,) + b.lut.shape[1:-1] + (MAX_RANK,))
+            lut[:2, ..., :rank] = b.lut
+            lut[2, ..., :2] = np.moveaxis(b.spread, 0, -1)              # layer 2: spread (hiraji, hamon)
+            self._textures[key] = (
+                _tex_array(lut),                                         # (2, n_mu, n_cos, 4)
+                _tex_2d(_rgba(self.refl_map)),
+                _tex_2d(_rgba(np.asarray(b.transfer, np.float64)[None, :, None])),
+                *(_tex_3d(_rgba(b.env[:, r])) for r in range(rank)),     # (n_mu, H, W, 4) each
+            )
+        return self._textures[key]
+
+    def delete_textures(self):
+        for ids in self._textures.values():
+            GL.glDeleteTextures(len(ids), list(ids))
+        self._textures.clear()
+
+
+class BakedProgram(ShaderProgram):
+    """pyrender's ShaderProgram whose ``_bind`` also binds jkatana's textures and uniforms."""
+
+    state: ShadingState = None
+
+    def _samplers(self):
+        names = ["jk_lut", "jk_map", "jk_transfer"] + [f"jk_env{r}" for r in range(self.state.rank)]
+        targets = [GL.GL_TEXTURE_2D_ARRAY, GL.GL_TEXTURE_2D, GL.GL_TEXTURE_2D] + [GL.GL_TEXTURE_3D] * self.state.rank
+        return names, targets
+
+    def check_uniforms(self):
+        missing = [u for u in UNIFORMS + tuple(self._samplers()[0]) if GL.glGetUniformLocation(self._program_id, u) == -1]
+        if missing:
+            raise RuntimeError(f"shader {self.fragment_shader} lacks uniforms {missing} (misspelt or unused)")
+
+    def _add_to_context(self):
+        """Compile and link (as pyrender does), then point the samplers at their units before validating.
+
+        PyOpenGL's ``compileProgram`` validates right after linking, when every
+        sampler still refers to unit 0 — invalid for samplers of different
+        types — so we link with plain GL calls and validate afterwards.
+        """
+        from OpenGL.GL import shaders as gl_shader_utils
+
+        if self._program_id is not None:
+            raise ValueError("Shader program already in context")
+        ids = [gl_shader_utils.compileShader(self._load(self.vertex_shader), GL.GL_VERTEX_SHADER),
+               gl_shader_utils.compileShader(self._load(self.fragment_shader), GL.GL_FRAGMENT_SHADER)]
+        if self._vao_id is None:
+            self._vao_id = GL.glGenVertexArrays(1)
+        GL.glBindVertexArray(self._vao_id)
+        pid = GL.glCreateProgram()
+        for i in ids:
+            GL.glAttachShader(pid, i)
+        GL.glLinkProgram(pid)
+        if GL.glGetProgramiv(pid, GL.GL_LINK_STATUS) != GL.GL_TRUE:
+            raise RuntimeError(f"link failed: {GL.glGetProgramInfoLog(pid)!r}")
+        for i in ids:
+            GL.glDeleteShader(i)
+        GL.glUseProgram(pid)
+        for k, name in enumerate(self._samplers()[0]):
+            GL.glUniform1i(GL.glGetUniformLocation(pid, name), _UNIT0 + k)
+        GL.glUseProgram(0)
+        GL.glBindVertexArray(0)
+        self._program_id = pid
+        self.check_uniforms()
+
+    def _bind(self):
+        super()._bind()
+        st, b = self.state, self.state.baked
+        pid = self._program_id
+        names, targets = self._samplers()
+        for i, (name, tex, target) in enumerate(zip(names, st.textures(), targets)):
+            GL.glActiveTexture(GL.GL_TEXTURE0 + _UNIT0 + i)
+            GL.glBindTexture(target, tex)
+            GL.glUniform1i(GL.glGetUniformLocation(pid, name), _UNIT0 + i)
+        GL.glActiveTexture(GL.GL_TEXTURE0)
+        loc = GL.glGetUniformLocation
+        GL.glUniformMatrix3fv(loc(pid, "jk_xyz_to_rgb"), 1, GL.GL_TRUE, np.asarray(b.xyz_to_rgb, np.float32))
+        GL.glUniformMatrix3fv(loc(pid, "jk_env_rot"), 1, GL.GL_TRUE, st.env_rot_matrix().astype(np.float32))
+        GL.glUniform1f(loc(pid, "jk_exposure"), st.exposure)
+        GL.glUniform1f(loc(pid, "jk_log_mu_first"), float(np.log(b.mus[0])))
+        GL.glUniform1f(loc(pid, "jk_log_mu_step"), float(np.log(b.mus[1] / b.mus[0])))
+        GL.glUniform1f(loc(pid, "jk_n_levels"), float(len(b.mus)))
+        GL.glUniform1f(loc(pid, "jk_n_cos"), float(b.lut.shape[2]))
+        GL.glUniform1f(loc(pid, "jk_n_transfer"), float(len(b.transfer)))
+
+
+class BakedProgramCache(ShaderProgramCache):
+    """Serves jkatana's ``mesh.vert``/``mesh.frag`` (with the state's defines); pyrender's shaders otherwise."""
+
+    def __init__(self, state: ShadingState):
+        super().__init__(shader_dir=str(SHADER_DIR))
+        self.state = state
+        self._fallback = ShaderProgramCache(shader_dir=str(_PYRENDER_SHADERS))
+
+    def get_program(self, vertex_shader, fragment_shader, geometry_shader=None, defines=None):
+        if vertex_shader not in _OWN or fragment_shader not in _OWN or geometry_shader is not None:
+            return self._fallback.get_program(vertex_shader, fragment_shader, geometry_shader, defines)
+        import OpenGL.contextdata
+
+        defines = dict(defines or {})
+        defines.update(self.state.defines())
+        key = (OpenGL.contextdata.getContext(), vertex_shader, fragment_shader, *sorted(defines.items()))
+        if key not in self._program_cache:
+            program = BakedProgram(str(SHADER_DIR / vertex_shader), str(SHADER_DIR / fragment_shader),
+                                   defines=defines)
+            program.state = self.state
+            self._program_cache[key] = program
+        return self._program_cache[key]
+
+    def clear(self):
+        super().clear()
+        self._fallback.clear()
+
+
+class SampleCountRenderer(Renderer):
+    """pyrender's Renderer with the offscreen framebuffer's MSAA sample count as a parameter (0 = none)."""
+
+    def __init__(self, viewport_width, viewport_height, point_size=1.0, samples: int = 0):
+        super().__init__(viewport_width, viewport_height, point_size)
+        self.samples = int(samples)
+
+    def _configure_main_framebuffer(self):
+        if self._main_fb is not None and (self.viewport_width, self.viewport_height) != self._main_fb_dims:
+            self._delete_main_framebuffer()
+        if self._main_fb is not None:
+            return
+        w, h = self.viewport_width, self.viewport_height
+
+        def fbo(samples):
+            cb, db = GL.glGenRenderbuffers(2)
+            GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, cb)
+            GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, samples, GL.GL_RGBA, w, h)
+            GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, db)
+            GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, samples, GL.GL_DEPTH_COMPONENT24, w, h)
+            fb = GL.glGenFramebuffers(1)
+            GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, fb)
+            GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, cb)
+            GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, db)
+            return fb, cb, db
+
+        self._main_fb, self._main_cb, self._main_db = fbo(0)
+        self._main_fb_ms, self._main_cb_ms, self._main_db_ms = fbo(self.samples)
+        self._main_fb_dims = (w, h)
+
+
+def build_scene(mesh, view, bg=(0.08, 0.08, 0.09)):
+    """A pyrender Scene with the blade (smooth vertex normals and UVs) and a perspective camera."""
+    material = pyrender.MetallicRoughnessMaterial(doubleSided=False)
+    prim = pyrender.Mesh.from_trimesh(mesh, material=material, smooth=True)
+    scene = pyrender.Scene(bg_color=np.array([*bg, 1.0]), ambient_light=np.zeros(3))
+    scene.add(prim, name="blade")
+    cam = pyrender.PerspectiveCamera(yfov=view.yfov, aspectRatio=view.width / view.height,
+                                     znear=0.005, zfar=20.0)
+    scene.add(cam, pose=view.pose, name="camera")
+    return scene
+
+
+class BakedOffscreenRenderer:
+    """Headless renderer: pyrender's OffscreenRenderer with jkatana's program cache and no MSAA.
+
+    **Arguments:** `state` (:class:`ShadingState`), `width`, `height`, `samples` (MSAA, default 0).
+    """
+
+    def __init__(self, state: ShadingState, width: int, height: int, samples: int = 0):
+        self.state = state
+        try:
+            self._r = pyrender.OffscreenRenderer(width, height)
+        except Exception as err:  # EGL/OSMesa cannot make a context
+            from jkatana.interactive.gl import GLUnavailable, missing_package
+
+            plat = os.environ.get("PYOPENGL_PLATFORM", "egl")
+            pkg = missing_package(plat) or "libgl1-mesa-dri"
+            raise GLUnavailable(f"no OpenGL context on {plat} ({err}); install the Debian package {pkg}") from err
+        r = SampleCountRenderer(width, height, samples=samples)
+        r._program_cache = BakedProgramCache(state)
+        self._r._renderer = r
+
+    def render(self, scene) -> np.ndarray:
+        """One frame, ``(H, W, 3)`` uint8 display RGB (row 0 at the top)."""
+        color, _ = self._r.render(scene)
+        return color
+
+    def delete(self):
+        self._r.delete()

@@ -1,0 +1,203 @@
+"""Scene content for the interactive path: blade, reflectance map, environments, cameras.
+
+Uses the project's own blade (:func:`jkatana.shape.katana.default_blade`) and
+reflectance map (:func:`jkatana.maps.reflectance_map.default_map`) when they are
+available, else small stand-ins built here with the same conventions (Y up,
+blade along +X, edge toward −Y, flats facing ±Z; UV u along the blade, v across
+from mune 0 to ha 1).
+
+Built-in environments (equirectangular, Y up, see
+:func:`jkatana.interactive.bake.texel_directions`), spectral on the grid:
+
+- ``"sky"`` (default): CIE daylight sky, 12000 K at the zenith to 6500 K at the
+  horizon, a grey ground, and a soft 5500 K sun (3° radius) at 35° elevation.
+- ``"sun"``: sun-dominated — a small (1.5°), bright 5000 K sun at 50° elevation
+  over a dim sky.
+- ``"studio"``: a dark room with two rectangular softboxes, one CIE D50 and one
+  CIE illuminant A (tungsten), and a grey floor.
+
+Spectra are CIE illuminants from :func:`jkatana.spectral.illuminant`,
+normalised so that a radiance of 1 has luminance Y = 1 (eq. 6 weights).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import numpy as np
+import trimesh
+
+from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
+from jkatana.spectral.colorimetry import illuminant, xyz_weights
+
+from jkatana.interactive.bake import texel_directions
+
+ENVIRONMENTS = ("sky", "sun", "studio")
+
+
+def _unit_y(spectrum: np.ndarray, grid: WavelengthGrid) -> np.ndarray:
+    return spectrum / float(spectrum @ xyz_weights(grid)[:, 1])
+
+
+def _dir(elev_deg: float, azim_deg: float) -> np.ndarray:
+    """Direction from elevation above the horizon and azimuth clockwise from −Z (north) toward +X (east)."""
+    e, a = np.deg2rad(elev_deg), np.deg2rad(azim_deg)
+    return np.array([np.cos(e) * np.sin(a), np.sin(e), -np.cos(e) * np.cos(a)])
+
+
+def _disc(d: np.ndarray, centre: np.ndarray, radius_deg: float, soft_deg: float) -> np.ndarray:
+    ang = np.rad2deg(np.arccos(np.clip(d @ centre, -1.0, 1.0)))
+    return np.clip((radius_deg + soft_deg - ang) / (2 * soft_deg), 0.0, 1.0)
+
+
+def environment(name: str = "sky", grid: WavelengthGrid = DEFAULT_GRID, height: int = 128) -> np.ndarray:
+    """A built-in spectral environment ``(height, 2·height, wl)`` (see the module docstring)."""
+    if name not in ENVIRONMENTS:
+        raise ValueError(f"unknown environment {name!r}; built-in: {', '.join(ENVIRONMENTS)}")
+    d = texel_directions(height, 2 * height)
+    y = d[..., 1:2]
+    up = np.clip(y, 0.0, 1.0)
+    ground = (y < 0).astype(np.float64)
+    d65 = _unit_y(illuminant("D65", grid), grid)
+    if name in ("sky", "sun"):
+        zen = _unit_y(illuminant(12000, grid), grid)
+        hor = _unit_y(illuminant(6500, grid), grid)
+        t = up ** 0.5
+        level = 0.9 if name == "sky" else 0.35
+        sky = level * ((1 - t) * hor * 1.2 + t * zen * 0.6)
+        rad = sky * (1 - ground) + ground * 0.12 * level * d65 * (1 - 0.5 * np.clip(-y, 0, 1))
+        if name == "sky":
+            sun, r, soft, power, cct = _dir(35.0, 40.0), 3.0, 1.0, 12.0, 5500
+        else:
+            sun, r, soft, power, cct = _dir(50.0, -30.0), 1.5, 0.75, 120.0, 5000
+        rad = rad + _disc(d, sun, r, soft)[..., None] * power * _unit_y(illuminant(cct, grid), grid)
+        return rad
+    # studio
+    rad = 0.02 * np.ones_like(y) * d65 + ground * 0.15 * d65
+    d50 = _unit_y(illuminant(5000, grid), grid)
+    tung = _unit_y(illuminant("A", grid), grid)
+    for (elev, az, w_deg, h_deg, spec, power) in ((25.0, -50.0, 30.0, 40.0, d50, 4.0),
+                                                  (15.0, 70.0, 12.0, 50.0, tung, 2.5)):
+        elev_d = np.rad2deg(np.arcsin(np.clip(y[..., 0], -1, 1)))
+        az_d = np.rad2deg(np.arctan2(d[..., 0], -d[..., 2]))
+        daz = (az_d - az + 180.0) % 360.0 - 180.0
+        box = ((np.abs(daz) < w_deg / 2) & (np.abs(elev_d - elev) < h_deg / 2)).astype(np.float64)
+        rad = rad + box[..., None] * power * spec
+    return rad
+
+
+# ----------------------------------------------------------------------------- blade and map
+
+
+def _standin_blade(n_along: int = 200, n_across: int = 24) -> trimesh.Trimesh:
+    """A lens-section blade 0.7 m long, 30 mm wide, 7 mm thick with smooth normals and UVs."""
+    u = np.linspace(0.0, 1.0, n_along)
+    v = np.linspace(0.0, 1.0, n_across)
+    U, Vv = np.meshgrid(u, v, indexing="ij")
+    x = 0.7 * U
+    sag = 0.018 * (1 - (2 * U - 1) ** 2)
+    y = -0.030 * Vv - sag + 0.018
+    verts, uvs, faces = [], [], []
+    for side in (+1, -1):
+        z = side * 0.0035 * np.sin(np.pi * np.clip(Vv * 0.9 + 0.1, 0, 1)) ** 0.6
+        base = sum(len(p) for p in verts)
+        verts.append(np.stack([x, y, z], -1).reshape(-1, 3))
+        uvs.append(np.stack([U, Vv], -1).reshape(-1, 2))
+        i = np.arange(n_along - 1)[:, None] * n_across + np.arange(n_across - 1)[None, :]
+        q = np.stack([i, i + n_across, i + n_across + 1, i + 1], -1).reshape(-1, 4) + base
+        f = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+        faces.append(f if side > 0 else f[:, ::-1])
+    mesh = trimesh.Trimesh(np.concatenate(verts), np.concatenate(faces), process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.concatenate(uvs))
+    return mesh
+
+
+@functools.lru_cache(maxsize=2)
+def blade() -> trimesh.Trimesh:
+    """The project's default blade if :mod:`jkatana.shape` provides it, else a stand-in."""
+    try:
+        from jkatana.shape.katana import default_blade
+    except ImportError:
+        return _standin_blade()
+    return default_blade()
+
+
+@dataclasses.dataclass(frozen=True)
+class ReflectanceMap:
+    """Per-texel blend weight and lobe widths, ``(H, W)`` each; row 0 is v = 0 (the mune)."""
+
+    w: np.ndarray
+    mu0: np.ndarray
+    mu1: np.ndarray
+
+    def stacked(self) -> np.ndarray:
+        return np.stack([self.w, self.mu0, self.mu1], -1).astype(np.float64)
+
+
+def _standin_map(height: int = 64, width: int = 512) -> ReflectanceMap:
+    u = (np.arange(width) + 0.5) / width
+    v = (np.arange(height) + 0.5) / height
+    line = 0.72 + 0.05 * np.sin(2 * np.pi * 9 * u) + 0.02 * np.sin(2 * np.pi * 23 * u + 1.0)
+    w = np.clip((line[None, :] - v[:, None]) / 0.04 + 0.5, 0.0, 1.0)
+    return ReflectanceMap(w=w, mu0=np.full_like(w, 0.05), mu1=np.full_like(w, 0.05))
+
+
+@functools.lru_cache(maxsize=2)
+def reflectance_map() -> ReflectanceMap:
+    """The project's default map if :mod:`jkatana.maps` provides it, else a stand-in (wavy hamon line)."""
+    try:
+        from jkatana.maps.reflectance_map import default_map
+        m = default_map()
+        w, mu0, mu1 = (np.asarray(getattr(m, k) if hasattr(m, k) else m[k], np.float64)
+                       for k in ("w", "mu0", "mu1"))
+        return ReflectanceMap(w=w, mu0=mu0, mu1=mu1)
+    except Exception:  # not landed yet, or a different layout
+        return _standin_map()
+
+
+# ----------------------------------------------------------------------------- cameras
+
+
+def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """Camera-to-world pose (OpenGL convention: the camera looks along its −Z, +Y up)."""
+    eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
+    f = target - eye
+    f /= np.linalg.norm(f)
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = r, u, -f, eye
+    return pose
+
+
+@dataclasses.dataclass(frozen=True)
+class View:
+    """A pinhole camera: pose (camera-to-world 4×4), vertical field of view (radians), image size."""
+
+    pose: np.ndarray
+    yfov: float
+    width: int
+    height: int
+
+
+def orbit_views(mesh: trimesh.Trimesh, n: int, width: int = 800, height: int = 600,
+                distance: float = 0.75, elevation_deg: float = 15.0, spread_deg: float = 50.0):
+    """``n`` views on an arc in front of the omote (+Z) face, looking at the blade's centre."""
+    c = mesh.bounds.mean(axis=0)
+    az = np.linspace(-spread_deg, spread_deg, n) if n > 1 else np.zeros(1)
+    e = np.deg2rad(elevation_deg)
+    out = []
+    for a in np.deg2rad(az):
+        eye = c + distance * np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+        out.append(View(look_at(eye, c), np.deg2rad(50.0), width, height))
+    return out
+
+
+def closeup_view(mesh: trimesh.Trimesh, width: int = 800, height: int = 600) -> View:
+    """A close-up in which the flat near the hamon fills the frame (as appraisers look)."""
+    lo, hi = mesh.bounds
+    target = np.array([0.45 * hi[0], 0.5 * (lo[1] + hi[1]), 0.0])
+    eye = target + np.array([0.0, 0.004, 0.045])
+    return View(look_at(eye, target), np.deg2rad(40.0), width, height)

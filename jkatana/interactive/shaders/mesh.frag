@@ -1,0 +1,113 @@
+#version 330 core
+// jkatana interactive path: fragment stage.
+//
+// Shades the paper's blend (eq. 5) of hiraji (eq. 1) and hamon (eq. 2) under
+// an environment, with tables baked by jkatana.interactive.bake from the JAX
+// models (nothing here re-derives a model):
+//   XYZ = sum_r A_r(cos θv, μ) · P_r(R; μ)
+// with A = w A_hiraji(μ0) + (1 − w) A_hamon(μ1) and the environment read at
+// the blended level w·ℓ(μ0) + (1 − w)·ℓ(μ1) (ℓ: log-spaced level index; exact
+// where w is 0 or 1). P_r is a 3-D texture (u, v, level), so one trilinear
+// fetch per basis function interpolates the μ levels too.
+// A_r: lobe LUT (Fresnel low-rank coefficients × lobe energy × G), per model;
+// P_r: environment projected on the spectral basis b_r and on the CIE 1931
+// weights, prefiltered per μ level. Then XYZ → linear RGB (eq. 7, baked
+// matrix) → transfer (eq. 8, baked table indexed by sqrt).
+//
+// Static switches (pyrender text-replaces define names, so they are plain
+// integers here): JK_RANK (1..4), JK_ROUGH (0: mirror-like, the narrowest μ
+// level), JK_BLEND (0: hiraji everywhere).
+
+in vec3 frag_position;
+in vec3 frag_normal;
+in vec2 uv_0;
+
+out vec4 frag_color;
+
+uniform vec3 cam_pos;
+uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
+#if JK_RANK > 1
+uniform sampler3D jk_env1;
+#endif
+#if JK_RANK > 2
+uniform sampler3D jk_env2;
+#endif
+#if JK_RANK > 3
+uniform sampler3D jk_env3;
+#endif
+uniform sampler2DArray jk_lut;      // layer 0 hiraji, 1 hamon: rgba = A_0..A_3; layer 2: rg = lobe spread
+                                    // (log rms-width ratio, hiraji, hamon); s: cos θv, t: μ level
+uniform sampler2D jk_map;           // r = w, g = μ0, b = μ1
+uniform sampler2D jk_transfer;      // 1 row: encode(s²)
+uniform mat3 jk_xyz_to_rgb;
+uniform mat3 jk_env_rot;
+uniform float jk_exposure;
+uniform float jk_log_mu_first;
+uniform float jk_log_mu_step;
+uniform float jk_n_levels;
+uniform float jk_n_cos;
+uniform float jk_n_transfer;
+
+const float JK_PI = 3.14159265358979;
+
+float level_of(float mu)
+{
+    return clamp((log(max(mu, 1e-6)) - jk_log_mu_first) / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
+}
+
+vec4 lobe(float layer, float cv, float lvl)
+{
+    vec2 st = vec2((cv * (jk_n_cos - 1.0) + 0.5) / jk_n_cos, (lvl + 0.5) / jk_n_levels);
+    return texture(jk_lut, vec3(st, layer));
+}
+
+float encode1(float x)
+{
+    float s = sqrt(clamp(x, 0.0, 1.0));
+    return texture(jk_transfer, vec2((s * (jk_n_transfer - 1.0) + 0.5) / jk_n_transfer, 0.5)).r;
+}
+
+void main()
+{
+    vec3 N = normalize(frag_normal);
+    vec3 Vd = normalize(cam_pos - frag_position);
+    float cv = dot(N, Vd);
+    vec3 xyz = vec3(0.0);
+    if (cv > 0.0) {
+        vec3 R = jk_env_rot * (2.0 * cv * N - Vd);
+        vec3 m = texture(jk_map, uv_0).rgb;
+#if JK_BLEND
+        float w = m.r;
+#else
+        float w = 1.0;
+#endif
+#if JK_ROUGH
+        float lf = level_of(m.g);
+        float lt = level_of(m.b);
+#else
+        float lf = 0.0;
+        float lt = 0.0;
+#endif
+        vec4 a = w * lobe(0.0, cv, lf) + (1.0 - w) * lobe(1.0, cv, lt);
+#if JK_ROUGH
+        vec2 spread = lobe(2.0, cv, mix(lt, lf, w)).rg / jk_log_mu_step;
+        float le = clamp(mix(lt + spread.g, lf + spread.r, w), 0.0, jk_n_levels - 1.0);
+#else
+        float le = 0.0;
+#endif
+        vec3 p = vec3(0.5 + atan(R.x, -R.z) / (2.0 * JK_PI), acos(clamp(R.y, -1.0, 1.0)) / JK_PI,
+                      (le + 0.5) / jk_n_levels);
+        xyz = a.x * texture(jk_env0, p).rgb;
+#if JK_RANK > 1
+        xyz += a.y * texture(jk_env1, p).rgb;
+#endif
+#if JK_RANK > 2
+        xyz += a.z * texture(jk_env2, p).rgb;
+#endif
+#if JK_RANK > 3
+        xyz += a.w * texture(jk_env3, p).rgb;
+#endif
+    }
+    vec3 rgb = jk_xyz_to_rgb * (xyz * jk_exposure);
+    frag_color = vec4(encode1(rgb.r), encode1(rgb.g), encode1(rgb.b), 1.0);
+}
