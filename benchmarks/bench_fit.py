@@ -1,0 +1,202 @@
+"""Fitting benchmarks: region fit time, per-pixel throughput, emcee, float32 vs float64, solvers, intervals.
+
+Every approximation is measured against a reference with error and time side
+by side: solvers against the float64 LM optimum, the fixed-step per-pixel fit
+against a per-pixel optimistix LM (max 200 steps), float32 against float64,
+Laplace intervals against emcee's. float32 runs in a subprocess with
+``jax_enable_x64`` off (lineax fails on mixed dtypes when x64 is on).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from benchmarks._harness import record, timeit
+
+B = "bench_fit"
+
+
+def _campaign(region="hiraji", seed=0):
+    from jkatana.fit import FitData
+    from jkatana.measure import synthetic
+    from jkatana.measure.protocol import paper_protocol
+
+    table, _ = synthetic.simulate_table(paper_protocol(), region, seed=seed,
+                                        noise=synthetic.NoiseModel(relative=0.02, floor=20.0))
+    return FitData.from_table(table, region)
+
+
+def _pixels(P, dtype, seed=0):
+    import jax.numpy as jnp
+
+    from jkatana.fit import NoiseModel, Setup, prepare
+    from jkatana.fit._model import ModelSpec, green
+
+    pairs = np.array([(45.0, 35.0 + 0.1 * i) for i in range(200)])
+    setup = Setup()
+    n, k = setup.nk()
+    terms = prepare("hiraji", pairs[:, 0], pairs[:, 1], n, k, setup.weights(), dtype)
+    rng = np.random.default_rng(seed)
+    chi = rng.uniform(3e4, 1.2e5, P)
+    mu = rng.uniform(0.02, 0.08, P)
+    t64 = prepare("hiraji", pairs[:, 0], pairs[:, 1], n, k, setup.weights())
+    spec = ModelSpec("hiraji")
+    import jax
+
+    f = jax.jit(jax.vmap(lambda p: green(p, t64, spec)))
+    clean = np.asarray(f(jnp.asarray(np.log(np.stack([chi, mu], 1)))))
+    nm = NoiseModel(relative=0.02, absolute=20.0)
+    Y = clean + rng.standard_normal(clean.shape) * np.asarray(nm.sigma(jnp.asarray(clean)))
+    return terms, Y, chi, mu, nm
+
+
+def _float32_worker():
+    """Runs in a subprocess with x64 off: float32 region fits (LM, Dogleg; near and far start), pixels."""
+    import jax
+    import jax.numpy as jnp
+
+    from jkatana.fit import fit_pixels
+    from jkatana.fit._solve import NoiseModel
+    from jkatana.fit.region import fit_region
+
+    out = {}
+    data = _campaign("hamon", seed=1)
+    for solver in ("lm", "dogleg"):
+        for start_name, start in (("closed", None), ("far", {"beta": 1e4, "mu": 0.1})):
+            f = fit_region(data, solver=solver, start=start, dtype=jnp.float32, per_incidence=False, irls=False)
+            t = timeit(lambda: fit_region(data, solver=solver, start=start, dtype=jnp.float32,
+                                          per_incidence=False, irls=False), repeats=3)
+            out[f"{solver}_{start_name}"] = dict(values=f.values, converged=f.converged, reasons=f.reasons,
+                                                 time_s=t)
+    for P in (2000,):
+        terms, Y, chi, mu, nm = _pixels(P, jnp.float32)
+        r = fit_pixels(Y, terms, noise=nm)
+        t = timeit(lambda: fit_pixels(Y, terms, noise=nm), repeats=3)
+        out["pixels"] = dict(P=P, fits_per_s=P / t["median"], stragglers=r["n_stragglers"],
+                             mu=r["mu"].tolist(), scale=r["scale"].tolist(), converged=r["converged"].tolist())
+    print("JSON" + json.dumps(out))
+
+
+def run(quick: bool) -> list[dict]:
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    from jkatana.fit import fit_pixels, fit_region, sample
+    from jkatana.fit._solve import closed_form_start, solve
+    from jkatana.fit.region import fit_arrays
+
+    rows = []
+    log = lambda *a: print(*a, file=sys.stderr, flush=True)  # noqa: E731
+
+    # ---- region fits: solvers after JIT, error vs the LM optimum
+    for region in ("hiraji", "hamon"):
+        data = _campaign(region)
+        ref = fit_region(data, per_incidence=False)
+        y = jnp.asarray(np.where(data.usable, data.value, 0.0))
+        w = jnp.asarray(ref.weight)
+        terms, spec = ref.terms, ref.spec
+        t_cf = timeit(lambda: closed_form_start(terms, y, w, spec), repeats=20)
+        p_cf = np.asarray(closed_form_start(terms, y, w, spec))
+        rows.append(record(B, dict(region=region, method="closed form only", n_points=int(data.usable.sum())),
+                           time_s=t_cf, error=dict(max_abs_log_param=float(np.max(np.abs(p_cf - ref.p)))),
+                           reference="float64 optimistix LM optimum"))
+        log(region, "closed form", t_cf["median"])
+        p0 = closed_form_start(terms, y, w, spec)
+        for solver in ("lm", "dogleg", "gn", "jaxopt"):
+            out = solve(terms, y, w, p0, spec=spec, solver=solver)
+            t = timeit(lambda: solve(terms, y, w, p0, spec=spec, solver=solver), repeats=20)
+            rows.append(record(B, dict(region=region, method=f"solve {solver} from closed form",
+                                       n_points=int(data.usable.sum())), time_s=t,
+                               error=dict(max_abs_log_param=float(np.max(np.abs(np.asarray(out["p"]) - ref.p)))),
+                               reference="float64 optimistix LM optimum", steps=int(out["steps"]),
+                               goal="<= 1 ms per region fit"))
+            log(region, solver, t["median"], int(out["steps"]))
+        t_full = timeit(lambda: fit_region(data, per_incidence=False), repeats=3)
+        rows.append(record(B, dict(region=region, method="fit_region (noise estimate, prepare, 2 solves, Laplace)"),
+                           time_s=t_full))
+        t_pi = timeit(lambda: fit_region(data, per_incidence=True), repeats=3)
+        rows.append(record(B, dict(region=region, method="fit_region + per-incidence refits"), time_s=t_pi))
+        # emcee
+        em = sample(ref, seed=0)
+        d = em["diagnostics"]
+        widths = {n: dict(laplace=ref.laplace["ci95"][n][1] - ref.laplace["ci95"][n][0],
+                          emcee=em["ci95"][n][1] - em["ci95"][n][0]) for n in spec.names}
+        rows.append(record(B, dict(region=region, method="emcee (32 walkers, vectorised JAX log-prob)"),
+                           time_s=dict(median=d["time_s"]), steps=d["steps"], tau=d["tau"], n_eff=d["n_eff"],
+                           acceptance=d["acceptance_fraction"], long_enough=d["long_enough"],
+                           interval_width_95=widths, goal="<= 3 s per region"))
+        log(region, "emcee", d["time_s"], widths)
+        if quick and region == "hiraji":
+            continue
+
+    # ---- per-pixel throughput (200-point pixels), float64, vs per-pixel optimistix LM
+    P = 2000 if quick else 10000
+    terms, Y, chi, mu, nm = _pixels(P, jnp.float64)
+    r = fit_pixels(Y, terms, noise=nm)
+    t = timeit(lambda: fit_pixels(Y, terms, noise=nm), repeats=3 if quick else 5)
+    # reference: optimistix LM per pixel (vmapped, capped at 200 steps) on a subset
+    Pref = 500
+    Yr = jnp.asarray(Y[:Pref])
+    Wr = 1.0 / nm.sigma(Yr)
+    from jkatana.fit._model import ModelSpec
+
+    spec = ModelSpec("hiraji")
+    vsolve = jax.jit(jax.vmap(lambda y, w: solve(terms, y, w, closed_form_start(terms, y, w, spec), spec=spec,
+                                                 solver="lm")))
+    ref = vsolve(Yr, Wr)
+    t_ref = timeit(lambda: vsolve(Yr, Wr), repeats=3)
+    pref = np.asarray(ref["p"])
+    err_mu = np.abs(np.log(r["mu"][:Pref]) - pref[:, 1])
+    err_s = np.abs(np.log(r["scale"][:Pref]) - pref[:, 0])
+    rows.append(record(B, dict(method="fit_pixels float64 (closed form + 8 damped GN steps)", pixels=P,
+                               points_per_pixel=200), time_s=t, fits_per_s=P / t["median"],
+                       stragglers=r["n_stragglers"],
+                       error=dict(max_abs_log_mu=float(np.max(err_mu)), max_abs_log_scale=float(np.max(err_s)),
+                                  median_rel_mu_vs_truth=float(np.median(np.abs(r["mu"] / mu - 1)))),
+                       reference="optimistix LM per pixel (vmapped, max 200 steps)", goal=">= 50000 fits/s"))
+    rows.append(record(B, dict(method="optimistix LM per pixel, vmapped, from closed form", pixels=Pref),
+                       time_s=t_ref, fits_per_s=Pref / t_ref["median"]))
+    log("pixels", P / t["median"], "fits/s; LM ref", Pref / t_ref["median"])
+
+    # ---- float32 (subprocess, x64 off)
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", "from benchmarks.bench_fit import _float32_worker as w; w()"],
+                          capture_output=True, text=True, env={**__import__("os").environ, "JAX_ENABLE_X64": "0"})
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("JSON")]
+    if proc.returncode != 0 or not line:
+        rows.append(record(B, dict(method="float32 (subprocess)"), failed=proc.stderr[-1500:]))
+        return rows
+    f32 = json.loads(line[0][4:])
+    ref = fit_region(_campaign("hamon", seed=1), per_incidence=False, irls=False)
+    for key, v in f32.items():
+        if key == "pixels":
+            continue
+        vals = v["values"]
+        err = {n: (abs(vals[n] / ref.values[n] - 1) if vals[n] is not None and math.isfinite(vals[n]) else None)
+               for n in ref.values}
+        rows.append(record(B, dict(method=f"float32 region fit {key}", region="hamon"), time_s=v["time_s"],
+                           error=dict(rel=err), converged_verdict=v["converged"], reasons=v["reasons"],
+                           reference="float64 LM"))
+        log("float32", key, err, v["converged"])
+    px = f32["pixels"]
+    r64 = fit_pixels(Y[:px["P"]], terms, noise=nm)
+    m32 = np.asarray(px["mu"])
+    rel = np.abs(m32 / r64["mu"] - 1)
+    conv = np.asarray(px["converged"])
+    rows.append(record(B, dict(method="fit_pixels float32", pixels=px["P"]), fits_per_s=px["fits_per_s"],
+                       stragglers=px["stragglers"],
+                       error=dict(max_rel_mu_converged=float(np.max(rel[conv])) if conv.any() else None,
+                                  n_off_10pct=int(np.sum(rel > 0.1)),
+                                  n_off_10pct_flagged=int(np.sum((rel > 0.1) & ~conv))),
+                       reference="fit_pixels float64"))
+    log("float32 pixels", px["fits_per_s"], float(np.max(rel)))
+    log("subprocess", time.perf_counter() - t0)
+    return rows
