@@ -118,26 +118,35 @@ class EnvMap(eqx.Module):
         return texel_solid_angles(self.height, self.width, self.radiance.dtype)
 
     def lookup(self, d: Float[Array, "*b 3"]) -> Float[Array, "*b wl"]:
-        """Bilinear radiance in direction ``d``: wraps in ``u``, clamps in ``v``.
+        """Bilinear radiance in direction ``d``: wraps in ``u``; towards the poles (above the
+        first / below the last row of texel centres) it blends with the pole value, the mean
+        of the first / last row, so the lookup is continuous across each pole.
 
         Pure JAX: jittable, and differentiable in :attr:`radiance`.
         """
         u, v = direction_to_uv(d)
         H, W = self.height, self.width
+        L = self.radiance
+        dt = L.dtype
         x = u * W - 0.5
-        y = jnp.clip(v * H - 0.5, 0.0, H - 1.0)
+        y = v * H - 0.5
         x0 = jnp.floor(x)
-        y0 = jnp.clip(jnp.floor(y), 0, H - 1)
-        fx = (x - x0).astype(self.radiance.dtype)[..., None]
-        fy = (y - y0).astype(self.radiance.dtype)[..., None]
+        fx = (x - x0).astype(dt)[..., None]
         i0 = jnp.mod(x0.astype(jnp.int32), W)
         i1 = jnp.mod(i0 + 1, W)
-        j0 = y0.astype(jnp.int32)
+        yc = jnp.clip(y, 0.0, H - 1.0)
+        j0 = jnp.clip(jnp.floor(yc), 0, max(H - 2, 0)).astype(jnp.int32)
         j1 = jnp.minimum(j0 + 1, H - 1)
-        L = self.radiance
+        fy = (yc - j0).astype(dt)[..., None]
         top = L[j0, i0] * (1 - fx) + L[j0, i1] * fx
         bottom = L[j1, i0] * (1 - fx) + L[j1, i1] * fx
-        return top * (1 - fy) + bottom * fy
+        inner = top * (1 - fy) + bottom * fy
+        # polar caps: y in [-0.5, 0) and (H-1, H-0.5]
+        north = jnp.mean(L[0], axis=0)
+        south = jnp.mean(L[H - 1], axis=0)
+        t_n = jnp.clip(-2.0 * y, 0.0, 1.0).astype(dt)[..., None]
+        t_s = jnp.clip(2.0 * (y - (H - 1)), 0.0, 1.0).astype(dt)[..., None]
+        return inner * (1 - t_n - t_s) + north * t_n + south * t_s
 
     def lookup_nearest(self, d: Float[Array, "*b 3"]) -> Float[Array, "*b wl"]:
         """Radiance of the texel containing ``d`` (piecewise constant: the density the sampler uses)."""

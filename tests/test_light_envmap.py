@@ -1,0 +1,174 @@
+"""Environment maps: orientation convention, lookups, I/O (real EXR/HDR files), spectral EXR interop."""
+
+import math
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, strategies as st
+
+from jkatana.errors import InputError
+from jkatana.io.exr import write_exr
+from jkatana.light import EnvMap, direction_to_uv, load_envmap, uv_to_direction, write_spectral_exr
+from jkatana.light.spectral_exr import is_spectral_exr, read_spectral_exr
+from jkatana.spectral import WavelengthGrid
+
+ENVMAPS = Path("/work/shared/data/envmaps")
+G7 = WavelengthGrid(400, 700, 50)
+
+
+def _map_with_texel(H=16, W=32, j=3, i=21, value=100.0, grid=G7):
+    L = np.ones((H, W, grid.size)) * 0.5
+    L[j, i] = value
+    return EnvMap(jnp.asarray(L), grid)
+
+
+def test_axes_convention():
+    # image centre looks along -Z, u = 0.75 along +X, row 0 at the zenith
+    u, v = direction_to_uv(jnp.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0],
+                                      [-1.0, 0.0, 0.0]]))
+    np.testing.assert_allclose(np.asarray(u)[[0, 1, 4]], [0.5, 0.75, 0.25], atol=1e-12)
+    np.testing.assert_allclose(np.asarray(v), [0.5, 0.5, 0.0, 1.0, 0.5], atol=1e-12)
+
+
+@given(st.floats(0.0, 0.999), st.floats(0.001, 0.999))
+def test_uv_round_trip(u, v):
+    d = uv_to_direction(u, v)
+    assert abs(float(jnp.linalg.norm(d)) - 1) < 1e-12
+    u2, v2 = direction_to_uv(d)
+    assert abs(float(u2) - u) < 1e-9 and abs(float(v2) - v) < 1e-9
+
+
+def test_bright_texel_at_its_direction():
+    env = _map_with_texel()
+    d = env.directions()[3, 21]
+    # texel centre convention ((i+0.5)/W, (j+0.5)/H)
+    u, v = direction_to_uv(d)
+    assert abs(float(u) - 21.5 / 32) < 1e-12 and abs(float(v) - 3.5 / 16) < 1e-12
+    np.testing.assert_allclose(np.asarray(env.lookup(d)), 100.0)
+    np.testing.assert_allclose(np.asarray(env.lookup_nearest(d)), 100.0)
+    # neighbours are blends, far directions are background
+    np.testing.assert_allclose(np.asarray(env.lookup(jnp.array([0.0, -1.0, 0.0]))), 0.5)
+
+
+def test_lookup_wraps_and_is_continuous_across_seam_and_pole():
+    rng = np.random.default_rng(1)
+    env = EnvMap(jnp.asarray(rng.random((8, 16, G7.size))), G7)
+    eps = 1e-9
+    a = env.lookup(jnp.array([eps, 0.2, 1.0]))
+    b = env.lookup(jnp.array([-eps, 0.2, 1.0]))  # the +Z seam (u = 0 / 1)
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-7)
+    p1 = env.lookup(jnp.array([1e-9, 1.0, 0.0]))
+    p2 = env.lookup(jnp.array([0.0, 1.0, -1e-9]))
+    np.testing.assert_allclose(np.asarray(p1), np.asarray(p2), atol=1e-7)
+    np.testing.assert_allclose(np.asarray(p1), np.asarray(env.radiance[0].mean(0)), atol=1e-7)
+
+
+def test_lookup_jit_and_grad_in_radiance():
+    env = _map_with_texel()
+    dirs = jax.random.normal(jax.random.PRNGKey(0), (50, 3))
+
+    @jax.jit
+    def total(rad):
+        return jnp.sum(EnvMap(rad, G7).lookup(dirs))
+
+    g = jax.grad(total)(env.radiance)
+    assert np.all(np.isfinite(np.asarray(g))) and float(jnp.sum(g)) == pytest.approx(50 * G7.size)
+
+
+def test_solid_angles_and_downsample_preserve_power():
+    env = _map_with_texel(H=32, W=64, j=5, i=40, value=1e4)
+    assert float(env.solid_angles().sum()) == pytest.approx(4 * math.pi, rel=1e-12)
+    p = jnp.einsum("hw,hwl->l", env.solid_angles(), env.radiance)
+    small = env.downsample(4)
+    p2 = jnp.einsum("hw,hwl->l", small.solid_angles(), small.radiance)
+    np.testing.assert_allclose(np.asarray(p2), np.asarray(p), rtol=1e-12)
+    with pytest.raises(InputError):
+        env.downsample(5)
+
+
+def test_rotate_moves_features_by_compass_azimuth():
+    env = _map_with_texel(H=16, W=32, j=4, i=8)
+    r = env.rotate(2 * math.pi * 4 / 32)  # +45°: 4 columns towards east (+u)
+    j, i = np.unravel_index(np.argmax(np.asarray(r.radiance[..., 0])), (16, 32))
+    assert (j, i) == (4, 12)
+    np.testing.assert_allclose(np.asarray(env.rotate(2 * math.pi).radiance), np.asarray(env.radiance), atol=1e-9)
+
+
+def test_is_grey():
+    assert EnvMap(jnp.ones((4, 8, G7.size)) * 3.0, G7).is_grey()
+    L = np.ones((4, 8, G7.size))
+    L[1, 2, 3] = 2.0
+    assert not EnvMap(jnp.asarray(L), G7).is_grey()
+
+
+def test_rgb_exr_with_known_bright_texel(tmp_path):
+    H, W = 8, 16
+    rgb = np.full((H, W, 3), 0.25, np.float32)
+    rgb[2, 12] = (50.0, 40.0, 30.0)
+    path = write_exr(tmp_path / "bright.exr", {c: rgb[..., k] for k, c in enumerate("RGB")})
+    env = load_envmap(path, G7, upsampling="Mallett 2019")
+    lum = np.asarray(env.luminance())
+    assert np.unravel_index(np.argmax(lum), lum.shape) == (2, 12)
+    d = env.directions()[2, 12]
+    u, v = direction_to_uv(d)
+    assert abs(float(u) - 12.5 / 16) < 1e-12 and abs(float(v) - 2.5 / 8) < 1e-12
+
+
+@pytest.mark.parametrize("name", ["sunrise.exr", "pedestrian_overpass_1k.hdr"])
+def test_real_maps_load(name):
+    env = load_envmap(ENVMAPS / name, G7, upsampling="Mallett 2019")
+    assert env.radiance.shape == (512, 1024, G7.size) and env.radiance.dtype == jnp.float32
+    assert float(env.radiance.min()) >= 0 and np.isfinite(np.asarray(env.radiance)).all()
+    lum = np.asarray(env.luminance())
+    j, i = np.unravel_index(np.argmax(lum), lum.shape)
+    assert j < 256  # the sun is above the horizon in both maps
+
+
+def test_bad_inputs(tmp_path):
+    with pytest.raises(InputError, match="not found"):
+        load_envmap(tmp_path / "none.exr")
+    p = tmp_path / "bad.exr"
+    p.write_bytes(b"not an exr")
+    with pytest.raises(InputError, match="bad.exr"):
+        load_envmap(p)
+    q = write_exr(tmp_path / "noRGB.exr", {"Z": np.zeros((4, 8))})
+    with pytest.raises(InputError, match="channel"):
+        load_envmap(q)
+    with pytest.raises(InputError):
+        EnvMap(jnp.zeros((4, 8, 5)), G7)
+
+
+# ----------------------------------------------------------- spectral EXR (Fichet et al. 2021)
+
+
+def test_colour_science_reads_what_jkatana_writes(tmp_path):
+    from colour.io import read_spectral_image_Fichet2021
+
+    rng = np.random.default_rng(3)
+    L = (rng.random((6, 12, G7.size)) * 1e3).astype(np.float32)
+    path = write_spectral_exr(tmp_path / "j.exr", L, G7)
+    comps = read_spectral_image_Fichet2021(str(path))
+    wl, values = comps["S0"]
+    np.testing.assert_allclose(wl, G7.wavelengths)
+    np.testing.assert_array_equal(values, L)  # float32 written, float32 read: bit-exact
+
+
+def test_jkatana_reads_what_colour_science_writes(tmp_path):
+    from colour.io import Specification_Fichet2021, write_spectral_image_Fichet2021
+
+    wl = np.arange(380.0, 781.0, 10.0)
+    rng = np.random.default_rng(4)
+    L = (rng.random((5, 10, wl.size)) * 10).astype(np.float32)
+    path = tmp_path / "c.exr"
+    assert write_spectral_image_Fichet2021({"S0": (wl, L)}, str(path), "float32",
+                                           Specification_Fichet2021(is_emissive=True))
+    assert is_spectral_exr(path)
+    same = read_spectral_exr(path, WavelengthGrid(380, 780, 10))
+    np.testing.assert_array_equal(same, L)
+    env = load_envmap(path, G7)  # resampled onto 400..700/50: every 5th sample
+    np.testing.assert_allclose(np.asarray(env.radiance), L[..., 2:33:5], rtol=1e-6)
+    with pytest.raises(InputError, match="covers|range|outside|grid"):
+        read_spectral_exr(path, WavelengthGrid(300, 700, 50))
