@@ -47,6 +47,8 @@ def test_protocol_rejects_bad_settings():
         Protocol(incidences_deg=(95.0,))
     with pytest.raises(InputError, match="incidences_deg"):
         Protocol(incidences_deg=(float("nan"),))
+    with pytest.raises(InputError, match="duplicate"):
+        Protocol(incidences_deg=(45.0, 45.0))
     assert len(Protocol(incidences_deg=(45,), dense_step_deg=1, sparse_step_deg=5)) == 41 + 6  # 25..65 by 1; 10 15 20, 70 75 80
 
 
@@ -393,3 +395,63 @@ def test_plots_are_written(tmp_path):
     res = plot_residuals(table, truth, tmp_path / "r.png")
     for p in (png, res):
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000
+
+
+def test_forced_exposure_clips_and_saturation_is_flagged(tmp_path):
+    proto = [(35.0, r) for r in (25.0, 33.0, 34.0, 35.0, 36.0, 45.0)]
+    sensor = Sensor(bits=14, read_noise_dn=30.0)
+    peak = green_values([35.0], [35.0], "hiraji")[0]
+    # exposure such that the peak sits right at full scale: part of its photosites clip
+    exposure = (sensor.white - max(sensor.blacks)) / (sensor.white - min(sensor.blacks)) * sensor.gain / peak
+    simulate_campaign(tmp_path, proto, regions=("hiraji",), sensor=sensor, exposure_s=exposure)
+    table = measure(tmp_path / "manifest.csv")
+    truth = read_table(tmp_path / "truth.csv")
+    at_peak = table.theta_r_deg == 35.0
+    assert table.n_saturated[at_peak][0] > 0
+    assert table.n_pixels[at_peak][0] + table.n_saturated[at_peak][0] == truth.n_pixels[at_peak][0]
+    assert table.value[at_peak][0] < truth.value[at_peak][0]  # the clipped tail is not averaged in
+    assert np.all(table.n_saturated[np.abs(table.theta_r_deg - 35.0) >= 10] == 0)
+
+
+# --------------------------------------------------------------------------- properties
+
+from hypothesis import given, strategies as st  # noqa: E402
+
+
+@given(st.lists(st.floats(0, 89.9), min_size=1, max_size=3, unique_by=lambda a: round(a * 10)),
+       st.sampled_from([0.1, 0.2, 0.5, 1.0]), st.sampled_from([1.0, 2.0, 5.0]), st.floats(0, 30))
+def test_protocol_properties(incidences, dense, sparse, half):
+    proto = Protocol(incidences_deg=tuple(round(a, 1) for a in incidences), dense_step_deg=dense,
+                     sparse_step_deg=sparse, dense_halfwidth_deg=round(half, 1))
+    pairs = np.array(proto.pairs()).reshape(-1, 2)
+    assert np.all((pairs[:, 1] >= 10) & (pairs[:, 1] <= 80))
+    assert len({(a, b) for a, b in pairs}) == len(pairs)  # no duplicates
+    for ti in set(pairs[:, 0]):
+        tr = np.sort(pairs[pairs[:, 0] == ti, 1])
+        assert np.all(np.diff(tr) > 0)
+        near = tr[np.abs(tr - ti) <= proto.dense_halfwidth_deg + 1e-9]
+        if near.size > 1:
+            assert np.diff(near).max() <= dense + 1e-9
+
+
+@given(st.integers(0, 40), st.integers(0, 40), st.integers(2, 24), st.integers(2, 24), st.integers(0, 2 ** 32 - 1))
+def test_roi_stats_match_a_direct_computation(x, y, w, h, seed):
+    from jkatana.measure.decode import Frame, roi_stats
+
+    rng = np.random.default_rng(seed)
+    dn = rng.integers(0, 4096, (64, 64)).astype(np.uint16)
+    colors = np.tile(np.array([[0, 1], [3, 2]], np.uint8), (32, 32))
+    frame = Frame(dn=dn, colors=colors, green_colors=(1, 3), black=np.array([10.0, 20.0, 30.0, 40.0]),
+                  white=4000.0)
+    sub, col = dn[y:y + h, x:x + w].astype(float), colors[y:y + h, x:x + w]
+    g = ((col == 1) | (col == 3)) & (sub < 4000)
+    black = np.array([10.0, 20.0, 30.0, 40.0])[col][g]
+    v = (sub[g] - black) / (4000.0 - black)
+    if v.size < 2:
+        with pytest.raises(InputError):
+            roi_stats(frame, [(x, y, w, h)])
+        return
+    s = roi_stats(frame, [(x, y, w, h), (x, y, w, h)])  # a repeated rectangle counts once
+    assert s.n_pixels == v.size and s.n_saturated == int((((col == 1) | (col == 3)) & (sub >= 4000)).sum())
+    assert s.mean == pytest.approx(v.mean(), rel=1e-12, abs=1e-15)
+    assert s.stderr == pytest.approx(v.std(ddof=1) / np.sqrt(v.size), rel=1e-9, abs=1e-15)

@@ -58,6 +58,10 @@ class Protocol:
         for a in self.incidences_deg:
             if not (np.isfinite(a) and 0 <= a < 90):
                 raise InputError(f"incidence must be in [0, 90) degrees, got {a}", field="incidences_deg")
+        tenths = [round(a * 10) for a in self.incidences_deg]
+        if len(set(tenths)) != len(tenths):
+            raise InputError(f"duplicate incidence settings (to 0.1°) in {self.incidences_deg}",
+                             field="incidences_deg")
         if not self.receive_max_deg < 90:
             raise InputError("receiving angle must be below 90 degrees", field="receive_max_deg")
         if self.receive_max_deg < self.receive_min_deg:
