@@ -110,10 +110,11 @@ def main():
              "|---|---|---|---|---|---|---|---|"]
     for r in results:
         mu_ci = r["ci95"]["mu"]
+        per = ", ".join(f"{p['chi2_dof']:.1f}" for p in r["per_incidence"])
         t = (f"{r['values']['tilt_deg']:.3f} [{r['ci95']['tilt_deg'][0]:.3f}, {r['ci95']['tilt_deg'][1]:.3f}]"
              if r["free_tilt"] else "—")
         lines.append(f"| {r['region']} | {r['sim_tilt_deg']:g} | {r['fit_optical_constants']} | {r['free_tilt']} | "
-                     f"{r['chi2_dof']:.2f} | {', '.join(f'{p['chi2_dof']:.1f}' for p in r['per_incidence'])} | "
+                     f"{r['chi2_dof']:.2f} | {per} | "
                      f"{r['values']['mu']:.5f} [{mu_ci[0]:.5f}, {mu_ci[1]:.5f}] | {t} |")
     lines += ["", "![fit vs incidence](fit_vs_incidence.png)", ""]
     (OUT / "fit_vs_incidence.md").write_text("\n".join(lines))

@@ -128,8 +128,9 @@ def test_emcee_agrees_with_laplace(fits):
 
 
 def test_calibration_laplace_fast():
-    """40 campaigns: the Laplace 95 % intervals cover the truth ≥ 34/40 (P(X < 34 | p=.95) ≈ 0.5 %),
-    and their width matches the scatter of the estimates (ratio in 0.75–1.33)."""
+    """200 campaigns (one compiled solver, ~3 s): Laplace 95 % coverage within 91–99 % (binomial
+    ±2.6 sd at N = 200: P(fail | calibrated) ≈ 1 %), and the interval width matches the scatter
+    of the estimates (ratio of mean SE to empirical SD in 0.85–1.15)."""
     spec = ModelSpec("hiraji")
     setup = Setup()
     n, k = setup.nk()
@@ -140,7 +141,8 @@ def test_calibration_laplace_fast():
     rng = np.random.default_rng(2024)
     hits = np.zeros(2, int)
     est, se = [], []
-    for _ in range(40):
+    N = 200
+    for _ in range(N):
         y = truth + rng.standard_normal(truth.shape) * SIM_NOISE.sigma(truth)
         sig = SIM_NOISE.sigma(truth)
         nm = estimate_noise(y, sig)
@@ -153,9 +155,11 @@ def test_calibration_laplace_fast():
         hits += [inside(lap["ci95"]["chi"], 79000.0), inside(lap["ci95"]["mu"], 0.05)]
         est.append(out["p"])
         se.append(np.sqrt(np.diag(np.asarray(lap["cov_log"]))))
-    assert np.all(hits >= 34), hits
+    coverage = hits / N
+    print("Laplace coverage (chi, mu):", coverage)
+    assert np.all((coverage >= 0.91) & (coverage <= 0.99)), coverage
     ratio = np.mean(se, axis=0) / np.std(est, axis=0, ddof=1)
-    assert np.all((ratio > 0.75) & (ratio < 1.33)), ratio
+    assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio
 
 
 # ----------------------------------------------------------------------------- tilt: model or rig?
@@ -337,3 +341,30 @@ def test_cli_fit_and_report(tmp_path):
     r = subprocess.run([sys.executable, "-m", "jkatana.cli", "fit", str(tmp_path / "t.csv"), "-o",
                         str(tmp_path / "q.json"), "--region", "hamon"], capture_output=True, text=True, env=env)
     assert r.returncode == 2 and "region" in r.stderr
+
+
+@pytest.mark.slow
+def test_float32_far_start_trap_is_detected(tmp_path):
+    """float32 in a process with x64 off: LM from a far start must never be silently 'converged' when off."""
+    code = r"""
+import json, jax.numpy as jnp, numpy as np
+from jkatana.fit import FitData, fit_region
+from jkatana.measure import synthetic
+from jkatana.measure.protocol import paper_protocol
+t, _ = synthetic.simulate_table(paper_protocol(), "hamon", seed=1,
+                                noise=synthetic.NoiseModel(relative=0.02, floor=20.0))
+d = FitData.from_table(t, "hamon")
+out = {}
+for solver in ("lm", "dogleg"):
+    f = fit_region(d, solver=solver, start={"beta": 1e4, "mu": 0.1}, dtype=jnp.float32,
+                   per_incidence=False, irls=False)
+    out[solver] = dict(values=f.values, converged=f.converged, reasons=f.reasons)
+print("JSON" + json.dumps(out))
+"""
+    env = {**__import__("os").environ, "JAX_ENABLE_X64": "0"}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads([ln for ln in r.stdout.splitlines() if ln.startswith("JSON")][0][4:])
+    for solver, o in out.items():
+        off = abs(o["values"]["beta"] / 43000.0 - 1) > 0.1 or abs(o["values"]["mu"] / 0.05 - 1) > 0.1
+        assert not (off and o["converged"]), (solver, o)
