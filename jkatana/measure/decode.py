@@ -53,21 +53,38 @@ class Frame:
     white: float
     shutter_s: float = 0.0
     kind: str = "raw"
+    origin: tuple[int, int] = (0, 0)
+    full_shape: tuple[int, int] | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.dn.shape
+        """The whole frame's (H, W), even when only a window of it was kept."""
+        return self.full_shape or self.dn.shape
 
     def crop(self, y0: int, y1: int, x0: int, x1: int):
-        """``(dn float64, green mask, black per photosite)`` of a window."""
-        dn = self.dn[y0:y1, x0:x1].astype(np.float64)
+        """``(dn float64, green mask, black per photosite)`` of a window (frame coordinates)."""
+        oy, ox = self.origin
+        h, w = self.dn.shape
+        if not (oy <= y0 and ox <= x0 and y1 - oy <= h and x1 - ox <= w):
+            raise ValueError(f"window {y0}:{y1}, {x0}:{x1} was not decoded (kept {oy}:{oy + h}, {ox}:{ox + w})")
+        sl = np.s_[y0 - oy:y1 - oy, x0 - ox:x1 - ox]
+        dn = self.dn[sl].astype(np.float64)
         if self.colors is None:
             return dn, np.ones(dn.shape, bool), np.full(dn.shape, float(self.black[0]))
-        c = self.colors[y0:y1, x0:x1]
+        c = self.colors[sl]
         return dn, np.isin(c, self.green_colors), self.black[c]
 
 
-def _read_raw(path: Path) -> Frame:
+def _window(shape, window):
+    """Clip a ``(y0, y1, x0, x1)`` window to ``shape``; None → the whole frame."""
+    H, W = shape
+    if window is None:
+        return 0, H, 0, W
+    y0, y1, x0, x1 = window
+    return max(0, y0), min(H, y1), max(0, x0), min(W, x1)
+
+
+def _read_raw(path: Path, window=None) -> Frame:
     import rawpy
 
     try:
@@ -80,10 +97,13 @@ def _read_raw(path: Path) -> Frame:
             green_idx = tuple(i for i, ch in enumerate(desc) if ch == "G")
             if not green_idx:
                 raise InputError(f"the colour filter array has no green photosites ({desc})", path=path)
-            # raw_image_visible views LibRaw's buffer, valid only while the file is open: copy
-            frame = Frame(dn=np.array(image), colors=np.array(raw.raw_colors_visible, np.uint8),
+            # raw_image_visible views LibRaw's buffer, valid only while the file is open:
+            # copy the window that will be used, not the whole 10-Mpixel frame
+            y0, y1, x0, x1 = _window(image.shape, window)
+            frame = Frame(dn=np.array(image[y0:y1, x0:x1]),
+                          colors=np.array(raw.raw_colors_visible[y0:y1, x0:x1], np.uint8),
                           green_colors=green_idx, black=np.asarray(raw.black_level_per_channel, np.float64),
-                          white=float(raw.white_level))
+                          white=float(raw.white_level), origin=(y0, x0), full_shape=tuple(image.shape))
             shutter = float(raw.other.shutter_speed) if hasattr(raw, "other") else 0.0
     except rawpy.LibRawError as err:
         detail = err.args[0].decode("utf-8", "replace") if err.args and isinstance(err.args[0], bytes) else str(err)
@@ -129,8 +149,12 @@ def _read_exr(path: Path, black: float | None, white: float | None) -> Frame:
 
 
 def read_frame(path: str | Path, *, black_level: float | None = None,
-               white_level: float | None = None) -> Frame:
-    """Decode ``path`` by extension (module docstring). Raises :class:`InputError` naming the file."""
+               white_level: float | None = None, window=None) -> Frame:
+    """Decode ``path`` by extension (module docstring). Raises :class:`InputError` naming the file.
+
+    ``window = (y0, y1, x0, x1)`` keeps only that part of a RAW frame in memory
+    (the union of the ROIs); :meth:`Frame.shape` is still the whole frame's.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError("no such file", path=path)
@@ -139,7 +163,7 @@ def read_frame(path: str | Path, *, black_level: float | None = None,
         return _read_tiff(path, black_level, white_level)
     if suffix in EXR_SUFFIXES:
         return _read_exr(path, black_level, white_level)
-    return _read_raw(path)
+    return _read_raw(path, window)
 
 
 @dataclasses.dataclass(frozen=True)

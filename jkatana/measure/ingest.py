@@ -44,21 +44,29 @@ def _measure_file(manifest_path: Path, entries: list[Entry]) -> list[dict]:
         return [{"error": err.args}]
 
 
+def _bbox(entries: list[Entry]) -> tuple[int, int, int, int]:
+    rects = [r for e in entries for r in e.rois]
+    return (min(r[1] for r in rects), max(r[1] + r[3] for r in rects),
+            min(r[0] for r in rects), max(r[0] + r[2] for r in rects))
+
+
 def _measure_entries(entries: list[Entry]) -> list[dict]:
+    window = _bbox(entries)  # decode only the union of this file's ROIs
     frame = None
     darks: dict[Path, object] = {}
     out = []
     for e in entries:
         if frame is None:
             try:
-                frame = read_frame(e.file, black_level=e.black_level, white_level=e.white_level)
+                frame = read_frame(e.file, black_level=e.black_level, white_level=e.white_level, window=window)
             except InputError as err:
                 raise _RowError(str(err), e.row, "file") from None
         dark = None
         if e.dark is not None:
             if e.dark not in darks:
                 try:
-                    darks[e.dark] = read_frame(e.dark, black_level=e.black_level, white_level=e.white_level)
+                    darks[e.dark] = read_frame(e.dark, black_level=e.black_level, white_level=e.white_level,
+                                               window=window)
                 except InputError as err:
                     raise _RowError(str(err), e.row, "dark") from None
             dark = darks[e.dark]

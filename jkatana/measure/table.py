@@ -220,7 +220,7 @@ def write_table(table: MeasurementTable, path: str | Path) -> Path:
     return path
 
 
-def _parse_column(raw: list, name: str, path, derived_ok=False) -> np.ndarray:
+def _parse_column(raw: list, name: str, path) -> np.ndarray:
     dtype = COLUMNS[name]
     if dtype is str:
         return np.array([str(x).strip() for x in raw], dtype=object)
