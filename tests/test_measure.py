@@ -268,7 +268,8 @@ def test_cli_simulate_and_measure_in_parallel(tmp_path, capsys):
     assert main(["measure", str(out / "manifest.csv"), "-o", str(tmp_path / "t2.csv"), "-j", "2",
                  "--quiet"]) == 0
     assert main(["measure", str(out / "manifest.csv"), "-o", str(tmp_path / "t1.csv"), "-j", "1",
-                 "--quiet"]) == 0
+                 "--plot", str(tmp_path / "t1.png"), "--overlay", str(out / "truth.csv"), "--quiet"]) == 0
+    assert (tmp_path / "t1.png").is_file() and (tmp_path / "t1-residuals.png").is_file()
     t1, t2 = read_table(tmp_path / "t1.csv"), read_table(tmp_path / "t2.csv")
     assert np.array_equal(t1.value, t2.value) and len(t1) == 2 * 25  # 25..65 by 2; 10 20 70 80
     peak = t1.select("hiraji")
@@ -455,3 +456,18 @@ def test_roi_stats_match_a_direct_computation(x, y, w, h, seed):
     assert s.n_pixels == v.size and s.n_saturated == int((((col == 1) | (col == 3)) & (sub >= 4000)).sum())
     assert s.mean == pytest.approx(v.mean(), rel=1e-12, abs=1e-15)
     assert s.stderr == pytest.approx(v.std(ddof=1) / np.sqrt(v.size), rel=1e-9, abs=1e-15)
+
+
+def test_exposure_comes_from_the_raw_file_when_the_manifest_has_none(tmp_path):
+    import tifffile
+
+    write_dng(tmp_path / "c.dng", np.full((32, 32), 2000, np.uint16), black=(1000,) * 4, white=16383,
+              exposure_s=0.125)
+    tifffile.imwrite(tmp_path / "c.tif", np.full((8, 8), 500, np.uint16))
+    (tmp_path / "m.csv").write_text("file,region,theta_i_deg,theta_r_deg,roi\nc.dng,hiraji,20,20,0 0 8 8\n")
+    t = measure(tmp_path / "m.csv")
+    assert t.exposure_s[0] == pytest.approx(0.125) and t.value[0] == pytest.approx(1000 / 15383 / 0.125)
+    (tmp_path / "m2.csv").write_text("file,region,theta_i_deg,theta_r_deg,roi\nc.tif,hiraji,20,20,0 0 8 8\n")
+    with pytest.raises(InputError) as err:
+        measure(tmp_path / "m2.csv")
+    assert err.value.row == 1 and err.value.field == "exposure_s"

@@ -11,6 +11,21 @@ Modules:
 - :mod:`~jkatana.measure.synthetic`: in-memory synthetic campaigns;
 - :mod:`~jkatana.measure.goniometer`: synthetic campaigns written as DNG files + manifest.
 
+Workflow::
+
+    jkatana simulate -o camp --full-well 20000 --read-noise 2 --bits 14   # paper protocol, 1188 DNGs
+    jkatana measure camp/manifest.csv -o camp/table.csv --plot camp/table.png --overlay camp/truth.csv
+    jkatana fit camp/table.csv --region hiraji -o hiraji.json
+
+For real captures write the manifest by hand or by script
+(:mod:`~jkatana.measure.manifest` documents it) and start at ``measure``.
+
+Conventions: angles in degrees in files; θr is measured from the normal on
+the side opposite the light, θr = θi is specular; φ = (θr − θi)/2,
+θH = (θi + θr)/2; values are exposure-normalised camera units
+(:mod:`~jkatana.measure.table`), and a model's green value is
+ρ = (C/E) @ w with the band weights of :mod:`~jkatana.measure.camera`.
+
 Names are imported lazily, so that decoding worker processes do not pay for
 colour-science and JAX.
 """

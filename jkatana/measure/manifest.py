@@ -14,7 +14,7 @@ file (an array of ``[[capture]]`` tables with the same keys).
 | ``exposure_s`` | no | exposure time (s); if empty the RAW file's own shutter time is used |
 | ``capture`` | no | capture id (default: the file name without extension); (capture, region) must be unique |
 | ``dark`` | no | dark frame (same size and format, same exposure), subtracted per photosite instead of the black level |
-| ``aperture``, ``iso`` | no | f-number and ISO, recorded for the user (not used in the arithmetic) |
+| ``aperture``, ``iso`` | no | f-number and ISO: validated, kept with the manifest for the record (not used in the arithmetic, not copied to the table) |
 | ``gain`` | no | multiplies the value (default 1): convert to the unit of another rig |
 | ``black_level``, ``white_level`` | no | for TIFF/EXR captures only (RAW files carry their own); TIFF defaults 0 and 65535, EXR 0 and no saturation |
 
