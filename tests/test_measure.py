@@ -309,6 +309,7 @@ def _bad_manifest(folder, campaign, line: str, header="file,region,theta_i_deg,t
     ("duplicate", "good.dng,hiraji,15,10,0.1,36 4 8 8", "capture"),
     ("escape", "../outside.dng,hiraji,15,12,0.1,4 4 8 8", "file"),
     ("absolute", "/etc/hostname,hiraji,15,12,0.1,4 4 8 8", "file"),
+    ("symlink", "link.dng,hiraji,15,12,0.1,4 4 8 8", "file"),
 ])
 def test_bad_input_names_row_and_field_and_writes_nothing(tmp_path, campaign, case, line, field):
     folder = tmp_path / "m"
@@ -321,8 +322,10 @@ def test_bad_input_names_row_and_field_and_writes_nothing(tmp_path, campaign, ca
         (folder / "junk.cr2").write_bytes(b"II*\x00" + bytes(range(256)) * 8)
     elif case == "saturated":
         write_dng(folder / "sat.dng", np.full((64, 64), 16383, np.uint16), black=(1024,) * 4, white=16383)
-    elif case == "escape":
+    elif case in ("escape", "symlink"):
         shutil.copy(good, tmp_path / "outside.dng")
+        if case == "symlink":  # a link inside the folder that points outside it
+            (folder / "link.dng").symlink_to(tmp_path / "outside.dng")
     manifest = _bad_manifest(folder, campaign, line)
     out = folder / "table.csv"
     with pytest.raises(InputError) as err:

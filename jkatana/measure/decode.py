@@ -15,6 +15,10 @@ photosite by photosite). Photosites at or above the white level are
 (``n_saturated``), never averaged in silently. The measurement is the mean of
 x over the ROI, divided by the exposure time (and times the manifest's
 gain), and its standard error s/√n with s the sample standard deviation.
+That standard error measures the pixel-to-pixel scatter inside the ROI
+(sensor noise, and on a real blade its texture); it does not include
+systematic errors (shutter accuracy, angle setting, stray light), which the
+fit can model (tilt, floor) or which must be added by the user.
 
 Linear 16-bit TIFF and OpenEXR captures are accepted too (see
 :mod:`jkatana.measure.manifest` for their black/white levels).
