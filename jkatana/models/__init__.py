@@ -9,11 +9,13 @@ from jkatana.models.fresnel import (
 from jkatana.models.geometry import (
     facet_angle as facet_angle,
     half_vector_cos as half_vector_cos,
+    half_vector_terms as half_vector_terms,
     in_plane as in_plane,
     in_plane_angles as in_plane_angles,
 )
 from jkatana.models.microfacet import (
     beckmann as beckmann,
+    beckmann_phi as beckmann_phi,
     gaussian_facet as gaussian_facet,
     gaussian_normalisation as gaussian_normalisation,
     smith_beckmann as smith_beckmann,

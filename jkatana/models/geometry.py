@@ -20,27 +20,57 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from jkatana.models._safe import norm, safe_atan2, safe_div
+from jkatana.models._safe import norm, safe_atan2
+
+
+def _cut(dtype) -> float:
+    """|L + V| below which the half-vector is treated as undefined: the dtype's eps.
+
+    In float32 that is 1.2e-7 (θH within 0.007° of 90°, the double-grazing
+    back-to-back configuration, where every term is 0/0 or 1/0). Below it the
+    derivatives of φ and of 1/(V·H) would overflow; the models return 0 there.
+    """
+    return float(jnp.finfo(dtype).eps)
+
+
+def half_vector_terms(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]):
+    """``(φ, cos φ, cos θH, valid)`` in one pass, guarded for the models.
+
+    φ = atan2(|N × (L+V)|, N·(L+V)) (exact for small angles), cos φ = N·H,
+    cos θH = |L+V|/2 (exact for unit L, V). ``valid`` is False where
+    |L + V| ≤ eps of the dtype (L = −V and its rounding neighbourhood); there
+    every output is computed on a substituted H = N ("double where"), so values
+    *and* gradients are finite, and φ = 0, cos φ = cos θH = 0 are returned.
+    """
+    s = L + V
+    dtype = jnp.result_type(s)
+    length = norm(s)
+    valid = length > _cut(dtype)
+    s_safe = jnp.where(valid[..., None], s, jnp.asarray([0.0, 0.0, 1.0], dtype))
+    length_safe = jnp.where(valid, length, 1.0)
+    phi = jnp.where(valid, safe_atan2(norm(s_safe[..., :2]), s_safe[..., 2]), 0.0)
+    cos_phi = jnp.where(valid, s_safe[..., 2] / length_safe, 0.0)
+    cos_theta_h = jnp.where(valid, jnp.clip(0.5 * length_safe, 0.0, 1.0), 0.0)
+    return phi, cos_phi, cos_theta_h, valid
 
 
 def facet_angle(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]) -> Float[Array, "*b"]:
-    """φ = ∠(N, H) via atan2(|N × (L+V)|, N·(L+V)), N = +z. 0 where L = −V."""
-    s = L + V
-    return safe_atan2(norm(s[..., :2]), s[..., 2])
+    """φ = ∠(N, H) via atan2(|N × (L+V)|, N·(L+V)), N = +z. 0 where L = −V.
+
+    Never ``acos(N·H)``: in float32 that is exactly 0 at φ = 1e-4 and has an
+    infinite derivative at N·H = 1. See :func:`half_vector_terms`.
+    """
+    return half_vector_terms(L, V)[0]
 
 
 def half_vector_cos(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]):
     """``(cos φ, cos θH, valid)`` with cos φ = N·H, cos θH = L·H = V·H.
 
-    ``valid`` is False where |L + V| is zero (L = −V): the half-vector is
-    undefined there and the cosines are returned as 0. Uses
+    ``valid`` is False where |L + V| ≤ eps of the dtype (L = −V): the
+    half-vector is undefined there and the cosines are returned as 0. Uses
     ``cos θH = |L+V| / 2`` (exact for unit L, V), so no second normalisation.
     """
-    s = L + V
-    length = norm(s)
-    valid = length > 0
-    cos_phi = safe_div(s[..., 2], length)
-    cos_theta_h = jnp.clip(0.5 * length, 0.0, 1.0)
+    _, cos_phi, cos_theta_h, valid = half_vector_terms(L, V)
     return cos_phi, cos_theta_h, valid
 
 

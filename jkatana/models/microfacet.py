@@ -24,8 +24,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from jkatana.models._safe import safe_div
-
+from jkatana.models._safe import safe_sqrt
 LN2 = math.log(2.0)
 # Gauss–Legendre nodes on [0, 1] for the normalisation integral (smooth integrand).
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
@@ -64,8 +63,8 @@ def gaussian_normalisation(mu):
     point beyond which D underflows — exact to quadrature error (< 1e-12 for
     μ ≤ 0.5) and differentiable. For small μ, N → ln2 / (π μ²).
     """
-    mu = jnp.asarray(mu)
-    dtype = jnp.result_type(mu, jnp.float32)
+    mu = jnp.asarray(mu)  # a Python float becomes the default float (float64 under x64)
+    dtype = mu.dtype if jnp.issubdtype(mu.dtype, jnp.floating) else jnp.result_type(float)
     ratio_max = math.sqrt(_exp_cutoff(dtype) / LN2)
     mu_safe = jnp.maximum(jnp.abs(mu), float(np.finfo(dtype).tiny) ** 0.25)
     upper = jnp.minimum(jnp.pi / 2, ratio_max * mu_safe)
@@ -84,7 +83,9 @@ def beckmann(cos_phi, alpha):
     """Normalised Beckmann distribution D(φ, α) = exp(−tan²φ/α²)/(π α² cos⁴φ).
 
     ``cos_phi`` = N·H; α is the RMS slope. 0 for cos φ ≤ 0 and where the
-    exponential underflows; finite gradients there.
+    exponential underflows; finite gradients there. In float32 this loses
+    facet angles below ~2.4e-4 (1 − cos²φ rounds to 0): for narrow lobes use
+    :func:`beckmann_phi`.
     """
     c = jnp.asarray(cos_phi)
     alpha = jnp.asarray(alpha)
@@ -100,28 +101,72 @@ def beckmann(cos_phi, alpha):
     return jnp.where(live, value, 0.0)
 
 
+def beckmann_phi(phi, alpha):
+    """Beckmann D from the facet angle φ itself (preferred over :func:`beckmann`).
+
+    Same distribution, D = exp(−tan²φ/α²)/(π α² cos⁴φ), but tan²φ is taken
+    from φ rather than from cos φ: in float32, 1 − cos²φ is 0 for φ < 2.4e-4,
+    so ``beckmann(cos φ)`` returns the peak value 1/(π α²) there even when the
+    true value has underflowed (α = 1e-6). Pass φ from
+    :func:`~jkatana.models.geometry.half_vector_terms` (atan2 form).
+    0 for φ ≥ π/2 and where the exponential underflows; finite gradients.
+    """
+    phi = jnp.asarray(phi)
+    alpha = jnp.asarray(alpha)
+    dtype = jnp.result_type(phi, alpha)
+    x_max = _exp_cutoff(dtype) * 0.5
+    c = jnp.cos(phi)
+    t = jnp.tan(jnp.where(c > 0, phi, 0.0))
+    live = (c > 0) & (jnp.abs(t) < jnp.sqrt(x_max) * jnp.abs(alpha))
+    t_s = jnp.where(live, t, 0.0)
+    c2_s = jnp.where(live, c * c, 1.0)
+    a2 = jnp.where(live, alpha * alpha, 1.0)
+    value = jnp.exp(-(t_s * t_s) / a2) / (jnp.pi * a2 * c2_s * c2_s)
+    return jnp.where(live, value, 0.0)
+
+
+def _cos_floor(dtype) -> float:
+    """Floor for cosines used as divisors: eps² of the dtype (float32: 1.4e-14)."""
+    return float(np.finfo(dtype).eps) ** 2
+
+
 def vcavity(cos_nh, cos_nv, cos_nl, cos_vh):
     """Torrance–Sparrow V-cavity G = min(1, 2(N·H)(N·V)/(V·H), 2(N·H)(N·L)/(V·H)).
 
-    Written as min(V·H, 2 N·H N·V, 2 N·H N·L)/(V·H): no division inside the
-    min, 0 (not NaN) where V·H = 0.
+    Torrance & Sparrow (1967), in the form of Cook & Torrance (1982), eq. 8.
+    Written as min(1, 2 N·H min(N·V, N·L) / V·H) with V·H floored at eps² of
+    the dtype inside the division (double where): 0, not NaN, where V·H ≤ 0,
+    and a finite derivative as V·H → 0.
     """
-    num = jnp.minimum(cos_vh, 2.0 * cos_nh * jnp.minimum(cos_nv, cos_nl))
-    return jnp.clip(safe_div(num, cos_vh), 0.0, 1.0)
+    cos_vh = jnp.asarray(cos_vh)
+    dtype = jnp.result_type(cos_nh, cos_nv, cos_nl, cos_vh)
+    ok = cos_vh > 0
+    vh = jnp.where(ok, jnp.maximum(cos_vh, _cos_floor(dtype)), 1.0)
+    g = jnp.minimum(1.0, 2.0 * cos_nh * jnp.minimum(cos_nv, cos_nl) / vh)
+    return jnp.where(ok, jnp.clip(g, 0.0, 1.0), 0.0)
 
 
 def vcavity_over_cos(cos_nh, cos_nv, cos_nl, cos_vh):
     """G / cos θr for eq. (2), finite at grazing view (N·V → 0).
 
-    G/N·V = min(V·H / N·V, 2 N·H, 2 N·H N·L / N·V) / V·H; as N·V → 0 this
-    tends to 2 N·H / V·H. N·V is clamped at a tiny positive value inside the
-    divisions (double-where), so value and gradient stay finite.
+    G / N·V = min(1/N·V, (2 N·H / V·H) · min(1, N·L / N·V)). As N·V → 0 with
+    N·L > 0 this tends to 2 N·H / V·H, the masking-limited value, which is
+    what is returned at N·V = 0 exactly. N·V and V·H are floored at eps² of the
+    dtype inside the divisions (double where), so value and gradient stay
+    finite; the floor changes the value only where N·V < eps² and N·L < N·V
+    (both directions within 1e-14 rad of the horizon in float32). 0 where
+    V·H ≤ 0 or N·V < 0.
     """
-    dtype = jnp.result_type(cos_nv)
-    eps = float(np.finfo(dtype).eps) ** 2
-    nv = jnp.maximum(cos_nv, eps)
-    inner = jnp.minimum(jnp.minimum(cos_vh / nv, 2.0 * cos_nh), 2.0 * cos_nh * cos_nl / nv)
-    return jnp.where(cos_vh > 0, jnp.maximum(safe_div(inner, cos_vh), 0.0), 0.0)
+    cos_vh = jnp.asarray(cos_vh)
+    cos_nv = jnp.asarray(cos_nv)
+    dtype = jnp.result_type(cos_nh, cos_nv, cos_nl, cos_vh)
+    floor = _cos_floor(dtype)
+    ok = (cos_vh > 0) & (cos_nv >= 0)
+    nv = jnp.where(ok, jnp.maximum(cos_nv, floor), 1.0)
+    vh = jnp.where(ok, jnp.maximum(cos_vh, floor), 1.0)
+    masking = (2.0 * cos_nh / vh) * jnp.minimum(1.0, jnp.maximum(cos_nl, 0.0) / nv)
+    value = jnp.minimum(1.0 / nv, masking)
+    return jnp.where(ok, jnp.maximum(value, 0.0), 0.0)
 
 
 def smith_g1_beckmann(cos_theta, alpha):
@@ -131,7 +176,7 @@ def smith_g1_beckmann(cos_theta, alpha):
     else 1. 0 for cos θ ≤ 0; 1 at normal incidence (tan θ = 0).
     """
     c = jnp.clip(jnp.asarray(cos_theta), 0.0, 1.0)
-    s = jnp.sqrt(jnp.maximum(1.0 - c * c, 0.0))
+    s = safe_sqrt(1.0 - c * c)  # derivative 0, not inf, at normal incidence
     # a = c / (α s); use the branch a ≥ 1.6  ⇔  c ≥ 1.6 α s  without dividing
     high = c >= 1.6 * alpha * s
     a = jnp.where(high, 1.0, c / jnp.where(high, 1.0, alpha * s))

@@ -43,7 +43,7 @@ from jaxtyping import Array, Float
 
 from jkatana.models._safe import safe_div
 from jkatana.models.fresnel import fresnel_conductor
-from jkatana.models.geometry import facet_angle, half_vector_cos
+from jkatana.models.geometry import half_vector_terms
 from jkatana.models.microfacet import gaussian_facet, gaussian_normalisation, vcavity_over_cos
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
 
@@ -80,8 +80,7 @@ class Hiraji(eqx.Module):
 
     def _terms(self, L, V):
         cos_i, cos_r = L[..., 2], V[..., 2]
-        phi = facet_angle(L, V)
-        _, cos_th, valid = half_vector_cos(L, V)
+        phi, _, cos_th, valid = half_vector_terms(L, V)
         visible = valid & (cos_i >= 0) & (cos_r >= 0)
         return cos_i, cos_th, jnp.where(visible, gaussian_facet(phi, self.mu), 0.0)
 
@@ -110,8 +109,7 @@ class Hamon(eqx.Module):
 
     def _terms(self, L, V):
         cos_i, cos_r = L[..., 2], V[..., 2]
-        phi = facet_angle(L, V)
-        cos_nh, cos_th, valid = half_vector_cos(L, V)
+        phi, cos_nh, cos_th, valid = half_vector_terms(L, V)
         visible = valid & (cos_i >= 0) & (cos_r >= 0)
         g_over_cos = vcavity_over_cos(cos_nh, jnp.maximum(cos_r, 0.0), jnp.maximum(cos_i, 0.0), cos_th)
         return cos_th, jnp.where(visible, gaussian_facet(phi, self.mu) * g_over_cos, 0.0)
