@@ -10,8 +10,9 @@ a camera's file, and writes the capture manifest
 the campaign back exactly as it would read a real one.
 
 The frame: the left half shows the hiraji, the right half the hamon (each a
-uniform patch at the model's green value ρ, :func:`~jkatana.measure.synthetic.green_values`),
-with one ROI inset in each half. Photosite values, in DN:
+uniform patch at the model's green value ρ, :func:`~jkatana.measure.synthetic.green_values`;
+red and blue photosites see the same model through the camera's red and blue
+curves, times ``Sensor.rb_gains``), with one ROI inset in each half. Photosite values, in DN:
 
     f  = ρ · t / gain                       (fraction of full scale; gain: manifest column)
     DN = black[c] + (white − black[c]) · f'  + read noise,  rounded, clipped to [0, white]
@@ -72,6 +73,8 @@ class Sensor:
     - `full_well_e`: electrons at full scale; photon noise when set.
     - `read_noise_dn`: Gaussian read noise (DN); 0 = none.
     - `gain`: camera units per (full scale per second), written to the manifest.
+    - `rb_gains`: sensitivity of the red and blue photosites relative to green
+      (so that a decoder that wrongly averaged them in would be caught).
     """
 
     width: int = 64
@@ -81,6 +84,7 @@ class Sensor:
     full_well_e: float | None = None
     read_noise_dn: float = 0.0
     gain: float = 1.0e4
+    rb_gains: tuple[float, float] = (0.5, 0.4)
 
     def __post_init__(self):
         if self.width < 24 or self.height < 24 or self.width % 2 or self.height % 2:
@@ -136,12 +140,23 @@ def auto_exposure(peak_value: float, gain: float, fill: float) -> float:
 
 
 def render_frame(values: dict[str, float], exposure_s: float, sensor: Sensor,
-                 rng: np.random.Generator | None = None) -> np.ndarray:
-    """One RGGB frame (uint16 DN): hiraji value on the left half, hamon on the right."""
+                 rng: np.random.Generator | None = None,
+                 rb_ratio: dict[str, tuple[float, float]] | None = None) -> np.ndarray:
+    """One RGGB frame (uint16 DN): hiraji value on the left half, hamon on the right.
+
+    ``values`` are the green values ρ per region; red and blue photosites get
+    ρ·ratio·``sensor.rb_gains`` with ``rb_ratio[region] = (ρR/ρG, ρB/ρG)``
+    (default 1: grey).
+    """
     H, W = sensor.height, sensor.width
     f = np.empty((H, W), np.float64)
-    f[:, : W // 2] = values.get("hiraji", 0.0) * exposure_s / sensor.gain
-    f[:, W // 2:] = values.get("hamon", 0.0) * exposure_s / sensor.gain
+    for region, cols in (("hiraji", np.s_[: W // 2]), ("hamon", np.s_[W // 2:])):
+        g = values.get(region, 0.0) * exposure_s / sensor.gain
+        ratio_r, ratio_b = (rb_ratio or {}).get(region, (1.0, 1.0))
+        patch = np.full((H, f[:, cols].shape[1]), g)
+        patch[0::2, 0::2] *= ratio_r * sensor.rb_gains[0]  # R at (even, even) of RGGB
+        patch[1::2, 1::2] *= ratio_b * sensor.rb_gains[1]  # B at (odd, odd)
+        f[:, cols] = patch
     if sensor.full_well_e:
         rng = np.random.default_rng(0) if rng is None else rng
         f = rng.poisson(np.clip(f, 0, None) * sensor.full_well_e) / sensor.full_well_e
@@ -224,8 +239,17 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
     params = params or {}
     ti, tr = true_angles(pairs, tilt_deg=tilt_deg, angle_jitter_deg=angle_jitter_deg,
                          rng=np.random.default_rng([seed, 2 ** 31]))
-    truth = {r: green_values(ti, tr, r, params.get(r), optical_constants=optical_constants, light=light,
-                             camera=camera, grid=grid) + stray_floor for r in regions}
+    kw = dict(optical_constants=optical_constants, light=light, grid=grid)
+    truth = {r: green_values(ti, tr, r, params.get(r), camera=camera, **kw) + stray_floor for r in regions}
+    ratios = {r: (np.ones(len(pairs)), np.ones(len(pairs))) for r in regions}
+    if isinstance(camera, str):  # red and blue photosites through the same camera's own curves
+        from jkatana.measure.camera import green_sensitivity
+
+        for r in regions:
+            rgb = [green_values(ti, tr, r, params.get(r), camera=green_sensitivity(grid, camera, ch), **kw)
+                   + stray_floor for ch in ("red", "blue")]
+            safe = np.where(truth[r] > 0, truth[r], 1.0)
+            ratios[r] = tuple(np.where(truth[r] > 0, v / safe, 1.0) for v in rgb)
     raw_dir = out / "raw"
     raw_dir.mkdir(parents=True, exist_ok=True)
     rois = sensor.rois()
@@ -237,7 +261,8 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
         cid = capture_id(a, b)
         path = raw_dir / f"{cid}.dng"
         if not (resume and path.is_file()):
-            frame = render_frame(values, t, sensor, np.random.default_rng([seed, i]))
+            rb = {r: (float(ratios[r][0][i]), float(ratios[r][1][i])) for r in regions}
+            frame = render_frame(values, t, sensor, np.random.default_rng([seed, i]), rb)
             write_dng(path, frame, black=sensor.blacks, white=sensor.white, exposure_s=t)
         for r in regions:
             manifest_rows.append(dict(file=str(path), region=r, theta_i_deg=a, theta_r_deg=b, roi=[rois[r]],
