@@ -17,5 +17,5 @@ Nothing here imports pyrender at package import time: the GL platform must be
 chosen first (see :mod:`jkatana.interactive.gl`).
 """
 
-from jkatana.interactive.bake import Baked as Baked, bake as bake, cached_bake as cached_bake
+from jkatana.interactive.bake import Baked as Baked, cached_bake as cached_bake
 from jkatana.interactive.gl import GLUnavailable as GLUnavailable

@@ -100,7 +100,7 @@ class ShadingState:
     """What the shaders read: baked tables, reflectance map, and per-frame settings.
 
     - `baked`: :class:`jkatana.interactive.bake.Baked`; `refl_map`: ``(H, W, 3)`` w, μ0, μ1.
-    - per frame: `exposure`, `env_rotation` (radians about +Y, rotates the light with respect to the blade),
+    - per frame: `exposure`, `env_rotation` (radians about +Y, turns the light around the blade),
       and the static switches `rank` (≤ baked rank), `rough`, `blend`.
     """
 
@@ -121,8 +121,9 @@ class ShadingState:
         return {"JK_RANK": self.rank, "JK_ROUGH": int(self.rough), "JK_BLEND": int(self.blend)}
 
     def env_rot_matrix(self) -> np.ndarray:
-        """World → environment-map rotation (about +Y by −env_rotation: the light turns by +env_rotation)."""
-        c, s = np.cos(-self.env_rotation), np.sin(-self.env_rotation)
+        """World → environment-map rotation about +Y, as :func:`jkatana.render.renderer.rotation_y`
+        (a feature at compass azimuth a moves to a + env_rotation)."""
+        c, s = np.cos(self.env_rotation), np.sin(self.env_rotation)
         return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
     def textures(self) -> tuple[int, ...]:
@@ -161,7 +162,8 @@ class BakedProgram(ShaderProgram):
         return names, targets
 
     def check_uniforms(self):
-        missing = [u for u in UNIFORMS + tuple(self._samplers()[0]) if GL.glGetUniformLocation(self._program_id, u) == -1]
+        need = [u for u in UNIFORMS if self.state.rough or u not in ("jk_log_mu_first", "jk_log_mu_step")]
+        missing = [u for u in need + self._samplers()[0] if GL.glGetUniformLocation(self._program_id, u) == -1]
         if missing:
             raise RuntimeError(f"shader {self.fragment_shader} lacks uniforms {missing} (misspelt or unused)")
 

@@ -136,7 +136,7 @@ def shade(gbuf: dict, view, radiance: np.ndarray, refl_map: np.ndarray, *, grid:
     uv = gbuf["uv"][mask]
     m = np.asarray(bilinear(jnp.asarray(refl_map, dtype), jnp.asarray(uv[:, 0], dtype),
                             jnp.asarray(uv[:, 1], dtype), wrap_s=False))
-    c, s_ = np.cos(-env_rotation), np.sin(-env_rotation)
+    c, s_ = np.cos(env_rotation), np.sin(env_rotation)
     env_rot = jnp.asarray([[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]], dtype)
     conductor = Conductor.from_table(source, grid, dtype=dtype)
     env = jnp.asarray(radiance, dtype)

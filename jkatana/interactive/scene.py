@@ -201,3 +201,90 @@ def closeup_view(mesh: trimesh.Trimesh, width: int = 800, height: int = 600) -> 
     target = np.array([0.45 * hi[0], 0.5 * (lo[1] + hi[1]), 0.0])
     eye = target + np.array([0.0, 0.004, 0.045])
     return View(look_at(eye, target), np.deg2rad(40.0), width, height)
+
+
+# ----------------------------------------------------------------------------- what the viewer shows
+
+
+@dataclasses.dataclass
+class InteractiveScene:
+    """Everything the interactive path needs, from a scene TOML or the built-in default.
+
+    - `mesh` (trimesh with UVs), `refl_map` ``(H, W, 3)`` (w, μ0, μ1), `radiance` ``(H, W, wl)`` on `grid`;
+    - `view`: the initial camera; `target`: orbit centre; `exposure`, `colourspace`, `transfer`;
+    - `env_rotation` (radians about +Y); `source`: optical constants; `name`.
+    """
+
+    mesh: trimesh.Trimesh
+    refl_map: np.ndarray
+    radiance: np.ndarray
+    grid: WavelengthGrid
+    view: View
+    target: np.ndarray
+    exposure: float = 1.0
+    colourspace: str = "sRGB"
+    transfer: object = None
+    env_rotation: float = 0.0
+    source: str = "Fe-Johnson"
+    name: str = "default"
+
+    def orbit(self, n: int) -> list[View]:
+        """``n`` views turning about the vertical axis through `target` (full turn split evenly)."""
+        out = []
+        for k in range(n):
+            a = 2 * np.pi * k / max(n, 1)
+            c, s = np.cos(a), np.sin(a)
+            Ry = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+            pose = self.view.pose.copy()
+            pose[:3, :3] = Ry @ pose[:3, :3]
+            pose[:3, 3] = self.target + Ry @ (pose[:3, 3] - self.target)
+            out.append(View(pose, self.view.yfov, self.view.width, self.view.height))
+        return out
+
+
+def demo_view(width: int = 800, height: int = 600) -> View:
+    """The demo camera of :data:`jkatana.render.scene.DEMO_SCENE` (without its roll): looking up at the
+    omote flat near the hamon from 0.28 m (target (0.45, −0.022, 0), azimuth 20°, elevation −40°, fov 30°)."""
+    target = np.array([0.45, -0.022, 0.0])
+    az, el = np.deg2rad(20.0), np.deg2rad(-40.0)
+    eye = target + 0.28 * np.array([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)])
+    return View(look_at(eye, target), np.deg2rad(30.0), width, height)
+
+
+def default_scene(env: str = "sky", width: int = 800, height: int = 600) -> InteractiveScene:
+    """The built-in scene: default blade and map, a built-in environment, the demo camera."""
+    mesh = blade()
+    return InteractiveScene(mesh=mesh, refl_map=reflectance_map().stacked(), radiance=environment(env),
+                            grid=DEFAULT_GRID, view=demo_view(width, height), target=np.array([0.45, -0.022, 0.0]),
+                            name=f"default-{env}")
+
+
+def from_render_scene(path) -> InteractiveScene:
+    """Load a :mod:`jkatana.render` scene TOML (geometry, map, environment, camera, film, spectral grid)."""
+    from jkatana.render.renderer import _grid, camera_for, load_environment, load_geometry, load_maps
+    from jkatana.render.scene import load_scene
+
+    sc = load_scene(path)
+    grid = _grid(sc)
+    geometry = load_geometry(sc)
+    if not isinstance(geometry, trimesh.Trimesh):
+        from jkatana.errors import InputError
+        raise InputError("the interactive viewer needs a mesh (not an analytic sphere)", path=str(path),
+                         field="geometry")
+    maps = load_maps(sc, geometry)
+    maps = maps[0] if isinstance(maps, tuple) else maps
+    cam = camera_for(sc)
+    view = View(look_at(cam.position, cam.look_at, cam.up), np.deg2rad(cam.fov_deg), cam.width, cam.height)
+    film = sc.film
+    exposure = film.get("exposure", 1.0)
+    return InteractiveScene(
+        mesh=geometry, refl_map=np.asarray(maps, np.float64),
+        radiance=np.asarray(load_environment(sc, grid), np.float64), grid=grid, view=view,
+        target=np.asarray(cam.look_at, np.float64),
+        exposure=float(exposure) if isinstance(exposure, (int, float)) else float("nan"),
+        colourspace=film.get("colourspace", "sRGB"), transfer=film.get("transfer"),
+        env_rotation=np.deg2rad(float(sc.environment.get("rotation_deg", 0.0))),
+        source=sc.material.get("optical_constants", "Fe-Johnson"), name=Path(path).stem)
+
+
+from pathlib import Path  # noqa: E402

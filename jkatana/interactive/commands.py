@@ -1,0 +1,187 @@
+"""CLI: ``jkatana view [SCENE]`` (window) and ``jkatana view [SCENE] --offscreen --frames N -o DIR``."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+VIEW_HELP = "Interactive spectral view of the blade (pyrender + GLSL baked from the models); --offscreen for PNGs."
+
+
+def view_add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", nargs="?", default=None,
+                   help="scene TOML (jkatana.render schema); default: built-in blade, map and environment")
+    p.add_argument("--env", choices=("sky", "sun", "studio"), default="sky",
+                   help="built-in environment when no SCENE is given (default sky)")
+    p.add_argument("--offscreen", action="store_true", help="render an orbit to PNGs headless (EGL/OSMesa)")
+    p.add_argument("--frames", type=int, default=8, help="offscreen: number of orbit frames (default 8)")
+    p.add_argument("-o", "--output", default="out/view", help="folder for PNGs (default out/view)")
+    p.add_argument("--rank", type=int, default=3, choices=(1, 2, 3, 4), help="spectral basis rank (default 3)")
+    p.add_argument("--no-rough", action="store_true", help="mirror-like lobes (skip the roughness blur)")
+    p.add_argument("--no-blend", action="store_true", help="hiraji everywhere (ignore the map's w)")
+    p.add_argument("--exposure", type=float, default=None, help="exposure (default: the scene's, or auto)")
+    p.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), default=None)
+    p.add_argument("--msaa", type=int, default=0, help="offscreen MSAA samples (default 0; pyrender uses 4)")
+    p.add_argument("--screenshot", default=None, help="window: save the 3rd frame to this PNG and close")
+
+
+def _load(args):
+    from jkatana.interactive import scene as S
+
+    if args.scene is None:
+        sc = S.default_scene(args.env)
+    else:
+        if not Path(args.scene).exists():
+            from jkatana.errors import InputError
+            raise InputError("scene file not found", path=args.scene)
+        sc = S.from_render_scene(args.scene)
+    if args.resolution:
+        w, h = args.resolution
+        sc.view = S.View(sc.view.pose, sc.view.yfov, int(w), int(h))
+    if args.exposure is not None:
+        sc.exposure = args.exposure
+    if sc.exposure != sc.exposure:  # NaN: "auto"
+        sc.exposure = auto_exposure(sc.radiance, sc.grid)
+    return sc
+
+
+def auto_exposure(radiance, grid, key: float = 0.85, percentile: float = 99.5) -> float:
+    """Exposure putting the environment's bright end (Y at ``percentile``) at ``key``/F̄ (F̄ ≈ 0.55 for iron)."""
+    import numpy as np
+
+    from jkatana.spectral.colorimetry import xyz_weights
+
+    Y = np.asarray(radiance) @ xyz_weights(grid)[:, 1]
+    return float(key / max(0.55 * np.percentile(Y, percentile), 1e-12))
+
+
+def _state(sc, args, glrender):
+    from jkatana.interactive.bake import cached_bake
+
+    t = time.perf_counter()
+    baked = cached_bake(sc.radiance, sc.grid, rank=max(args.rank, 3), colourspace=sc.colourspace,
+                        transfer=sc.transfer, source=sc.source)
+    print(f"[view] tables baked/loaded in {time.perf_counter() - t:.1f} s (rank {baked.rank}, "
+          f"{len(baked.mus)} μ levels, Fresnel rank-{baked.rank} max rel. error {baked.fresnel_err:.1e})",
+          file=sys.stderr)
+    st = glrender.ShadingState(baked, sc.refl_map, exposure=sc.exposure, rank=args.rank, rough=not args.no_rough,
+                               blend=not args.no_blend)
+    st.env_rotation = sc.env_rotation
+    return st
+
+
+def _offscreen(args) -> int:
+    from jkatana.interactive.gl import GLUnavailable
+
+    sc = _load(args)
+    out = Path(args.output)
+    try:
+        from jkatana.interactive import glrender
+        st = _state(sc, args, glrender)
+        r = glrender.BakedOffscreenRenderer(st, sc.view.width, sc.view.height, samples=args.msaa)
+    except GLUnavailable as err:
+        print(f"jkatana view: {err}", file=sys.stderr)
+        return _fallback(args, out)
+    from PIL import Image
+    from tqdm import tqdm
+
+    from jkatana.io.atomic import atomic_path
+
+    out.mkdir(parents=True, exist_ok=True)
+    times = []
+    scene = glrender.build_scene(sc.mesh, sc.view)
+    cam = next(iter(scene.camera_nodes))
+    for k, v in enumerate(tqdm(sc.orbit(args.frames), desc="frames", file=sys.stderr)):
+        scene.set_pose(cam, v.pose)
+        t = time.perf_counter()
+        img = r.render(scene)
+        times.append(time.perf_counter() - t)
+        with atomic_path(out / f"frame_{k:04d}.png") as tmp:
+            Image.fromarray(img).save(tmp, format="PNG")
+    r.delete()
+    steady = sorted(times[1:] or times)[len(times[1:] or times) // 2]
+    print(f"jkatana view: {len(times)} frames {sc.view.width}×{sc.view.height} → {out}/frame_*.png; "
+          f"median {steady * 1e3:.1f} ms/frame (after the first; incl. read-back), "
+          f"platform {os.environ.get('PYOPENGL_PLATFORM')}")
+    return 0
+
+
+def _fallback(args, out: Path) -> int:
+    """No GL: render the same orbit with the JAX reference renderer (jkatana.render), if present."""
+    try:
+        from jkatana.render.renderer import prepare, render_view, write_outputs
+        from jkatana.render.scene import DEMO_SCENE, load_scene, scene_from_dict
+    except ImportError:
+        print("jkatana view: no GL and the reference renderer (jkatana.render) is not installed", file=sys.stderr)
+        return 1
+    print("jkatana view: falling back to the JAX reference renderer (slow; one frame per view)", file=sys.stderr)
+    scene = load_scene(args.scene) if args.scene else scene_from_dict(
+        {k: dict(v) if isinstance(v, dict) else v for k, v in DEMO_SCENE.items()})
+    prep = prepare(scene)
+    out.mkdir(parents=True, exist_ok=True)
+    for k in range(args.frames):
+        frame = render_view(prep, view=k, views=args.frames)
+        write_outputs(prep, frame, out / f"frame_{k:04d}")
+    print(f"jkatana view: {args.frames} reference frames → {out}")
+    return 0
+
+
+def view_run(args: argparse.Namespace) -> int:
+    if args.frames < 1:
+        from jkatana.errors import InputError
+        raise InputError(f"--frames must be >= 1, got {args.frames}", field="--frames")
+    if args.offscreen:
+        return _offscreen(args)
+    from jkatana.interactive.gl import GLUnavailable, missing_package
+
+    if not os.environ.get("DISPLAY"):
+        print("jkatana view: no X display (DISPLAY unset); use --offscreen, or run under Xvfb "
+              "(Debian package xvfb: xvfb-run jkatana view ...)", file=sys.stderr)
+        return 2
+    pkg = missing_package("window")
+    if pkg:
+        print(f"jkatana view: no OpenGL library; install the Debian package {pkg}", file=sys.stderr)
+        return 2
+    sc = _load(args)
+    try:
+        from jkatana.interactive import viewer
+        from jkatana.interactive import glrender
+    except GLUnavailable as err:
+        print(f"jkatana view: {err}", file=sys.stderr)
+        return 2
+    st = _state(sc, args, glrender)
+    scene = glrender.build_scene(sc.mesh, sc.view)
+    viewer.BladeViewer(scene, st, viewport_size=(sc.view.width, sc.view.height), out_dir=args.output,
+                       screenshot=args.screenshot, title=f"jkatana view — {sc.name}")
+    return 0
+
+
+def run_in_xvfb(argv: list[str], timeout: float = 120.0, size=(800, 600)) -> subprocess.CompletedProcess:
+    """Run ``jkatana view`` in a fresh process on a private Xvfb display (tests, headless CI)."""
+    import shutil
+    import tempfile
+
+    if shutil.which("Xvfb") is None:
+        raise FileNotFoundError("Xvfb not found; install the Debian package xvfb")
+    for disp in range(90, 140):
+        if not Path(f"/tmp/.X11-unix/X{disp}").exists() and not Path(f"/tmp/.X{disp}-lock").exists():
+            break
+    xvfb = subprocess.Popen(["Xvfb", f":{disp}", "-screen", "0", f"{size[0] + 64}x{size[1] + 64}x24", "-nolisten",
+                             "tcp"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(100):
+            if Path(f"/tmp/.X11-unix/X{disp}").exists():
+                break
+            time.sleep(0.05)
+        env = dict(os.environ, DISPLAY=f":{disp}")
+        env.pop("PYOPENGL_PLATFORM", None)
+        with tempfile.TemporaryDirectory():
+            return subprocess.run([sys.executable, "-m", "jkatana.cli", "view", *argv], env=env,
+                                  capture_output=True, text=True, timeout=timeout)
+    finally:
+        xvfb.terminate()
+        xvfb.wait(timeout=10)
