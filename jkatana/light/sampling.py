@@ -65,8 +65,17 @@ class EnvSampler(eqx.Module):
     cos_edges: Float[Array, "H1"]
 
     @classmethod
-    def build(cls, env: EnvMap, *, floor: float = 0.01, uniform: float = 1e-6) -> "EnvSampler":
+    def build(cls, env: EnvMap, *, floor: float = 0.01, uniform: float = 1e-6,
+              bilinear: bool = True) -> "EnvSampler":
         """Tables from ``env``: weight per texel = ``(Y-weighted + floor·flat spectral mean)·Ω + uniform``.
+
+        With ``bilinear`` (default) the weight is the texel's integral of the
+        *bilinear* radiance that :meth:`EnvMap.lookup` returns — the separable
+        ``(1, 6, 1)/8`` filter of the texel values (wrapping in u, clamped in v) —
+        so that ``f/p`` stays bounded next to a one-texel sun (otherwise the
+        bilinear spill of the sun into neighbouring texels, sampled at sky
+        density, makes the estimator heavy-tailed: unbiased in expectation but
+        low with high probability at practical sample counts).
 
         **Arguments:**
 
@@ -81,7 +90,12 @@ class EnvSampler(eqx.Module):
         ybar = cmfs(env.grid)[:, 1]
         w = (1 - floor) * ybar / ybar.sum() + floor / n
         omega = (np.cos(np.arange(H) * np.pi / H) - np.cos(np.arange(1, H + 1) * np.pi / H)) * (2 * np.pi / W)
-        f = np.maximum(L, 0.0) @ w * omega[:, None]
+        y = np.maximum(L, 0.0) @ w
+        if bilinear:
+            y = (np.roll(y, 1, axis=1) + 6 * y + np.roll(y, -1, axis=1)) / 8
+            yp = np.concatenate([y[:1], y, y[-1:]], axis=0)
+            y = (yp[:-2] + 6 * yp[1:-1] + yp[2:]) / 8
+        f = y * omega[:, None]
         total = f.sum()
         f = f + (uniform * total if total > 0 else 1.0) * omega[:, None] / (4 * np.pi)
         row = f.sum(axis=1)
@@ -196,7 +210,9 @@ def gaussian_lobe_pdf(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"], mu) -> F
 
     ``p_h = q(φ) / (2π sin φ)`` with ``q(φ) = (2 ln2/μ²) φ e^{−ln2 φ²/μ²} / c``
     (``φ/sin φ`` evaluated as ``1/sinc``, finite at φ = 0), then the reflection
-    Jacobian ``1/(4 V·H)``. Zero where V·H ≤ 0 or φ > π/2.
+    Jacobian ``1/(4 V·H)``. Zero where V·H ≤ 0 or φ > π/2: the few half vectors
+    drawn with V·H ≤ 0 (grazing V, large μ) are dropped (their samples get pdf 0 and
+    contribute 0), which is unbiased because f_r = 0 there (V·(L+V) ≥ 0 always).
     """
     L, V = jnp.broadcast_arrays(jnp.asarray(L), jnp.asarray(V))
     dt = L.dtype
@@ -281,3 +297,23 @@ def reflected_radiance(key, env: EnvMap, sampler: EnvSampler, brdf_cos: Callable
         w = mis_weight(p_b, sampler.pdf(d), n_lobe, n_env, heuristic) if strategy == "mis" else 1.0
         out = out + jnp.sum((w / jnp.where(p_b > 0, p_b, 1.0))[..., None] * f, axis=0) / n_lobe
     return out
+
+
+def reflected_radiance_quadrature(env: EnvMap, brdf_cos: Callable, V_local, frame, extent: float,
+                                  n_radial: int = 256, n_azimuth: int = 256) -> Float[Array, "wl"]:
+    """Brute-force reference for :func:`reflected_radiance`: polar Gauss–Legendre quadrature
+    around the mirror direction, out to angle ``extent`` (rad; e.g. 16 μ for the Gaussian lobe,
+    beyond which D < 1e-11), with the same bilinear :meth:`EnvMap.lookup`.
+    """
+    V_local = jnp.asarray(V_local)
+    R_local = jnp.array([-V_local[0], -V_local[1], V_local[2]])
+    x, w = np.polynomial.legendre.leggauss(n_radial)
+    a = 0.5 * extent * (x + 1)
+    wa = 0.5 * extent * w * np.sin(a)
+    az = (np.arange(n_azimuth) + 0.5) / n_azimuth * 2 * np.pi
+    loc = np.stack(np.broadcast_arrays(np.sin(a)[:, None] * np.cos(az)[None], np.sin(a)[:, None] * np.sin(az)[None],
+                                       np.cos(a)[:, None]), -1)
+    fr_R = frame_from_normal(R_local)
+    Ll = to_world(fr_R, jnp.asarray(loc, V_local.dtype))  # local shading frame, around R
+    vals = brdf_cos(Ll, V_local) * env.lookup(to_world(frame, Ll))
+    return jnp.einsum("r,rl->l", jnp.asarray(wa * 2 * np.pi / n_azimuth, V_local.dtype), jnp.sum(vals, axis=1))
