@@ -119,6 +119,7 @@ def _jac(p, args):
 # --------------------------------------------------------------------------- closed form
 
 
+@functools.partial(jax.jit, static_argnames=("spec", "snr_min", "rel_min", "mu_fallback"))
 def closed_form_start(terms: Terms, y, w, spec: ModelSpec, *, snr_min: float = 3.0,
                       rel_min: float = 1e-3, mu_fallback: float = 0.05):
     """Linear least-squares start in log space (module docstring), jit/vmap-able.

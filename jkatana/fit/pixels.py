@@ -76,13 +76,18 @@ def _one_pixel(y, w, terms, spec, steps):
     return p, cost, dec
 
 
-@functools.partial(jax.jit, static_argnames=("spec", "steps"))
-def _batch(Y, W, terms, spec, steps):
+@functools.partial(jax.jit, static_argnames=("spec", "steps", "noise"))
+def _batch(Y, S, terms, spec, steps, noise):
+    finite = jnp.isfinite(Y)
+    Y = jnp.where(finite, Y, 0.0)
+    if noise is not None:
+        S = noise.sigma(Y)
+    W = jnp.where(finite & (S > 0), 1.0 / jnp.where(S > 0, S, 1.0), 0.0).astype(Y.dtype)
     return jax.vmap(lambda y, w: _one_pixel(y, w, terms, spec, steps))(Y, W)
 
 
 def fit_pixels(values, terms: Terms, *, model: str = "hiraji", noise: NoiseModel | None = None, sigma=None,
-               steps: int = 8, tol: float | None = None, chunk: int | None = None) -> dict:
+               steps: int = 4, tol: float | None = None, chunk: int | None = None) -> dict:
     """Fit (scale, μ) for every pixel; every pixel is measured at the geometry of ``terms``.
 
     **Arguments:**
@@ -106,17 +111,14 @@ def fit_pixels(values, terms: Terms, *, model: str = "hiraji", noise: NoiseModel
     Y = jnp.asarray(values, dtype)
     if Y.ndim != 2 or Y.shape[1] != terms.phi.shape[0]:
         raise ValueError(f"values must be (pixels, {terms.phi.shape[0]}), got {Y.shape}")
-    finite = jnp.isfinite(Y)
-    Y0 = jnp.where(finite, Y, 0.0)
     if sigma is not None:
-        S = jnp.asarray(sigma, dtype)
+        S, noise = jnp.asarray(sigma, dtype), None
     else:
-        noise = noise or NoiseModel()
-        S = noise.sigma(Y0)
-    W = jnp.where(finite & (S > 0), 1.0 / jnp.where(S > 0, S, 1.0), 0.0).astype(dtype)
+        S, noise = jnp.zeros((), dtype), (noise or NoiseModel())
     P = Y.shape[0]
     chunk = chunk or P
-    outs = [_batch(Y0[i:i + chunk], W[i:i + chunk], terms, spec, steps) for i in range(0, P, chunk)]
+    outs = [_batch(Y[i:i + chunk], S if S.ndim == 0 else S[i:i + chunk], terms, spec, steps, noise)
+            for i in range(0, P, chunk)]
     p = np.concatenate([np.asarray(o[0]) for o in outs])
     cost = np.concatenate([np.asarray(o[1]) for o in outs])
     dec = np.concatenate([np.asarray(o[2]) for o in outs])
