@@ -51,6 +51,12 @@ def _text(meta: dict) -> dict[str, str]:
     return {k: v if isinstance(v, str) else json.dumps(v, default=str) for k, v in meta.items()}
 
 
+def _attrs(meta: dict) -> dict:
+    """EXR attributes: numbers stay numbers, anything else becomes a string (JSON for containers)."""
+    return {k: v if isinstance(v, (str, int, float)) and not isinstance(v, bool) else json.dumps(v, default=str)
+            for k, v in meta.items()}
+
+
 def write_png(path: str | Path, display_rgb: np.ndarray, meta: dict | None = None) -> Path:
     """8-bit PNG with ``meta`` as tEXt chunks (atomic)."""
     from PIL import Image, PngImagePlugin
@@ -69,7 +75,7 @@ def write_xyz_exr(path: str | Path, xyz: np.ndarray, mask: np.ndarray | None = N
     ch = {"X": xyz[..., 0], "Y": xyz[..., 1], "Z": xyz[..., 2]}
     if mask is not None:
         ch["mask"] = mask.astype(np.float32)
-    return write_exr(path, ch, header=_text(meta or {}))
+    return write_exr(path, ch, header=_attrs(meta or {}))
 
 
 def write_spectral_exr(path: str | Path, spectra: np.ndarray, grid: WavelengthGrid,
@@ -79,7 +85,7 @@ def write_spectral_exr(path: str | Path, spectra: np.ndarray, grid: WavelengthGr
         from jkatana.light.spectral_exr import write_spectral_exr as _write
 
         try:
-            return _write(path, spectra, grid, header=_text(meta or {}))
+            return _write(path, spectra, grid, header=_attrs(meta or {}))
         except TypeError:
             return _write(path, spectra, grid)
     except ImportError:
