@@ -474,3 +474,12 @@ def test_exposure_comes_from_the_raw_file_when_the_manifest_has_none(tmp_path):
     with pytest.raises(InputError) as err:
         measure(tmp_path / "m2.csv")
     assert err.value.row == 1 and err.value.field == "exposure_s"
+
+
+def test_spreadsheet_csv_with_bom_and_quoted_roi(tmp_path, campaign):
+    good = sorted((campaign / "raw").glob("*.dng"))[0]
+    shutil.copy(good, tmp_path / "a.dng")
+    (tmp_path / "m.csv").write_text('\ufefffile,region,theta_i_deg,theta_r_deg,exposure_s,roi\n'
+                                    'a.dng,Hiraji, 15 ,10,0.1,"4,4,8,8"\n', encoding="utf-8")
+    t = measure(tmp_path / "m.csv")
+    assert t.region[0] == "hiraji" and t.n_pixels[0] == 32

@@ -152,7 +152,7 @@ def _records(path: Path) -> list[dict]:
             raise InputError("expects an array of [[capture]] tables", path=path, field="capture")
         return records
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a BOM from spreadsheet exports is fine
     except UnicodeDecodeError:
         raise InputError("not a UTF-8 CSV file", path=path) from None
     rows = [r for r in csv.reader(io.StringIO(text)) if r and any(c.strip() for c in r)

@@ -257,7 +257,7 @@ def read_table(path: str | Path) -> MeasurementTable:
             raise InputError(f"not a readable Parquet file ({err})", path=path) from None
     else:
         try:
-            text = path.read_text(encoding="utf-8")
+            text = path.read_text(encoding="utf-8-sig")
         except UnicodeDecodeError:
             raise InputError("not a UTF-8 text (CSV) file", path=path) from None
         reader = csv.reader(io.StringIO(text))
