@@ -430,3 +430,21 @@ def test_fig9_shape(theta_i_deg):
             tilt = mu**2 * math.tan(ti + 2 * phi[i]) / LN2
             assert abs(phi[i] - tilt) <= 0.05 * tilt + step
             assert hwhm == pytest.approx(mu, rel=0.03)
+
+
+def test_fig9_script_writes_png(tmp_path):
+    """experiments/fig9_paper_curves.py runs end to end into a temporary folder (coarse angles)."""
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "experiments" / "fig9_paper_curves.py"
+    spec = importlib.util.spec_from_file_location("fig9_paper_curves", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    path = module.main(["--out", str(tmp_path), "--angles", "181"])
+    assert path == tmp_path / "fig9_paper_curves.png"
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
+    theta_r, result = module.curves(n_angles=181)  # peaks at the specular angle (0.5° grid)
+    for ti in module.INCIDENCES_DEG:
+        assert theta_r[np.argmax(result[ti]["hiraji"]["green"])] == pytest.approx(ti, abs=0.25)
