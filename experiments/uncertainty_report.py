@@ -80,6 +80,11 @@ def main(argv=None):
             summary["emcee_over_laplace_width"] = {n: float(np.median(v)) for n, v in rec["width_ratio"].items()}
         results[region] = summary
         print(json.dumps({region: summary}, indent=1), file=sys.stderr)
+    previous = OUT / "uncertainty_report.json"
+    if previous.exists():  # keep regions from an earlier run that this run did not redo
+        old = json.loads(previous.read_text())
+        results = {**{k: v for k, v in old.items() if k not in results}, **results}
+        results = {k: results[k] for k in ("hiraji", "hamon") if k in results}
     (OUT / "uncertainty_report.json").write_text(json.dumps(results, indent=2) + "\n")
     lines = ["# Interval calibration (95 %) over synthetic paper-protocol campaigns", "",
              "| region | campaigns | converged | param | Laplace coverage | emcee coverage | emcee/Laplace width |",

@@ -62,6 +62,38 @@ def test_green_matches_spectral_models():
     np.testing.assert_allclose(got, expect, rtol=1e-6, atol=1e-9 * expect.max())
 
 
+from hypothesis import given, strategies as st  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def small_terms():
+    setup = Setup()
+    n, k = setup.nk()
+    ti = np.array([0.0, 15.0, 45.0, 65.0, 89.9, 30.0, 30.0])
+    tr = np.array([0.0, 15.0, 45.1, 80.0, 89.9, 30.0001, -30.0])
+    return {m: prepare(m, ti, tr, n, k, setup.weights()) for m in ("hiraji", "hamon")}
+
+
+@given(log_mu=st.floats(-14.0, 0.5), tilt=st.floats(-0.3, 0.3), model=st.sampled_from(["hiraji", "hamon"]),
+       floor=st.booleans())
+def test_green_and_gradient_finite(small_terms, log_mu, tilt, model, floor):
+    """μ down to 1e-6 rad, grazing, back-scatter, θi = θr: values and gradients finite (hypothesis)."""
+    p = jnp.asarray([math.log(5e4), log_mu, tilt] + ([3.0] if floor else []))
+    value, grad = _value_grad(p, small_terms[model], ModelSpec(model, tilt=True, floor=floor))
+    assert np.all(np.isfinite(np.asarray(value)))
+    assert np.all(np.isfinite(np.asarray(grad)))
+
+
+@__import__("functools").partial(__import__("jax").jit, static_argnames="spec")
+def _value_grad(p, terms, spec):
+    import jax
+
+    def f(q):
+        return jnp.sum(((green(q, terms, spec) - 100.0) / 10.0) ** 2)
+
+    return green(p, terms, spec), jax.grad(f)(p)
+
+
 def test_noise_estimate_recovers_simulator():
     data, _ = campaign("hiraji", seed=3, noise=synthetic.NoiseModel(relative=0.03, shot=2.0, floor=15.0))
     nm = estimate_noise(data.value, data.sigma)

@@ -76,9 +76,9 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     figs = []
 
-    def save(fig, name):
+    def save(fig, name, tight=False):
         with atomic_path(out / name) as tmp:
-            fig.savefig(tmp, dpi=110, format="png")
+            fig.savefig(tmp, dpi=110, format="png", bbox_inches="tight" if tight else None)
         plt.close(fig)
         figs.append(name)
 
@@ -178,7 +178,7 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
             lo, hi = d["laplace"]["ci95"][n]
             axes[i, i].axvspan(lo, hi, color="C2", alpha=0.2)
         fig.suptitle("emcee posterior (Laplace 95 % in green)", fontsize=9, y=1.0)
-        save(fig, "corner.png")
+        save(fig, "corner.png", tight=True)
 
     # ---- Markdown
     lines = [f"# jkatana fit report — {P.region}", "",
