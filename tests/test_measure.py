@@ -483,3 +483,16 @@ def test_spreadsheet_csv_with_bom_and_quoted_roi(tmp_path, campaign):
                                     'a.dng,Hiraji, 15 ,10,0.1,"4,4,8,8"\n', encoding="utf-8")
     t = measure(tmp_path / "m.csv")
     assert t.region[0] == "hiraji" and t.n_pixels[0] == 32
+
+
+def test_parallel_ingest_reports_the_bad_row_and_writes_nothing(tmp_path, campaign):
+    shutil.copytree(campaign, tmp_path / "c")
+    lines = (tmp_path / "c" / "manifest.csv").read_text().splitlines()
+    victim_row = 41  # data row (1-based); its file is truncated below
+    victim = tmp_path / "c" / lines[victim_row].split(",")[0]
+    victim.write_bytes(victim.read_bytes()[:300])
+    with pytest.raises(InputError) as err:
+        measure_to_file(tmp_path / "c" / "manifest.csv", tmp_path / "t.csv", workers=2)
+    rows_of_file = [i for i, line in enumerate(lines[1:], start=1) if line.startswith(lines[victim_row].split(",")[0])]
+    assert err.value.row == rows_of_file[0] and err.value.field == "file" and victim.name in str(err.value)
+    assert not (tmp_path / "t.csv").exists()
