@@ -1,0 +1,188 @@
+"""CLI of the light stage: ``jkatana light build | convert | inspect | prefilter``.
+
+- ``build``: the Hosek–Wilkie spectral sky (sun by elevation/azimuth or place + time) →
+  spectral EXR (Fichet 2021) + PNG preview with the sun marked.
+- ``convert``: RGB EXR / Radiance HDR → spectral EXR by a named upsampling method; prints
+  the RGB → spectrum → RGB round-trip error.
+- ``inspect``: any environment map → PNG preview (sun = brightest texel marked) and a
+  summary (size, grid, power, sun direction and its share of the power).
+- ``prefilter``: lobe-prefiltered levels for a list of μ → one spectral EXR per μ.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from jkatana.errors import InputError
+
+LIGHT_HELP = "Build (Hosek–Wilkie sky), convert (RGB → spectral EXR), inspect and prefilter environment maps."
+
+
+def _grid_args(p):
+    p.add_argument("--grid", nargs=3, type=float, metavar=("START", "STOP", "STEP"), default=(400.0, 700.0, 5.0),
+                   help="wavelength grid in nm (default 400 700 5)")
+
+
+def light_add_arguments(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="light_command", metavar="ACTION", required=True)
+
+    b = sub.add_parser("build", help="spectral Hosek–Wilkie sky (+ sun, + ground) → spectral EXR + PNG")
+    b.add_argument("-o", "--output", required=True, help="output spectral EXR (a .png preview is written beside it)")
+    b.add_argument("--elevation", type=float, default=30.0, help="sun elevation (deg, 0–90)")
+    b.add_argument("--azimuth", type=float, default=180.0, help="sun azimuth, clockwise from north = −Z (deg)")
+    b.add_argument("--place", nargs=2, type=float, metavar=("LAT", "LON"),
+                   help="latitude, longitude (deg, east positive): sun from --time instead")
+    b.add_argument("--time", help="ISO date-time, e.g. 2024-06-21T12:00+09:00 (UTC if no offset)")
+    b.add_argument("--turbidity", type=float, default=3.0)
+    b.add_argument("--albedo", type=float, default=0.1, help="ground albedo 0–1")
+    b.add_argument("--resolution", nargs=2, type=int, default=(512, 1024), metavar=("H", "W"))
+    b.add_argument("--no-sun", action="store_true", help="sky only")
+    _grid_args(b)
+
+    c = sub.add_parser("convert", help="RGB EXR/HDR → spectral EXR (Fichet 2021)")
+    c.add_argument("input")
+    c.add_argument("-o", "--output", required=True)
+    c.add_argument("--upsampling", default="Jakob 2019", help="Jakob 2019 | Mallett 2019 | Smits 1999 | Flat")
+    c.add_argument("--scale", type=float, default=1.0)
+    _grid_args(c)
+
+    i = sub.add_parser("inspect", help="PNG preview with the sun marked, and a summary")
+    i.add_argument("input")
+    i.add_argument("-o", "--output", help="PNG path (default: input with .png)")
+    i.add_argument("--upsampling", default="Mallett 2019", help="for RGB inputs")
+    i.add_argument("--exposure", type=float, help="multiplier on luminance (default: median sky → 0.18)")
+    _grid_args(i)
+
+    f = sub.add_parser("prefilter", help="lobe-prefiltered levels → spectral EXRs <output>_mu<μ>.exr")
+    f.add_argument("input")
+    f.add_argument("-o", "--output", required=True, help="output prefix")
+    f.add_argument("--mus", nargs="+", type=float, default=[0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3])
+    f.add_argument("--upsampling", default="Jakob 2019")
+    _grid_args(f)
+
+
+def _grid(args):
+    from jkatana.spectral import WavelengthGrid
+
+    return WavelengthGrid(*args.grid)
+
+
+def preview_png(env, path, *, exposure: float | None = None, mark_sun: bool = True, sun_dir=None) -> dict:
+    """Write a tone-mapped sRGB PNG of ``env`` with the sun circled; return summary facts."""
+    from PIL import Image, ImageDraw
+
+    from jkatana.io.atomic import atomic_path
+    from jkatana.light.envmap import direction_to_uv
+    from jkatana.spectral.colorimetry import to_display, to_png8
+
+    xyz = np.asarray(env.xyz(), np.float64)
+    Y = xyz[..., 1]
+    omega = np.asarray(env.solid_angles(), np.float64)
+    if exposure is None:
+        med = float(np.median(Y[: env.height // 2])) or float(Y.mean()) or 1.0
+        exposure = 0.18 / med
+    x = xyz * exposure
+    # Reinhard on luminance keeps the sun's surroundings readable
+    Yx = x[..., 1:2]
+    x = x / (1.0 + Yx)
+    img = to_png8(to_display(x))
+    im = Image.fromarray(img)
+    j, i = np.unravel_index(np.argmax(Y), Y.shape)
+    d = np.asarray(env.directions())[j, i] if sun_dir is None else np.asarray(sun_dir)
+    power = Y * omega
+    share = float(np.sort(power.ravel())[::-1][: max(1, Y.size // 1000)].sum() / power.sum()) if power.sum() > 0 else 0
+    elev = math.degrees(math.asin(max(-1.0, min(1.0, float(d[1])))))
+    az = math.degrees(math.atan2(float(d[0]), -float(d[2]))) % 360
+    if mark_sun:
+        u, v = (float(t) for t in direction_to_uv(d))
+        cx, cy = u * env.width, v * env.height
+        r = max(6, env.width // 64)
+        draw = ImageDraw.Draw(im)
+        draw.ellipse([cx - r, cy - r, cx + r, cy + r], outline=(255, 0, 0), width=max(1, env.width // 512))
+    with atomic_path(path) as tmp:
+        im.save(tmp, format="PNG")
+    return {"exposure": exposure, "sun_elevation_deg": elev, "sun_azimuth_deg": az,
+            "brightest_0.1%_power_share": share}
+
+
+def light_run(args: argparse.Namespace) -> int:
+    return {"build": _build, "convert": _convert, "inspect": _inspect, "prefilter": _prefilter}[args.light_command](args)
+
+
+def _build(args) -> int:
+    from jkatana.light.sky import hosek_wilkie_sky, sun_direction, sun_position
+    from jkatana.light.spectral_exr import write_spectral_exr
+
+    elev, az = args.elevation, args.azimuth
+    if args.place:
+        if not args.time:
+            raise InputError("--place needs --time", field="time")
+        try:
+            when = dt.datetime.fromisoformat(args.time)
+        except ValueError:
+            raise InputError(f"not an ISO date-time: {args.time!r}", field="time") from None
+        elev, az = sun_position(args.place[0], args.place[1], when)
+        print(f"sun at elevation {elev:.2f}°, azimuth {az:.2f}° (NOAA)")
+        if elev < 0:
+            raise InputError(f"the sun is below the horizon ({elev:.1f}°) at that place and time", field="time")
+    env = hosek_wilkie_sky(elev, az, args.turbidity, args.albedo, tuple(args.resolution), _grid(args),
+                           sun=not args.no_sun)
+    out = Path(args.output)
+    write_spectral_exr(out, np.asarray(env.radiance), env.grid)
+    facts = preview_png(env, out.with_suffix(".png"), sun_dir=sun_direction(elev, az))
+    print(f"wrote {out} ({env.height}×{env.width}×{env.grid.size}) and {out.with_suffix('.png')}; "
+          f"sun share of luminous power (brightest 0.1 % texels): {facts['brightest_0.1%_power_share']:.3f}")
+    return 0
+
+
+def _convert(args) -> int:
+    from jkatana.light.envmap import read_rgb_image
+    from jkatana.light.spectral_exr import write_spectral_exr
+    from jkatana.light.upsampling import rgb_to_spectrum, round_trip_error
+
+    grid = _grid(args)
+    rgb = read_rgb_image(args.input) * args.scale
+    L = rgb_to_spectrum(rgb, args.upsampling, grid)
+    write_spectral_exr(args.output, L, grid)
+    sub = rgb.reshape(-1, 3)[:: max(1, rgb.size // 3 // 20000)]
+    err = round_trip_error(sub, args.upsampling, grid)
+    print(f"wrote {args.output} ({L.shape[0]}×{L.shape[1]}×{grid.size}, {args.upsampling}); "
+          f"RGB→spectrum→RGB error (relative to max channel): mean {err['mean']:.2e}, "
+          f"p99 {err['p99']:.2e}, max {err['max']:.2e}")
+    return 0
+
+
+def _inspect(args) -> int:
+    from jkatana.light.envmap import load_envmap
+
+    env = load_envmap(args.input, _grid(args), upsampling=args.upsampling)
+    out = Path(args.output) if args.output else Path(args.input).with_suffix(".png")
+    facts = preview_png(env, out, exposure=args.exposure)
+    p = np.asarray(env.irradiance((0.0, 1.0, 0.0)))
+    print(f"{args.input}: {env.height}×{env.width}, grid {env.grid.start:g}–{env.grid.stop:g}/{env.grid.step:g} nm, "
+          f"grey={env.is_grey()}")
+    print(f"  brightest texel at elevation {facts['sun_elevation_deg']:.2f}°, azimuth {facts['sun_azimuth_deg']:.2f}°; "
+          f"brightest 0.1 % of texels carry {100 * facts['brightest_0.1%_power_share']:.1f} % of the luminous power")
+    print(f"  horizontal irradiance at 550 nm: {np.interp(550, env.grid.wavelengths, p):.4g} (map units × sr)")
+    print(f"  preview: {out}")
+    return 0
+
+
+def _prefilter(args) -> int:
+    from jkatana.light.envmap import load_envmap
+    from jkatana.light.prefilter import prefilter
+    from jkatana.light.spectral_exr import write_spectral_exr
+
+    env = load_envmap(args.input, _grid(args), upsampling=args.upsampling)
+    pf = prefilter(env, args.mus, progress=sys.stderr.isatty() or True)
+    for mu, lvl in zip(pf.mus, pf.levels):
+        path = Path(f"{args.output}_mu{mu:g}.exr")
+        write_spectral_exr(path, np.asarray(lvl.radiance), lvl.grid)
+        print(f"wrote {path} ({lvl.height}×{lvl.width})")
+    return 0
