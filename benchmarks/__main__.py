@@ -1,81 +1,185 @@
-"""Run the benchmark suite: ``python -m benchmarks [--quick] [-o results.json]``.
+"""Run the benchmark suite: ``python -m benchmarks [--quick|--full] [--only ...] [-o results.json] [--report DIR]``.
 
 Every ``bench_*.py`` module runs in a subprocess of its own (so its peak memory
-and JIT cache are its own); the records and the machine's facts go into one
-JSON file, written atomically. ``--report DIR`` then renders the report.
+and JIT cache are its own) under a wall-clock budget the runner enforces; the
+records, each module's status (ok / failed / timeout), wall time and budget,
+and the machine's facts go into one JSON file, written atomically.
+``--report DIR`` then renders the report (:mod:`benchmarks.report`).
+A module that fails or overruns is reported and the others still run; the
+exit status is 1 if any failed.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
+import collections
 import json
 import os
 import subprocess
 import sys
+import tempfile
+import threading
 import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 BENCH_HELP = "Run the benchmark suite (what accuracy costs in time) and write a JSON results file."
 
+#: Whole-suite wall-clock budgets (s): full mode must fit in 30 min on 2 cores.
+TOTAL_BUDGET = {"quick": 600.0, "full": 1680.0}
+
 
 def discover() -> list[str]:
+    """Names of the ``bench_*.py`` modules beside this file, sorted."""
     return sorted(p.stem for p in HERE.glob("bench_*.py"))
 
 
 def bench_add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--quick", action="store_true", help="small sizes and few repeats (CI smoke)")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--quick", action="store_true", help="small sizes and few repeats (CI smoke, minutes)")
+    mode.add_argument("--full", action="store_true", help="full sizes (the default); the suite fits in 30 min")
     p.add_argument("--only", nargs="*", default=None, help="benchmark module names (e.g. bench_models)")
-    p.add_argument("-o", "--output", default="benchmarks/results/results.json")
-    p.add_argument("--timeout", type=float, default=1800.0, help="seconds per benchmark module")
+    p.add_argument("-o", "--output", default="benchmarks/results/results.json", help="results JSON path")
+    p.add_argument("--report", default=None, metavar="DIR",
+                   help="after the run, write report.md, headline.md and plots into DIR")
+    p.add_argument("--budget-total", type=float, default=None,
+                   help="wall-clock seconds for the whole suite, shared among modules "
+                        f"(default {TOTAL_BUDGET['quick']:.0f} quick, {TOTAL_BUDGET['full']:.0f} full)")
+    p.add_argument("--timeout", type=float, default=None,
+                   help="cap on any one module's budget in seconds (default: none beyond its share)")
 
 
-def _run_one(name: str, quick: bool) -> list[dict]:
-    module = importlib.import_module(f"benchmarks.{name}")
-    return module.run(quick=quick)
+def _pump(stream, sink, tail: collections.deque) -> None:
+    for line in iter(stream.readline, ""):
+        tail.append(line)
+        sink.write(line)
+        sink.flush()
+    stream.close()
+
+
+def run_module(name: str, *, quick: bool, budget: float, cwd: Path = HERE.parent) -> dict:
+    """Run one benchmark module in a subprocess under ``budget`` seconds.
+
+    **Returns:** ``{"status": "ok"|"failed"|"timeout", "records": [...], "wall_s",
+    "budget_s", "returncode", "stderr_tail"}``. A timed-out module keeps the
+    records it made before the deadline, marked ``"partial": true``.
+    """
+    with tempfile.TemporaryDirectory(prefix=f"jkbench-{name}-") as tmp:
+        out_path = Path(tmp) / "records.json"
+        partial_path = Path(tmp) / "partial.jsonl"
+        env = dict(os.environ, JKATANA_BENCH_PARTIAL=str(partial_path),
+                   JKATANA_BENCH_BUDGET_S=f"{budget:.1f}")
+        cmd = [sys.executable, "-m", "benchmarks", "--_child", name, "--_out", str(out_path)]
+        cmd += ["--quick"] if quick else []
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, start_new_session=True)
+        tail: collections.deque = collections.deque(maxlen=60)
+        pumps = [threading.Thread(target=_pump, args=(proc.stdout, sys.stderr, tail), daemon=True),
+                 threading.Thread(target=_pump, args=(proc.stderr, sys.stderr, tail), daemon=True)]
+        for t in pumps:
+            t.start()
+        timed_out = False
+        try:
+            proc.wait(timeout=budget)
+        except subprocess.TimeoutExpired:
+            timed_out = True
+            try:
+                os.killpg(proc.pid, 9)  # the child's own session: it and only its children
+            except ProcessLookupError:
+                pass
+            proc.wait()
+        for t in pumps:
+            t.join(timeout=5)
+        wall = time.perf_counter() - t0
+        result = {"wall_s": round(wall, 2), "budget_s": round(budget, 1), "returncode": proc.returncode,
+                  "stderr_tail": "".join(tail)[-4000:]}
+        if not timed_out and proc.returncode == 0 and out_path.exists():
+            result.update(status="ok", records=json.loads(out_path.read_text()))
+            result.pop("stderr_tail")
+            return result
+        records = []
+        if partial_path.exists():
+            for line in partial_path.read_text().splitlines():
+                try:
+                    records.append(dict(json.loads(line), partial=True))
+                except ValueError:
+                    pass
+        result.update(status="timeout" if timed_out else "failed", records=records)
+        return result
 
 
 def bench_run(args: argparse.Namespace) -> int:
     from benchmarks._harness import machine_facts
 
+    mode = "quick" if args.quick else "full"
     names = args.only or discover()
-    results = {"machine": machine_facts(), "mode": "quick" if args.quick else "full",
+    unknown = [n for n in names if not (HERE / f"{n}.py").exists()]
+    if unknown:
+        print(f"[bench] unknown benchmark module(s): {', '.join(unknown)}; known: {', '.join(discover())}",
+              file=sys.stderr)
+        return 2
+    total = args.budget_total if args.budget_total is not None else TOTAL_BUDGET[mode]
+    results = {"machine": machine_facts(), "mode": mode, "budget_total_s": total,
                "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "benchmarks": {}}
     failed = []
-    for name in names:
-        t0 = time.perf_counter()
-        cmd = [sys.executable, "-m", "benchmarks", "--_child", name] + (["--quick"] if args.quick else [])
-        print(f"[bench] {name} ...", flush=True)
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout,
-                              cwd=HERE.parent)
-        dt = time.perf_counter() - t0
-        if proc.returncode != 0:
-            failed.append(name)
-            print(proc.stdout[-4000:], proc.stderr[-4000:], sep="\n", file=sys.stderr)
-            results["benchmarks"][name] = {"error": proc.stderr[-4000:], "wall_s": dt}
-            continue
-        payload = json.loads(proc.stdout.strip().splitlines()[-1])
-        results["benchmarks"][name] = {"records": payload, "wall_s": dt}
-        print(f"[bench] {name}: {len(payload)} records in {dt:.1f} s", flush=True)
+    t_suite = time.perf_counter()
+    try:
+        from tqdm import tqdm
+        progress = tqdm(names, desc="bench", unit="module", file=sys.stderr)
+    except ImportError:  # pragma: no cover
+        progress = names
+    for i, name in enumerate(progress):
+        remaining = total - (time.perf_counter() - t_suite)
+        budget = max(remaining / (len(names) - i), 5.0)
+        if args.timeout is not None:
+            budget = min(budget, args.timeout)
+        print(f"[bench] {name} (budget {budget:.0f} s) ...", file=sys.stderr, flush=True)
+        res = run_module(name, quick=args.quick, budget=budget)
+        results["benchmarks"][name] = res
+        msg = f"[bench] {name}: {res['status']}, {len(res['records'])} records in {res['wall_s']:.1f} s"
+        print(msg, file=sys.stderr, flush=True)
+        if res["status"] != "ok":
+            failed.append(f"{name} ({res['status']})")
+    results["wall_s"] = round(time.perf_counter() - t_suite, 2)
+    results["failed"] = failed
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(out.suffix + ".tmp")
-    tmp.write_text(json.dumps(results, indent=1, default=float))
-    os.replace(tmp, out)
-    print(f"[bench] results: {out}")
+    from jkatana.io.atomic import write_text
+
+    from benchmarks._harness import _json_default
+
+    write_text(out, json.dumps(results, indent=1, default=_json_default))
+    print(f"[bench] results: {out} ({results['wall_s']:.0f} s)", file=sys.stderr)
+    if args.report:
+        from benchmarks.report import write_report
+
+        paths = write_report(results, args.report)
+        print(f"[bench] report: {paths['report']}", file=sys.stderr)
     if failed:
         print(f"[bench] FAILED: {', '.join(failed)}", file=sys.stderr)
         return 1
     return 0
 
 
+def _child(argv: list[str]) -> int:
+    import importlib
+
+    from benchmarks._harness import _json_default
+    from jkatana.io.atomic import write_text
+
+    name = argv[argv.index("--_child") + 1]
+    out = argv[argv.index("--_out") + 1]
+    module = importlib.import_module(f"benchmarks.{name}")
+    records = module.run(quick="--quick" in argv)
+    write_text(out, json.dumps(records, default=_json_default))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "--_child":
-        records = _run_one(argv[1], quick="--quick" in argv)
-        print(json.dumps(records, default=float))
-        return 0
+        return _child(argv)
     p = argparse.ArgumentParser(prog="python -m benchmarks", description=BENCH_HELP)
     bench_add_arguments(p)
     return bench_run(p.parse_args(argv))

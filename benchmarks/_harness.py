@@ -1,7 +1,13 @@
-"""Shared helpers for benchmarks: timing, machine facts, records."""
+"""Shared helpers for benchmarks: timing, machine facts, records, ΔE2000.
+
+The record convention for accuracy–time studies is documented in
+:mod:`benchmarks` (``benchmarks/__init__.py``).
+"""
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import platform
 import resource
@@ -14,6 +20,7 @@ def machine_facts() -> dict[str, Any]:
     """Cores, CPU model, memory, JAX backend/version and devices, GPU if any."""
     facts: dict[str, Any] = {
         "cores": os.cpu_count(),
+        "cores_usable": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
         "platform": platform.platform(),
         "python": platform.python_version(),
     }
@@ -33,6 +40,7 @@ def machine_facts() -> dict[str, Any]:
         facts["jax_version"] = jax.__version__
         facts["jax_backend"] = jax.default_backend()
         facts["jax_devices"] = [str(d) for d in jax.devices()]
+        facts["jax_device_kind"] = jax.devices()[0].device_kind
     except Exception as err:  # pragma: no cover - JAX missing is itself a fact
         facts["jax_error"] = repr(err)
     try:
@@ -101,4 +109,78 @@ def record(benchmark: str, case: dict[str, Any], *, time_s: dict[str, float] | N
         row["reference"] = reference
     row.update(extra)
     row["peak_rss_mb"] = round(peak_rss_mb(), 1)
+    partial = os.environ.get(PARTIAL_ENV)
+    if partial:  # the runner's side file: rows made before a timeout survive it
+        try:
+            with open(partial, "a") as f:
+                f.write(json.dumps(row, default=_json_default) + "\n")
+        except (OSError, TypeError, ValueError):
+            pass
     return row
+
+
+#: Environment variables the runner sets for a benchmark's subprocess.
+PARTIAL_ENV = "JKATANA_BENCH_PARTIAL"
+BUDGET_ENV = "JKATANA_BENCH_BUDGET_S"
+
+
+def _json_default(x):
+    try:
+        import numpy as np
+
+        if isinstance(x, np.generic):
+            return x.item()
+        if hasattr(x, "tolist"):
+            return x.tolist()
+    except ImportError:  # pragma: no cover
+        pass
+    return float(x)
+
+
+def budget_s(default: float = math.inf) -> float:
+    """This module's wall-clock budget in seconds, as given by the runner (``default`` if none)."""
+    try:
+        return float(os.environ[BUDGET_ENV])
+    except (KeyError, ValueError):
+        return default
+
+
+def delta_e_display(xyz_ref, xyz, *, exposure: float | None = None, colourspace: str = "sRGB",
+                    percentile: float = 95.0) -> dict[str, float]:
+    """CIE ΔE 2000 between two images/colour sets after the same display transform.
+
+    Both ``(..., 3)`` XYZ arrays go through the same pipeline a viewer sees:
+    exposure (default: the reference's 99th-percentile luminance Y maps to 1),
+    XYZ → linear RGB of ``colourspace`` (paper eq. 7), clipping to the
+    display's [0, 1] and its transfer curve (eq. 8); the displayed colours are
+    then taken back to XYZ and to CIE L*a*b* (white: the colourspace's, D65)
+    and compared with CIEDE2000 (Sharma, Wu & Dalal 2005; colour-science's
+    ``delta_E(..., method="CIE 2000")``). Non-finite inputs give non-finite
+    results (they are not silently dropped).
+
+    **Returns:** ``{"dE2000_mean", "dE2000_p95", "dE2000_max", "exposure"}``.
+    """
+    import colour
+    import numpy as np
+
+    from jkatana.spectral.colorimetry import colourspace as _cs, to_display
+
+    xyz_ref = np.asarray(xyz_ref, np.float64).reshape(-1, 3)
+    xyz = np.asarray(xyz, np.float64).reshape(-1, 3)
+    if exposure is None:
+        y99 = float(np.percentile(xyz_ref[:, 1], 99.0))
+        exposure = 1.0 / y99 if y99 > 0 else 1.0
+    cs = _cs(colourspace)
+
+    def lab(x):
+        bad = ~np.all(np.isfinite(x), axis=-1)
+        d = to_display(np.where(bad[:, None], 0.0, x), colourspace, exposure=exposure)
+        back = colour.RGB_to_XYZ(cs.cctf_decoding(d), cs, apply_cctf_decoding=False)
+        out = colour.XYZ_to_Lab(back, cs.whitepoint)
+        out[bad] = np.nan
+        return out
+
+    de = colour.delta_E(lab(xyz_ref), lab(xyz), method="CIE 2000")
+    return {"dE2000_mean": float(np.mean(de)), "dE2000_p95": float(np.percentile(de, percentile)),
+            "dE2000_max": float(np.max(de)), "exposure": float(exposure)}
+
