@@ -192,6 +192,20 @@ def test_windowed_viewer_under_xvfb(tmp_path):
 
 
 @pytest.mark.slow
+def test_no_gl_falls_back_to_the_reference_renderer(tmp_path):
+    env = dict(os.environ, __EGL_VENDOR_LIBRARY_DIRS=str(tmp_path / "none"))
+    env.pop("PYOPENGL_PLATFORM", None)
+    out = tmp_path / "fb"
+    res = subprocess.run([sys.executable, "-m", "jkatana.cli", "view", "--offscreen", "--frames", "1",
+                          "--resolution", "24", "16", "-o", str(out)], env=env, capture_output=True, text=True,
+                         timeout=600, cwd=ROOT)
+    assert res.returncode == 0, res.stderr[-2000:]
+    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("jkatana view: no OpenGL")]
+    assert len(lines) == 1 and "libegl-mesa0" in lines[0], res.stderr[-2000:]
+    assert (out / "frame_0000.png").exists()
+
+
+@pytest.mark.slow
 def test_no_gl_gives_one_clear_message(tmp_path):
     env = dict(os.environ, PYOPENGL_PLATFORM="egl", __EGL_VENDOR_LIBRARY_DIRS=str(tmp_path / "none"))
     res = subprocess.run([sys.executable, "-c", "from jkatana.interactive import glrender"], env=env,

@@ -119,8 +119,16 @@ def _fallback(args, out: Path) -> int:
         print("jkatana view: no GL and the reference renderer (jkatana.render) is not installed", file=sys.stderr)
         return 1
     print("jkatana view: falling back to the JAX reference renderer (slow; one frame per view)", file=sys.stderr)
-    scene = load_scene(args.scene) if args.scene else scene_from_dict(
-        {k: dict(v) if isinstance(v, dict) else v for k, v in DEMO_SCENE.items()})
+    if args.scene:
+        scene = load_scene(args.scene)
+        raw = {k: dict(v) if isinstance(v, dict) else v for k, v in scene.raw.items()}
+        path = Path(args.scene)
+    else:
+        raw = {k: dict(v) if isinstance(v, dict) else v for k, v in DEMO_SCENE.items()}
+        path = None
+    if args.resolution:
+        raw["camera"] = {**raw.get("camera", {}), "resolution": list(args.resolution)}
+    scene = scene_from_dict(raw, path)
     prep = prepare(scene)
     out.mkdir(parents=True, exist_ok=True)
     for k in range(args.frames):

@@ -69,6 +69,34 @@ def missing_package(platform: str) -> str | None:
     raise ValueError(platform)
 
 
+def _pyopengl_version() -> tuple[int, ...]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return tuple(int(x) for x in version("PyOpenGL").split(".")[:3] if x.isdigit())
+    except PackageNotFoundError:
+        return (0,)
+
+
+def osmesa_usable() -> bool:
+    """OSMesa core contexts need libOSMesa and PyOpenGL ≥ 3.1.10 (3.1.0 lacks ``OSMesaCreateContextAttribs``)."""
+    return missing_package("osmesa") is None and _pyopengl_version() >= (3, 1, 10)
+
+
+def diagnose(platform: str | None) -> str:
+    """One line saying what to install so that a headless context can be made."""
+    egl = missing_package("egl")
+    if egl:
+        hint = f"install the Debian package {egl} (EGL)"
+        if missing_package("osmesa") is None and not osmesa_usable():
+            hint += "; the OSMesa fallback would need PyOpenGL>=3.1.10 (pyrender pins 3.1.0)"
+        return hint
+    if platform == "osmesa" and not osmesa_usable():
+        return ("OSMesa needs PyOpenGL>=3.1.10 and the Debian package libosmesa6; or use EGL "
+                "(PYOPENGL_PLATFORM=egl, Debian packages libegl1 libegl-mesa0)")
+    return f"install the Debian package {PACKAGES['dri']} (Mesa drivers: llvmpipe without a GPU)"
+
+
 def choose_platform(windowed: bool = False) -> str | None:
     """Set ``PYOPENGL_PLATFORM`` (unless the user did) and return it; None means windowed (GLX)."""
     if "OpenGL" in sys.modules:
@@ -77,8 +105,7 @@ def choose_platform(windowed: bool = False) -> str | None:
         os.environ.pop("PYOPENGL_PLATFORM", None)
         return None
     if "PYOPENGL_PLATFORM" not in os.environ:
-        plat = "egl" if missing_package("egl") is None else ("osmesa" if missing_package("osmesa") is None
-                                                            else "egl")
+        plat = "osmesa" if missing_package("egl") is not None and osmesa_usable() else "egl"
         os.environ["PYOPENGL_PLATFORM"] = plat
     return os.environ["PYOPENGL_PLATFORM"]
 
@@ -97,12 +124,10 @@ def import_pyrender(windowed: bool = False):
     try:
         import pyrender
     except ImportError as err:  # PyOpenGL raises ImportError/AttributeError when libEGL is absent
-        pkg = missing_package(plat or "window") or "pyrender (pip install -e .)"
-        raise GLUnavailable(f"cannot import pyrender on platform {plat or 'window'}: {err}; "
-                            f"install the Debian package {pkg} (scripts/setup.sh does)") from err
+        raise GLUnavailable(f"cannot import pyrender on platform {plat or 'window'} ({err}); "
+                            f"{diagnose(plat) if plat else 'install the Debian package libgl1'}") from err
     except AttributeError as err:
-        pkg = missing_package(plat or "window") or PACKAGES["EGL"]
-        raise GLUnavailable(f"OpenGL platform {plat} unusable ({err}); install the Debian package {pkg}") from err
+        raise GLUnavailable(f"OpenGL platform {plat} unusable ({err}); {diagnose(plat)}") from err
     return pyrender
 
 

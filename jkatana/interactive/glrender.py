@@ -302,11 +302,10 @@ class BakedOffscreenRenderer:
         try:
             self._r = pyrender.OffscreenRenderer(width, height)
         except Exception as err:  # EGL/OSMesa cannot make a context
-            from jkatana.interactive.gl import GLUnavailable, missing_package
+            from jkatana.interactive.gl import GLUnavailable, diagnose
 
             plat = os.environ.get("PYOPENGL_PLATFORM", "egl")
-            pkg = missing_package(plat) or "libgl1-mesa-dri"
-            raise GLUnavailable(f"no OpenGL context on {plat} ({err}); install the Debian package {pkg}") from err
+            raise GLUnavailable(f"no OpenGL context on {plat} ({type(err).__name__}: {err}); {diagnose(plat)}") from err
         r = SampleCountRenderer(width, height, samples=samples)
         r._program_cache = BakedProgramCache(state)
         self._r._renderer = r
