@@ -379,3 +379,31 @@ def export_blade(mesh: trimesh.Trimesh, path: str | Path) -> Path:
             else mesh.export(file_type="glb")
         Path(tmp).write_bytes(data if isinstance(data, bytes) else data.encode())
     return path
+
+
+def blade_xy(spec: KatanaSpec, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Blade-plane position (x, y) of UV coordinates (u along, v across), shape (..., 2)."""
+    line = _MuneLine(spec.nagasa, spec.sori)
+    u = np.asarray(u, float)
+    v = np.asarray(v, float)
+    shape = np.broadcast(u, v).shape
+    uf, vf = np.broadcast_to(u, shape).ravel(), np.broadcast_to(v, shape).ravel()
+    P, _, N = line.frame(uf)
+    haba = _widths(spec, line, uf)[0]
+    return (P + (vf * haba)[:, None] * N).reshape(*shape, 2)
+
+
+def blade_uv(spec: KatanaSpec, xy: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`blade_xy`: UVs (..., 2) of blade-plane points (x, y) (v may leave [0, 1])."""
+    line = _MuneLine(spec.nagasa, spec.sori)
+    xy = np.asarray(xy, float)
+    x, y = xy[..., 0], xy[..., 1]
+    if math.isinf(line.radius):
+        u, d = x / line.chord, -y
+    else:
+        yc = line.radius - spec.sori
+        a = np.arctan2(x - line.chord / 2, yc - y)
+        u = (a / line.half_angle + 1) / 2
+        d = np.hypot(x - line.chord / 2, y - yc) - line.radius
+    haba = _widths(spec, line, np.ravel(u))[0].reshape(np.shape(u))
+    return np.stack([u, d / np.maximum(haba, 1e-9)], -1)
