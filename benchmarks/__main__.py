@@ -34,11 +34,16 @@ def discover() -> list[str]:
     return sorted(p.stem for p in HERE.glob("bench_*.py"))
 
 
+def _module_path(name: str) -> Path:
+    """``bench_x`` → ``benchmarks/bench_x.py``; a path to a ``.py`` file is taken as is."""
+    return Path(name).resolve() if name.endswith(".py") else HERE / f"{name}.py"
+
+
 def bench_add_arguments(p: argparse.ArgumentParser) -> None:
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--quick", action="store_true", help="small sizes and few repeats (CI smoke, minutes)")
     mode.add_argument("--full", action="store_true", help="full sizes (the default); the suite fits in 30 min")
-    p.add_argument("--only", nargs="*", default=None, help="benchmark module names (e.g. bench_models)")
+    p.add_argument("--only", nargs="*", default=None, help="benchmark module names (e.g. bench_models) or paths to your own bench_*.py files")
     p.add_argument("-o", "--output", default="benchmarks/results/results.json", help="results JSON path")
     p.add_argument("--report", default=None, metavar="DIR",
                    help="after the run, write report.md, headline.md and plots into DIR")
@@ -64,12 +69,13 @@ def run_module(name: str, *, quick: bool, budget: float, cwd: Path = HERE.parent
     "budget_s", "returncode", "stderr_tail"}``. A timed-out module keeps the
     records it made before the deadline, marked ``"partial": true``.
     """
-    with tempfile.TemporaryDirectory(prefix=f"jkbench-{name}-") as tmp:
+    with tempfile.TemporaryDirectory(prefix=f"jkbench-{Path(name).stem}-") as tmp:
         out_path = Path(tmp) / "records.json"
         partial_path = Path(tmp) / "partial.jsonl"
         env = dict(os.environ, JKATANA_BENCH_PARTIAL=str(partial_path),
                    JKATANA_BENCH_BUDGET_S=f"{budget:.1f}")
-        cmd = [sys.executable, "-m", "benchmarks", "--_child", name, "--_out", str(out_path)]
+        target = str(Path(name).resolve()) if name.endswith(".py") else name
+        cmd = [sys.executable, "-m", "benchmarks", "--_child", target, "--_out", str(out_path)]
         cmd += ["--quick"] if quick else []
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -114,7 +120,7 @@ def bench_run(args: argparse.Namespace) -> int:
 
     mode = "quick" if args.quick else "full"
     names = args.only or discover()
-    unknown = [n for n in names if not (HERE / f"{n}.py").exists()]
+    unknown = [n for n in names if not (_module_path(n)).exists()]
     if unknown:
         print(f"[bench] unknown benchmark module(s): {', '.join(unknown)}; known: {', '.join(discover())}",
               file=sys.stderr)
@@ -135,12 +141,15 @@ def bench_run(args: argparse.Namespace) -> int:
         if args.timeout is not None:
             budget = min(budget, args.timeout)
         print(f"[bench] {name} (budget {budget:.0f} s) ...", file=sys.stderr, flush=True)
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
         res = run_module(name, quick=args.quick, budget=budget)
-        results["benchmarks"][name] = res
-        msg = f"[bench] {name}: {res['status']}, {len(res['records'])} records in {res['wall_s']:.1f} s"
+        res["load_avg_1min_at_start"] = load
+        key = Path(name).stem if name.endswith(".py") else name
+        results["benchmarks"][key] = res
+        msg = f"[bench] {key}: {res['status']}, {len(res['records'])} records in {res['wall_s']:.1f} s"
         print(msg, file=sys.stderr, flush=True)
         if res["status"] != "ok":
-            failed.append(f"{name} ({res['status']})")
+            failed.append(f"{key} ({res['status']})")
     results["wall_s"] = round(time.perf_counter() - t_suite, 2)
     results["failed"] = failed
     out = Path(args.output)
@@ -170,7 +179,14 @@ def _child(argv: list[str]) -> int:
 
     name = argv[argv.index("--_child") + 1]
     out = argv[argv.index("--_out") + 1]
-    module = importlib.import_module(f"benchmarks.{name}")
+    if name.endswith(".py"):
+        import importlib.util
+
+        spec = importlib.util.spec_from_file_location(Path(name).stem, name)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    else:
+        module = importlib.import_module(f"benchmarks.{name}")
     records = module.run(quick="--quick" in argv)
     write_text(out, json.dumps(records, default=_json_default))
     return 0

@@ -277,16 +277,20 @@ def write_report(results: dict | str | Path, out_dir: str | Path) -> dict[str, P
     md = ["# jkatana benchmark report: what accuracy costs in time", "",
           f"**Machine:** {machine_line(m)}.  ",
           f"Platform: {m.get('platform', '?')}, Python {m.get('python', '?')}, "
-          f"JAX devices: {', '.join(m.get('jax_devices', []) or ['?'])}.  ",
+          f"JAX devices: {', '.join(m.get('jax_devices', []) or ['?'])}; "
+          f"1-min load average at start {_fmt(m.get('load_avg_1min'))} (the machine is shared: "
+          f"a load above the core count inflates and spreads the times).  ",
           f"**Mode:** {results.get('mode', '?')}; started {results.get('started', '?')}; "
           f"suite wall time {_fmt(results.get('wall_s'))} s of a {_fmt(results.get('budget_total_s'))} s budget.",
           "", "Every number below was measured in this run: errors against each study's "
           "reference, times as medians over repeats (spread: min–max). ", "",
-          "## Modules", "", "| module | status | records | wall (s) | budget (s) |", "|---|---|---|---|---|"]
+          "## Modules", "", "| module | status | records | wall (s) | budget (s) | load at start |",
+          "|---|---|---|---|---|---|"]
     for name, res in results.get("benchmarks", {}).items():
         status = res.get("status", "ok" if "records" in res else "failed")
         md.append(f"| {name} | {'✅ ok' if status == 'ok' else '❌ ' + status} | "
-                  f"{len(res.get('records') or [])} | {_fmt(res.get('wall_s'))} | {_fmt(res.get('budget_s'))} |")
+                  f"{len(res.get('records') or [])} | {_fmt(res.get('wall_s'))} | {_fmt(res.get('budget_s'))} | "
+                  f"{_fmt(res.get('load_avg_1min_at_start'))} |")
     for name, res in results.get("benchmarks", {}).items():
         if res.get("status", "ok") != "ok" and res.get("stderr_tail"):
             tail = "\n".join(res["stderr_tail"].strip().splitlines()[-8:])
