@@ -107,7 +107,7 @@ def test_mis_weights_sum_to_one():
 
 def _estimates(env, mu, n_w, V_w, N=8, M=128, seed=11):
     cond = Conductor.from_table("Fe-Johnson", G7, jnp.float64)
-    model = Hiraji(mu=mu)
+    model = Hiraji(mu=jnp.asarray(mu))  # array μ: a Python float is concretised by models (fails under jit)
     brdf = lambda L, V: model.brdf_cos(L, V, cond)  # noqa: E731
     fr = frame_from_normal(n_w)
     Vl = to_local(fr, V_w)

@@ -119,8 +119,7 @@ class EnvSampler(eqx.Module):
         dt = self.texel_pdf.dtype
         u = jax.random.uniform(key, (n, 4), dt)
         j = jnp.clip(jnp.searchsorted(self.marginal, u[:, 0], side="right") - 1, 0, H - 1)
-        cdf = self.conditional[j]  # (n, W+1)
-        i = jnp.clip(jax.vmap(lambda c, x: jnp.searchsorted(c, x, side="right"))(cdf, u[:, 1]) - 1, 0, W - 1)
+        i = _row_search(self.conditional, j, u[:, 1])
         phi = ((i + u[:, 2]) / W - 0.5) * 2 * jnp.pi
         c0, c1 = self.cos_edges[j], self.cos_edges[j + 1]
         cos_t = c0 + (c1 - c0) * u[:, 3]
@@ -136,6 +135,20 @@ class EnvSampler(eqx.Module):
         # row from cos θ (exact at row edges, unlike v·H in float32)
         j = jnp.clip(jnp.floor(v * H).astype(jnp.int32), 0, H - 1)
         return self.texel_pdf[j, i]
+
+
+def _row_search(cdf: Float[Array, "H W1"], j: Int[Array, "n"], x: Float[Array, "n"]) -> Int[Array, "n"]:
+    """Largest ``i`` in [0, W−1] with ``cdf[j, i] ≤ x``: a vectorised binary search that gathers
+    one entry per sample and step (O(n) memory, unlike gathering whole rows)."""
+    W = cdf.shape[1] - 1
+    lo = jnp.zeros_like(j)
+    hi = jnp.full_like(j, W)
+    for _ in range(max(1, math.ceil(math.log2(W + 1)))):
+        mid = (lo + hi) // 2
+        right = cdf[j, mid] <= x
+        lo = jnp.where(right, mid, lo)
+        hi = jnp.where(right, hi, mid)
+    return jnp.clip(lo, 0, W - 1)
 
 
 # ---------------------------------------------------------------- frames
