@@ -60,6 +60,17 @@ from jkatana.models.fresnel import fresnel_conductor
 from jkatana.models.geometry import facet_angle, half_vector_cos
 
 LN2 = math.log(2.0)
+
+
+def _kronecker_alpha(d: int) -> tuple[float, ...]:
+    """Roberts (2018) R_d sequence: α_j = φ_d^(−j), φ_d the real root of x^(d+1) = x + 1."""
+    x = 2.0
+    for _ in range(64):
+        x = (1.0 + x) ** (1.0 / (d + 1))
+    return tuple((x ** -(j + 1)) % 1.0 for j in range(d))
+
+
+_R6 = _kronecker_alpha(6)
 #: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
 MIRROR_MU = 1e-4
 #: Cosine samples of the Fresnel table (linear interpolation error < 1e-6 for iron).
@@ -200,9 +211,10 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
                       prefilter_mus=(), prefilter_resolution: int = 256, dtype=jnp.float32):
     """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
 
-    The sampling density is the texel's CIE Y × sin θ (piecewise constant in
-    (u, v)), the standard equirectangular construction (Pharr, Jakob &
-    Humphreys, *PBRT* 4th ed., §12.5.2).
+    The sampling density is piecewise constant in (u, v), ∝ sin θ × the largest
+    CIE Y in the texel's 3×3 neighbourhood (the bilinear lookup's support), the
+    equirectangular construction of Pharr, Jakob & Humphreys, *PBRT* 4th ed.,
+    §12.5.2, made safe for bilinear reconstruction.
 
     **Returns:** ``(environment, factored, rel_residual)``.
     """
@@ -213,6 +225,12 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     coeffs, basis, factored, resid = env_basis(radiance, rank)
     ybar = cmfs_for(nwl)
     lum = np.maximum(radiance @ ybar, 0.0)
+    # The lookup is bilinear, so a texel's radiance leaks into its neighbours' footprint; a density
+    # from the texel alone would under-sample that leak (fireflies around the sun). Take the
+    # maximum over the 3×3 neighbourhood (wrapping in u) so that radiance / pdf stays bounded.
+    from scipy.ndimage import maximum_filter
+
+    lum = maximum_filter(lum, size=3, mode=("nearest", "wrap"))
     theta = (np.arange(H) + 0.5) / H * np.pi
     weight = lum * np.sin(theta)[:, None] + 1e-12 * lum.max()
     p = weight / weight.sum()
@@ -552,9 +570,13 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     elif lobe:  # reference / lowrank: MIS of lobe and environment sampling
         S = plan.samples
 
+        # Randomised quasi-Monte Carlo: Roberts' R6 Kronecker sequence with a per-pixel
+        # Cranley–Patterson rotation (one threefry draw per pixel, not per sample).
+        offset = jax.random.uniform(key, (P, 6), dtype)
+        alpha = jnp.asarray(_R6, dtype)
+
         def body(acc_, k):
-            kk = jax.random.fold_in(key, k)
-            r = jax.random.uniform(kk, (P, 6), dtype)
+            r = jnp.mod(offset + (k + 1).astype(dtype) * alpha, 1.0)
             use0 = r[:, 0] < _mix_w(plan, px)
             mu = jnp.where(use0, px.mu0, px.mu1)
             h, _ = _rayleigh_sample(mu, r[:, 1], r[:, 2])
