@@ -197,7 +197,7 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
         mus = tuple(np.geomspace(lo, hi, 4))
     env, factored, resid = build_environment(radiance, rank=env_rank,
                                              rotation=rotation_y(scene.environment["rotation_deg"]),
-                                             prefilter_mus=mus, dtype=dtype)
+                                             prefilter_mus=mus, dtype=dtype, grid=grid)
     # effects on demand: decided here, on the host, from the data
     w = maps[..., 0]
     hiraji = bool((w > 0).any())

@@ -93,6 +93,10 @@ class Plan:
     - `factored`: shade in the environment's spectral basis (rank = its channels).
     - `lights`: number of point/directional lights (0: none evaluated).
     - `calibration`: ``None`` for the normalised convention, else K (see models).
+    - `rough_model`: ``"paper"`` (hamon = eq. 2, Gaussian D, V-cavity G) or
+      ``"beckmann"`` (hamon = Cook–Torrance with the normalised Beckmann D, α = μ1,
+      and separable Smith G with Walter et al.'s 2007 rational G1 — the model
+      Mitsuba 3's ``roughconductor`` uses; for validation against it).
     - `spectral`: also return spectra (full mode only).
     """
 
@@ -104,6 +108,7 @@ class Plan:
     env_sampling: bool = True
     factored: bool = False
     lights: int = 0
+    rough_model: str = "paper"
     calibration: float | None = None
     spectral: bool = False
 
@@ -208,7 +213,7 @@ def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5
 
 
 def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation=None,
-                      prefilter_mus=(), prefilter_resolution: int = 256, dtype=jnp.float32):
+                      prefilter_mus=(), prefilter_resolution: int = 256, dtype=jnp.float32, grid=None):
     """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
 
     The sampling density is piecewise constant in (u, v), ∝ sin θ × the largest
@@ -223,7 +228,7 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     radiance = np.asarray(radiance, np.float64)
     H, W, nwl = radiance.shape
     coeffs, basis, factored, resid = env_basis(radiance, rank)
-    ybar = cmfs_for(nwl)
+    ybar = cmfs_for(nwl, grid)
     lum = np.maximum(radiance @ ybar, 0.0)
     # The lookup is bilinear, so a texel's radiance leaks into its neighbours' footprint; a density
     # from the texel alone would under-sample that leak (fireflies around the sun). Take the
@@ -256,8 +261,9 @@ def cmfs_for(nwl: int, grid=None) -> np.ndarray:
     from jkatana.spectral import DEFAULT_GRID
     from jkatana.spectral.colorimetry import cmfs
 
-    grid = grid or (DEFAULT_GRID if nwl == DEFAULT_GRID.size else DEFAULT_GRID.with_count(nwl))
-    return np.asarray(cmfs(grid)[:, 1])
+    if grid is None and nwl != DEFAULT_GRID.size:
+        return np.ones(nwl)  # unknown grid: equal weights (the density only steers sampling)
+    return np.asarray(cmfs(grid or DEFAULT_GRID)[:, 1])
 
 
 def sample_environment(env: Environment, u1, u2, u3):
@@ -448,11 +454,36 @@ def _fcos_scalar(plan: Plan, mat: Material, px: Pixels, L, V, norms):
         cos_i, cos_th, d = Hiraji(mat.chi, px.mu0)._terms(L, V)
         scale = norms[0] / (4.0 * jnp.maximum(cos_th, 1e-7)) if plan.calibration is None else norms[0]
         out.append((px.w * scale * d, cos_i))
-    if plan.hamon:
+    if plan.hamon and plan.rough_model == "beckmann":
+        from jkatana.models.microfacet import beckmann, smith_beckmann
+
+        cos_nh, cos_th, valid = half_vector_cos(L, V)
+        ok = valid & (L[..., 2] > 0) & (V[..., 2] > 0)
+        g = smith_beckmann(V[..., 2], L[..., 2], px.mu1)
+        d = beckmann(cos_nh, px.mu1)
+        fc = jnp.where(ok, d * g / (4.0 * jnp.maximum(V[..., 2], 1e-7)), 0.0)
+        out.append(((1.0 - px.w) * fc, cos_th))
+    elif plan.hamon:
         cos_th, dg = Hamon(mat.beta, px.mu1)._terms(L, V)
         scale = norms[1] / 4.0 if plan.calibration is None else norms[1]
         out.append(((1.0 - px.w) * scale * dg, cos_th))
     return out
+
+
+def _beckmann_sample(alpha, u1, u2):
+    """Facet normal from the Beckmann distribution: tan²φ = −α² ln(1 − u1) (Walter et al. 2007, eq. 28)."""
+    t2 = -(alpha**2) * jnp.log1p(-jnp.minimum(u1, 1 - 1e-7))
+    c = 1.0 / jnp.sqrt(1.0 + t2)
+    s = jnp.sqrt(jnp.maximum(1.0 - c * c, 0.0))
+    psi = 2 * jnp.pi * u2
+    return jnp.stack([s * jnp.cos(psi), s * jnp.sin(psi), c], -1)
+
+
+def _pdf_L_beckmann(alpha, L, V):
+    from jkatana.models.microfacet import beckmann
+
+    cos_nh, cos_th, valid = half_vector_cos(L, V)
+    return jnp.where(valid & (cos_th > 0), beckmann(cos_nh, alpha) * cos_nh / (4.0 * jnp.maximum(cos_th, 1e-7)), 0.0)
 
 
 def _lobe_pdf(plan: Plan, px: Pixels, L, V):
@@ -461,7 +492,8 @@ def _lobe_pdf(plan: Plan, px: Pixels, L, V):
     if plan.hiraji and not plan.mirror:
         p = p + _mix_w(plan, px) * _pdf_L(px.mu0, L, V)
     if plan.hamon:
-        p = p + (1.0 - _mix_w(plan, px)) * _pdf_L(px.mu1, L, V)
+        pdf1 = _pdf_L_beckmann(px.mu1, L, V) if plan.rough_model == "beckmann" else _pdf_L(px.mu1, L, V)
+        p = p + (1.0 - _mix_w(plan, px)) * pdf1
     return p
 
 
@@ -580,6 +612,8 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
             use0 = r[:, 0] < _mix_w(plan, px)
             mu = jnp.where(use0, px.mu0, px.mu1)
             h, _ = _rayleigh_sample(mu, r[:, 1], r[:, 2])
+            if plan.hamon and plan.rough_model == "beckmann":
+                h = jnp.where(use0[:, None], h, _beckmann_sample(px.mu1, r[:, 1], r[:, 2]))
             Ll = _reflect(Vl, h)
             Lw = _to_world(Ll, t, b, N)
             pb = _lobe_pdf(plan, px, Ll, Vl)
