@@ -330,7 +330,7 @@ def build_blade(spec: KatanaSpec = KatanaSpec(), *, segments_along: int = 320,
         cap = cap[:, ::-1]
     verts += [loop, centre[None]]
     d_loop = (loop[:, :2] - P[0]) @ N[0]
-    uvs += [np.stack([np.full(k, u[0]), d_loop / haba[0]], -1), np.array([[u[0], 0.5]])]
+    uvs += [np.stack([np.full(k, u[0]), d_loop / haba[0]], -1), np.array([[u[0], float((centre[:2] - P[0]) @ N[0] / haba[0])]])]
     faces.append(cap)
 
     V = np.concatenate(verts)
@@ -375,8 +375,12 @@ def export_blade(mesh: trimesh.Trimesh, path: str | Path) -> Path:
     if suffix not in (".ply", ".glb", ".obj"):
         raise InputError("mesh output must end in .ply, .glb or .obj", path=path)
     with atomic_path(path) as tmp:
-        data = mesh.export(file_type=suffix[1:], include_normals=True) if suffix != ".glb" \
-            else mesh.export(file_type="glb")
+        if suffix == ".ply":
+            data = mesh.export(file_type="ply", vertex_normal=True)
+        elif suffix == ".obj":
+            data = mesh.export(file_type="obj", include_normals=True, include_texture=True)
+        else:
+            data = mesh.export(file_type="glb")
         Path(tmp).write_bytes(data if isinstance(data, bytes) else data.encode())
     return path
 

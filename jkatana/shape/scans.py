@@ -186,10 +186,43 @@ class Registration:
     converged: bool
 
 
+def estimate_normals(points: np.ndarray, tree: cKDTree | None = None, k: int = 10) -> np.ndarray:
+    """Unit normals from the PCA of each point's ``k`` nearest neighbours (sign arbitrary)."""
+    tree = cKDTree(points) if tree is None else tree
+    _, nb = tree.query(points, k=min(k, len(points)))
+    q = points[nb] - points[nb].mean(1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", q, q)
+    return np.linalg.eigh(cov)[1][:, :, 0]
+
+
+def _point_to_plane_step(src: np.ndarray, dst: np.ndarray, n: np.ndarray,
+                         alpha: float = 0.0) -> np.ndarray:
+    """Small-angle rigid step minimising Σ ((R p + t − q) · n)² (Low, UNC TR04-004, 2004)."""
+    c = src.mean(0)
+    p = src - c
+    A = np.concatenate([np.cross(p, n), n], 1)
+    b = np.sum((dst - src) * n, 1)
+    if alpha > 0:  # plus a weak point-to-point term: damps sliding along flat overlaps
+        k = len(p)
+        skew = np.zeros((k, 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = p[:, 2], -p[:, 1], p[:, 0]
+        skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = -p[:, 2], p[:, 1], -p[:, 0]
+        A2 = np.concatenate([skew, np.broadcast_to(np.eye(3), (k, 3, 3))], 2).reshape(-1, 6)
+        A = np.concatenate([A, np.sqrt(alpha) * A2])
+        b = np.concatenate([b, np.sqrt(alpha) * (dst - src).ravel()])
+    x, *_ = np.linalg.lstsq(A, b, rcond=None)
+    R = trimesh.transformations.euler_matrix(*x[:3], axes="sxyz")
+    R[:3, 3] = x[3:]
+    to_c, back = np.eye(4), np.eye(4)
+    to_c[:3, 3], back[:3, 3] = -c, c
+    return back @ R @ to_c
+
+
 def trimmed_icp(moving: np.ndarray, fixed: np.ndarray, initial: np.ndarray | None = None, *,
-                threshold: float = 1e-3, max_iterations: int = 60, tol: float = 1e-9,
+                threshold: float = 1e-3, max_iterations: int = 100, tol: float = 1e-8,
                 min_overlap: float = 0.05, max_points: int = 20000,
-                seed: int = 0, name: str = "section") -> Registration:
+                seed: int = 0, name: str = "section", point_to_plane: bool = False,
+                alpha: float = 0.1) -> Registration:
     """Rigidly align ``moving`` onto ``fixed`` using only pairs closer than ``threshold``.
 
     Each step: nearest neighbours in ``fixed`` (cKDTree), keep pairs within the
@@ -202,6 +235,7 @@ def trimmed_icp(moving: np.ndarray, fixed: np.ndarray, initial: np.ndarray | Non
     if len(moving) > max_points:
         moving = moving[rng.choice(len(moving), max_points, replace=False)]
     tree = cKDTree(fixed)
+    normals = estimate_normals(fixed, tree) if point_to_plane else None
     T = np.eye(4) if initial is None else np.asarray(initial, float).copy()
     prev = np.inf
     rms, frac, it = np.inf, 0.0, 0
@@ -219,8 +253,11 @@ def trimmed_icp(moving: np.ndarray, fixed: np.ndarray, initial: np.ndarray | Non
             raise InputError(
                 f"sections do not overlap: only {frac:.1%} of its points lie within "
                 f"{thr * 1e3:.2f} mm of the merged scan (need {min_overlap:.0%})", field=name)
-        step, _, cost = trimesh.registration.procrustes(cur[ok], fixed[idx[ok]], reflection=False,
-                                                         scale=False, return_cost=True)
+        if point_to_plane and it > len(schedule):
+            step = _point_to_plane_step(cur[ok], fixed[idx[ok]], normals[idx[ok]], alpha)
+        else:
+            step = trimesh.registration.procrustes(cur[ok], fixed[idx[ok]], reflection=False,
+                                                   scale=False, return_cost=False)
         T = step @ T
         rms = float(np.sqrt(np.mean(dist[ok] ** 2)))
         if it > len(schedule) and abs(prev - rms) < tol:

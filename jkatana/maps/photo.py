@@ -1,0 +1,173 @@
+"""Reflectance map from a photo of the blade under uniform diffuse light (paper §3, eq. 5).
+
+Under diffuse light the mirror-like hiraji reflects the (dark) surroundings and
+looks dark, the rough hamon scatters the light and looks bright (Mochizuki et
+al.). So luminance Y → w: ``Y ≤ dark`` → w = 1 (Fresnel/hiraji), ``Y ≥ bright``
+→ w = 0 (Torrance–Sparrow/hamon), linear in between. Thresholds are given or
+taken around Otsu's threshold of the luminance histogram (Otsu, "A threshold
+selection method from gray-level histograms", IEEE SMC 9(1), 1979).
+
+Luminance of linear RGB uses the Rec. 709 / sRGB primaries' Y row
+(0.2126, 0.7152, 0.0722; ITU-R BT.709).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from jkatana.errors import InputError
+from jkatana.maps.reflectance_map import PAPER_PARAMETERS, ReflectanceMap
+
+LUMA_709 = np.array([0.2126, 0.7152, 0.0722])
+
+
+def read_photo(path: str | Path) -> np.ndarray:
+    """Linear luminance (H, W) of an EXR, 16-bit PNG or TIFF photo (8-bit images are decoded sRGB)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("photo not found", path=path)
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        from jkatana.io.exr import read_exr
+
+        ch, _ = read_exr(path)
+        if all(k in ch for k in "RGB"):
+            img = np.stack([ch["R"], ch["G"], ch["B"]], -1)
+        elif "Y" in ch:
+            img = ch["Y"]
+        else:
+            raise InputError(f"no R, G, B or Y channel (has {sorted(ch)})", path=path)
+        img = np.asarray(img, np.float64)
+    elif suffix in (".tif", ".tiff"):
+        import tifffile
+
+        img = np.asarray(tifffile.imread(path))
+        img = _normalise_int(img, path)
+    elif suffix == ".png":
+        from PIL import Image
+
+        with Image.open(path) as im:
+            img = np.asarray(im)
+        img = _normalise_int(img, path)
+    else:
+        raise InputError("photo must be .exr, .png, .tif or .tiff "
+                         "(convert RAW with `jkatana measure`'s decoder first)", path=path)
+    if img.ndim == 3:
+        img = img[..., :3] @ LUMA_709
+    if img.ndim != 2 or img.size == 0:
+        raise InputError(f"not a 2-D image (shape {img.shape})", path=path)
+    if not np.all(np.isfinite(img)):
+        raise InputError("photo has NaN or infinite pixels", path=path)
+    return img
+
+
+def _normalise_int(img: np.ndarray, path) -> np.ndarray:
+    if img.dtype == np.uint16:
+        return img.astype(np.float64) / 65535.0
+    if img.dtype == np.uint8:
+        x = img.astype(np.float64) / 255.0  # 8-bit files are display-encoded: undo sRGB
+        return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    if np.issubdtype(img.dtype, np.floating):
+        return img.astype(np.float64)
+    raise InputError(f"unsupported pixel type {img.dtype}", path=path)
+
+
+def otsu_threshold(y: np.ndarray, bins: int = 256) -> float:
+    """Otsu (1979): the threshold maximising the between-class variance of the histogram."""
+    hist, edges = np.histogram(y, bins=bins)
+    p = hist / max(hist.sum(), 1)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    w0 = np.cumsum(p)
+    m0 = np.cumsum(p * centres)
+    mt = m0[-1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        between = (mt * w0 - m0) ** 2 / (w0 * (1 - w0))
+    between[~np.isfinite(between)] = -1
+    return float(centres[int(np.argmax(between))])
+
+
+def crop_to_uv(y: np.ndarray, crop: tuple[int, int, int, int] | None, resolution: tuple[int, int],
+               *, path=None, flip_v: bool = False, aspect_tolerance: float = 0.25,
+               expected_aspect: float | None = None) -> np.ndarray:
+    """Cut the blade's rectangle (x0, y0, x1, y1) out of the photo and resample it to the UV grid.
+
+    The crop's rows run mune → ha (v) unless ``flip_v``; columns machi → tip
+    (u). When ``expected_aspect`` (UV width / height in the photo, i.e.
+    length over width of the blade's straightened image) is given, a crop
+    whose aspect differs by more than ``aspect_tolerance`` (relative) is
+    rejected: it is not the blade.
+    """
+    from scipy.ndimage import zoom
+
+    if crop is not None:
+        x0, y0, x1, y1 = (int(c) for c in crop)
+        if not (0 <= x0 < x1 <= y.shape[1] and 0 <= y0 < y1 <= y.shape[0]):
+            raise InputError(f"crop {crop} is outside the {y.shape[1]}×{y.shape[0]} photo",
+                             path=path, field="crop")
+        y = y[y0:y1, x0:x1]
+    if expected_aspect is not None:
+        aspect = y.shape[1] / y.shape[0]
+        if abs(aspect / expected_aspect - 1) > aspect_tolerance:
+            raise InputError(f"wrong aspect: the blade region is {y.shape[1]}×{y.shape[0]} "
+                             f"(aspect {aspect:.2f}), expected about {expected_aspect:.2f} "
+                             "(length over width); give --crop", path=path)
+    if flip_v:
+        y = y[::-1]
+    H, W = resolution
+    return zoom(y, (H / y.shape[0], W / y.shape[1]), order=1, mode="nearest", grid_mode=True)
+
+
+def load_region_parameters(path: str | Path, model: str) -> dict[str, float]:
+    """Read a region fit JSON (fit stage) and return the model's parameters.
+
+    Accepts ``{"parameters": {name: value | {"value": v}}}`` or a flat
+    ``{name: value}``; hiraji needs chi and mu0 (or mu), hamon beta and mu1 (or mu).
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError("region parameter file not found", path=path) from None
+    except json.JSONDecodeError as err:
+        raise InputError(f"not JSON ({err})", path=path) from None
+    params = data.get("parameters", data) if isinstance(data, dict) else {}
+    flat = {k: (v.get("value") if isinstance(v, dict) else v) for k, v in params.items()}
+    keys = ("chi", "mu0") if model == "hiraji" else ("beta", "mu1")
+    out = {}
+    for k in keys:
+        val = flat.get(k, flat.get("mu") if k.startswith("mu") else None)
+        if not isinstance(val, (int, float)) or not np.isfinite(val) or val <= 0:
+            raise InputError(f"missing or non-positive {model} parameter", path=path, field=k)
+        out[k] = float(val)
+    return out
+
+
+def map_from_photo(luminance: np.ndarray, *, resolution: tuple[int, int] = (256, 1024),
+                   crop=None, dark: float | None = None, bright: float | None = None,
+                   hiraji: dict | None = None, hamon: dict | None = None, flip_v: bool = False,
+                   expected_aspect: float | None = None, path=None) -> ReflectanceMap:
+    """Luminance photo → :class:`ReflectanceMap` (w from thresholds, parameters per region).
+
+    Without thresholds, ``dark``/``bright`` are Otsu's threshold ∓ 0.25 of
+    the spread between the two classes' means (a soft transition band).
+    """
+    y = crop_to_uv(np.asarray(luminance, float), crop, resolution, path=path, flip_v=flip_v,
+                   expected_aspect=expected_aspect)
+    if dark is None or bright is None:
+        t = otsu_threshold(y)
+        lo, hi = y[y <= t].mean() if (y <= t).any() else t, y[y > t].mean() if (y > t).any() else t
+        band = 0.25 * (hi - lo)
+        dark = t - band if dark is None else dark
+        bright = t + band if bright is None else bright
+    if not bright > dark:
+        raise InputError(f"need bright > dark, got dark={dark:g}, bright={bright:g}", field="thresholds")
+    w = np.clip((bright - y) / (bright - dark), 0.0, 1.0)
+    p = {**PAPER_PARAMETERS, **(hiraji or {}), **(hamon or {})}
+    full = lambda x: np.full(y.shape, x, np.float32)  # noqa: E731
+    return ReflectanceMap(w=w, mu0=full(p["mu0"]), chi=full(p["chi"]), mu1=full(p["mu1"]),
+                          beta=full(p["beta"]),
+                          meta={"source": str(path) if path else "photo", "dark": float(dark),
+                                "bright": float(bright)})
