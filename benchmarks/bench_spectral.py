@@ -7,11 +7,11 @@ light of one environment texel reflected by iron at one angle,
 
 for a batch of pixel evaluations with random angles θ ∈ [0°, 89°] and random
 texels of real environment maps (Poly Haven, CC0; ``/work/shared/data/envmaps``).
-The maps are RGB, so each texel is upsampled to a spectrum with the linear
-basis of Mallett & Yuksel ("Spectral Primary Decomposition for Rendering with
-sRGB Reflectance", EGSR 2019; colour-science's
-``MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019``) times CIE D65, whose colour is the
-texel's sRGB colour. Iron: Johnson & Christy (1974).
+The maps are RGB, so each texel is upsampled to a spectrum on each grid with
+the renderer's default method, :func:`jkatana.light.upsampling.rgb_to_spectrum`
+``"Jakob 2019"`` (Jakob & Hanika, "A Low-Dimensional Function Space for
+Efficient Spectral Upsampling", CGF 38(2), 2019), whose colour is the texel's
+sRGB colour. Iron: Johnson & Christy (1974).
 
 Study "spectral sampling" — reference: 61 bands (400–700 nm every 5 nm, the
 paper's grid), evaluated in float64:
@@ -24,14 +24,16 @@ paper's grid), evaluated in float64:
   reference's own sampling error;
 - RGB (3), per-channel optical constants: n, k averaged over 400–500,
   500–600, 600–700 nm, F evaluated per channel and multiplied with the
-  texel's RGB, as RGB renderers do;
+  texel's RGB, as RGB renderers do (the texel's RGB is the colour of its
+  spectrum, so with F = 1 the two agree and only the RGB product is measured);
 - RGB (3), tabulated F colour: the sRGB colour of the spectral F(θ)·D65,
   tabulated over 256 values of cos θ (a careful RGB renderer);
-- rank-r basis (r = 1…5): SVD of iron's F(cos θ, λ) tabulated at 256 cosines,
-  F ≈ Σᵣ aᵣ(θ) bᵣ(λ); each texel's XYZ of bᵣ(λ)E(λ) is baked once (timed
-  separately as ``precompute_s``), a pixel then costs r table look-ups and 3r
-  multiply–adds. (jkatana.light had no basis function when this was written,
-  so the SVD is done here with NumPy.)
+- rank-r basis (r = 1…5): :func:`jkatana.light.prefilter.fresnel_basis`, the
+  SVD of iron's F(cos θ, λ) tabulated at 2049 angles, F ≈ Σᵣ cᵣ(θ) bᵣ(λ);
+  each texel's XYZ of bᵣ(λ)E(λ) is baked once (as
+  :func:`~jkatana.light.prefilter.project_on_basis` does; timed separately as
+  ``precompute_s``), a pixel then costs r table look-ups and 3r
+  multiply–adds — the interactive path's scheme.
 
 Study "Fresnel approximation" — 61 bands throughout, reference exact Fresnel
 (Born & Wolf): Schlick (1994) with F0 = F(0°) per band, and the rank-r
@@ -72,24 +74,11 @@ def load_texels(count: int, rng: np.random.Generator, names=ENVMAPS) -> np.ndarr
     return np.maximum(np.concatenate(out)[:count], 0.0)
 
 
-def upsample_basis(wavelengths: np.ndarray) -> np.ndarray:
-    """Emission basis on ``wavelengths``: Mallett–Yuksel (2019) reflectance basis × D65, ``(wl, 3)``.
+def upsample(rgb: np.ndarray, grid) -> np.ndarray:
+    """Texel RGB → spectral radiance on ``grid`` (the renderer's default, Jakob & Hanika 2019), float64."""
+    from jkatana.light.upsampling import rgb_to_spectrum
 
-    Normalised so that RGB (1, 1, 1) has luminance Y = 1 on the 61-band grid.
-    """
-    import colour
-
-    from jkatana.spectral import DEFAULT_GRID, xyz_weights
-
-    b = colour.recovery.MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019
-    d65 = colour.SDS_ILLUMINANTS["D65"]
-
-    def on(wl):
-        basis = np.stack([np.interp(wl, b.wavelengths, b.values[:, i]) for i in range(3)], axis=-1)
-        return basis * np.interp(wl, d65.wavelengths, d65.values)[:, None]
-
-    white = on(DEFAULT_GRID.wavelengths).sum(axis=1) @ xyz_weights(DEFAULT_GRID)[:, 1]
-    return on(np.asarray(wavelengths, np.float64)) / white
+    return np.asarray(rgb_to_spectrum(rgb, "Jakob 2019", grid), np.float64)
 
 
 def interp_matrix(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -108,16 +97,16 @@ def lerp_table(table, cos):
     return table[i0] * (1 - f) + table[i0 + 1] * f
 
 
-def fresnel_lowrank(n: np.ndarray, k: np.ndarray, rank: int, count: int = N_COS_TABLE):
-    """SVD of F(cos θ, λ) at ``count`` uniform cosines: ``(a: (count, r), b: (r, wl))``."""
+def fresnel_lowrank(n: np.ndarray, k: np.ndarray, rank: int, dtype=np.float64):
+    """Iron's rank-``rank`` Fresnel basis (:func:`jkatana.light.prefilter.fresnel_basis`) in ``dtype``."""
+    import jax
     import jax.numpy as jnp
 
-    from jkatana.models import fresnel_conductor
+    from jkatana.light.prefilter import fresnel_basis
+    from jkatana.models import Conductor
 
-    cos = np.linspace(0.0, 1.0, count)
-    F = np.asarray(fresnel_conductor(jnp.asarray(cos)[:, None], jnp.asarray(n), jnp.asarray(k)))
-    u, s, vt = np.linalg.svd(F, full_matrices=False)
-    return u[:, :rank] * s[:rank], vt[:rank]
+    fb = fresnel_basis(Conductor(jnp.asarray(n), jnp.asarray(k)), rank=rank)
+    return jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), fb)
 
 
 def run(quick: bool) -> list[dict]:
@@ -135,6 +124,7 @@ def run(quick: bool) -> list[dict]:
     n_pix = 2**17 if quick else 2**19
     n_err = min(n_pix, 2**16 if quick else 2**17)
     repeats = 5 if quick else 9
+    min_time = 0.3 if quick else 1.5
     n_tex = 4096
     f32 = np.float32
     table = load_optical_constants("Fe-Johnson")
@@ -148,11 +138,11 @@ def run(quick: bool) -> list[dict]:
     wl61 = DEFAULT_GRID.wavelengths
     W61 = xyz_weights(DEFAULT_GRID)
     n61, k61 = table.on_grid(DEFAULT_GRID)
-    E61 = rgb_tex @ upsample_basis(wl61).T  # (tex, 61)
+    E61 = upsample(rgb_tex, DEFAULT_GRID)  # (tex, 61)
 
     def bands(grid: WavelengthGrid):
         n, k = table.on_grid(grid)
-        E = rgb_tex @ upsample_basis(grid.wavelengths).T
+        E = upsample(rgb_tex, grid)
         W = interp_matrix(grid.wavelengths, wl61).T @ W61 if grid != DEFAULT_GRID else W61
         if grid.step < DEFAULT_GRID.step:  # finer than the reference: its own Riemann weights
             W = xyz_weights(grid)
@@ -172,7 +162,7 @@ def run(quick: bool) -> list[dict]:
     rows: list[dict] = []
 
     def measure(study, variant, fn, *, is_reference=False, note="", extra_err=None, **extra):
-        t = timeit(lambda: fn(cos_j, idx_j), repeats=repeats, warmup=1)
+        t = timeit(lambda: fn(cos_j, idx_j), repeats=repeats, warmup=1, min_time=min_time)
         out = np.asarray(fn(cos_j, idx_j))[:n_err]
         err = delta_e_display(xyz_ref, out)
         err.pop("exposure")
@@ -196,18 +186,23 @@ def run(quick: bool) -> list[dict]:
             "point samples, weights integrate the linear interpolant against the CMFs"
         measure(S, label, band_fn(*bands(grid), f32), note=note)
 
-    m_rgb2xyz = np.linalg.inv(xyz_to_rgb_matrix("sRGB"))
+    # RGB renderers get each texel's RGB as the spectral texel's own colour (so that with F = 1
+    # both agree exactly, and the error is the RGB rendering's alone, not the upsampling's), in
+    # the upsampling's unit Y_E = Σ S ȳ Δλ / Σ ȳ Δλ (jkatana.light.upsampling).
+    ysum = float(W61[:, 1].sum())
+    rgb_eff = (E61 @ W61) @ xyz_to_rgb_matrix("sRGB").T / ysum
+    m_rgb2xyz = np.linalg.inv(xyz_to_rgb_matrix("sRGB")) * ysum
     edges = ((400, 500), (500, 600), (600, 701))
     n_c = np.array([n61[(wl61 >= a) & (wl61 < b)].mean() for a, b in edges][::-1])  # R, G, B
     k_c = np.array([k61[(wl61 >= a) & (wl61 < b)].mean() for a, b in edges][::-1])
-    measure(S, "RGB (3), per-channel n,k", band_fn(n_c, k_c, rgb_tex, m_rgb2xyz.T, f32),
+    measure(S, "RGB (3), per-channel n,k", band_fn(n_c, k_c, rgb_eff, m_rgb2xyz.T, f32),
             note="n, k averaged over 600–700 / 500–600 / 400–500 nm")
 
     cos_tab = np.linspace(0.0, 1.0, N_COS_TABLE)
     F_tab = np.asarray(fresnel_conductor(jnp.asarray(cos_tab)[:, None], jnp.asarray(n61), jnp.asarray(k61)))
-    d65 = upsample_basis(wl61).sum(axis=1)
-    F_rgb = ((F_tab * d65) @ W61) @ xyz_to_rgb_matrix("sRGB").T  # linear sRGB of F under (normalised) D65
-    F_rgb_j, rgb_j, M_j = (jnp.asarray(a, f32) for a in (F_rgb, rgb_tex, m_rgb2xyz.T))
+    white = upsample(np.ones((1, 3)), DEFAULT_GRID)[0]  # the upsampled RGB white (D65-like)
+    F_rgb = ((F_tab * white) @ W61) @ xyz_to_rgb_matrix("sRGB").T / ysum  # linear sRGB of F under that white
+    F_rgb_j, rgb_j, M_j = (jnp.asarray(a, f32) for a in (F_rgb, rgb_eff, m_rgb2xyz.T))
 
     @jax.jit
     def rgb_table_fn(cos, i):
@@ -216,15 +211,15 @@ def run(quick: bool) -> list[dict]:
 
     E61_j, n61_j, k61_j, W61_j = (jnp.asarray(a, f32) for a in (E61, n61, k61, W61))
     for rank in range(1, 6):
-        a, b = fresnel_lowrank(n61, k61, rank)
+        fb = fresnel_lowrank(n61, k61, rank)
         t0 = time.perf_counter()
-        baked = np.einsum("rl,tl,lc->trc", b, E61, W61)  # (tex, r, 3): XYZ of b_r(λ) E(λ) per texel
+        baked = np.einsum("rl,tl,lc->trc", np.asarray(fb.basis), E61, W61)  # (tex, r, 3): XYZ of b_r E
         precompute = time.perf_counter() - t0
-        a_j, baked_j = jnp.asarray(a, f32), jnp.asarray(baked, f32)
+        fb32, baked_j = fresnel_lowrank(n61, k61, rank, f32), jnp.asarray(baked, f32)
 
         @jax.jit
-        def lowrank_fn(cos, i, a_j=a_j, baked_j=baked_j):
-            return jnp.einsum("nr,nrc->nc", lerp_table(a_j, cos), baked_j[i])
+        def lowrank_fn(cos, i, fb32=fb32, baked_j=baked_j):
+            return jnp.einsum("nr,nrc->nc", fb32.coeffs(cos), baked_j[i])
         measure(S, f"rank {rank} basis", lowrank_fn, precompute_s=precompute,
                 note=f"per-texel bake {precompute * 1e3:.1f} ms for {n_tex} texels, not in the time")
 
@@ -248,13 +243,12 @@ def run(quick: bool) -> list[dict]:
     measure(S, "Schlick (1994)", schlick_fn, extra_err=f_err(np.asarray(fresnel_schlick(cos_dense[:, None], f0))),
             note="F0 = exact F(0°) per band")
     for rank in range(1, 6):
-        a, b = fresnel_lowrank(n61, k61, rank)
-        a_j, b_j = jnp.asarray(a, f32), jnp.asarray(b, f32)
+        fb32 = fresnel_lowrank(n61, k61, rank, f32)
 
         @jax.jit
-        def lr_fn(cos, i, a_j=a_j, b_j=b_j):
-            return ((lerp_table(a_j, cos) @ b_j) * E61_j[i]) @ W61_j
-        F_lr = np.asarray(lerp_table(jnp.asarray(a), jnp.asarray(cos_dense))) @ b
+        def lr_fn(cos, i, fb32=fb32):
+            return (fb32.reconstruct(cos) * E61_j[i]) @ W61_j
+        F_lr = np.asarray(fresnel_lowrank(n61, k61, rank).reconstruct(jnp.asarray(cos_dense)))
         measure(S, f"rank {rank}", lr_fn, extra_err=f_err(F_lr),
-                note=f"F tabulated at {N_COS_TABLE} cosines, reconstructed per band")
+                note="jkatana.light fresnel_basis (2049 angles), reconstructed per band")
     return rows
