@@ -108,6 +108,10 @@ def crop_to_uv(y: np.ndarray, crop: tuple[int, int, int, int] | None, resolution
             raise InputError(f"crop {crop} is outside the {y.shape[1]}×{y.shape[0]} photo",
                              path=path, field="crop")
         y = y[y0:y1, x0:x1]
+    if y.shape[0] >= y.shape[1]:
+        raise InputError(f"wrong aspect: the blade region is {y.shape[1]}×{y.shape[0]}, taller than "
+                         "wide; the blade must run along the image rows (rotate it or give --crop)",
+                         path=path)
     if expected_aspect is not None:
         aspect = y.shape[1] / y.shape[0]
         if abs(aspect / expected_aspect - 1) > aspect_tolerance:
