@@ -62,21 +62,31 @@ def gaussian_normalisation(mu):
     48-point Gauss–Legendre quadrature over [0, min(π/2, c μ)], where c is the
     point beyond which D underflows — exact to quadrature error (< 1e-12 for
     μ ≤ 0.5) and differentiable. For small μ, N → ln2 / (π μ²).
+
+    A Python scalar μ gives a Python float (weakly typed: it does not promote
+    float32 arrays it multiplies); an array μ gives an array of its dtype.
     """
-    mu = jnp.asarray(mu)  # a Python float becomes the default float (float64 under x64)
+    if isinstance(mu, (int, float)) and not isinstance(mu, np.generic):
+        return float(_normalisation(np, np.asarray(mu, np.float64), np.float64))
+    mu = jnp.asarray(mu)  # np.float64 stays float64 under x64 (float32 without x64)
     dtype = mu.dtype if jnp.issubdtype(mu.dtype, jnp.floating) else jnp.result_type(float)
+    return _normalisation(jnp, mu, dtype)
+
+
+def _normalisation(xp, mu, dtype):
+    """:func:`gaussian_normalisation` with array namespace ``xp`` (NumPy for Python scalars, so it works under jit)."""
     ratio_max = math.sqrt(_exp_cutoff(dtype) / LN2)
-    mu_safe = jnp.maximum(jnp.abs(mu), float(np.finfo(dtype).tiny) ** 0.25)
-    upper = jnp.minimum(jnp.pi / 2, ratio_max * mu_safe)
-    x = jnp.asarray(_GL_X, dtype)
-    w = jnp.asarray(_GL_W, dtype)
+    mu_safe = xp.maximum(xp.abs(mu), float(np.finfo(dtype).tiny) ** 0.25)
+    upper = xp.minimum(np.pi / 2, ratio_max * mu_safe)
+    x = xp.asarray(_GL_X, dtype)
+    w = xp.asarray(_GL_W, dtype)
     phi = upper[..., None] * x
     # D(φ) cosφ sinφ with the substitution φ = μ t keeps the integrand O(1) at tiny μ:
     t = phi / mu_safe[..., None]
-    integrand = jnp.exp(-LN2 * t * t) * jnp.cos(phi) * jnp.sinc(phi / jnp.pi) * t
+    integrand = xp.exp(-LN2 * t * t) * xp.cos(phi) * xp.sinc(phi / np.pi) * t
     # ∫ D cos sin dφ = μ² ∫ e^{-ln2 t²} cos(φ) (sin φ / φ) t dt over t ∈ [0, upper/μ]
-    integral = (mu_safe**2) * (upper / mu_safe) * jnp.sum(w * integrand, axis=-1)
-    return 1.0 / (2.0 * jnp.pi * integral)
+    integral = (mu_safe**2) * (upper / mu_safe) * xp.sum(w * integrand, axis=-1)
+    return 1.0 / (2.0 * np.pi * integral)
 
 
 def beckmann(cos_phi, alpha):

@@ -88,7 +88,7 @@ class Hiraji(eqx.Module):
                E: Float[Array, "wl"] | None = None) -> Float[Array, "*b wl"]:
         """Eq. (1) in camera units: χ · D(φ, μ0) · F(θi) [· E(λ)]."""
         cos_i, _, d = self._terms(L, V)
-        return _spectral((jnp.asarray(self.chi) * d)[..., None] * conductor.fresnel(cos_i), E)
+        return _spectral((self.chi * d)[..., None] * conductor.fresnel(cos_i), E)
 
     def brdf_cos(self, L, V, conductor: Conductor, calibration: float | None = None
                  ) -> Float[Array, "*b wl"]:
@@ -97,7 +97,7 @@ class Hiraji(eqx.Module):
         if calibration is None:
             scale = safe_div(gaussian_normalisation(self.mu), 4.0 * cos_th)
         else:
-            scale = jnp.asarray(self.chi) / calibration
+            scale = self.chi / calibration
         return (scale * d)[..., None] * conductor.fresnel(cos_i)
 
 
@@ -117,7 +117,7 @@ class Hamon(eqx.Module):
     def camera(self, L, V, conductor: Conductor, E=None) -> Float[Array, "*b wl"]:
         """Eq. (2) in camera units: β · F(θH) · D(φ, μ1) · G / cos θr [· E(λ)]."""
         cos_th, dg = self._terms(L, V)
-        return _spectral((jnp.asarray(self.beta) * dg)[..., None] * conductor.fresnel(cos_th), E)
+        return _spectral((self.beta * dg)[..., None] * conductor.fresnel(cos_th), E)
 
     def brdf_cos(self, L, V, conductor: Conductor, calibration: float | None = None):
         """f_r cos θi for rendering: Cook–Torrance F D̂ G /(4 cos θr) with D̂ = N(μ) D, or β/K."""
@@ -125,7 +125,7 @@ class Hamon(eqx.Module):
         if calibration is None:
             scale = gaussian_normalisation(self.mu) / 4.0
         else:
-            scale = jnp.asarray(self.beta) / calibration
+            scale = self.beta / calibration
         return (scale * dg)[..., None] * conductor.fresnel(cos_th)
 
 
