@@ -261,7 +261,7 @@ def exposure_for(prep: Prepared, frame: Frame) -> float:
     if e != "auto":
         return float(e)
     if frame.mask.any():
-        return auto_exposure(frame.xyz, frame.mask, key=0.85, percentile=99.5)
+        return auto_exposure(frame.xyz, frame.mask, key=0.6, percentile=75.0)
     return auto_exposure(frame.xyz, None, key=0.18, percentile=50.0)
 
 
