@@ -54,22 +54,26 @@ def test_prefilter_keeps_constants_and_has_the_lobe_width():
 def test_lobe_lut_is_the_models_integral(iron):
     _, _, b, _ = B.fresnel_basis(iron, 4)
     mus = np.array([0.02, 0.1])
-    cos, lut, spread = B.lobe_lut(iron, b, mus, n_cos=9)
+    cos, lut, shape = B.lobe_lut(iron, b, mus, n_cos=9)
     for m, cls in enumerate((Hiraji, Hamon)):
         for j, mu in enumerate(mus):
             model = cls(jnp.asarray(1.0), jnp.asarray(mu))
             V = np.array([[np.sqrt(1 - c ** 2), 0.0, c] for c in np.maximum(cos[[2, 5, 8]], 1e-3)])
-            fine = np.asarray(B.lobe_integral(model, iron, V, n_phi=96, n_psi=128))
-            # the LUT's 32 × 48 quadrature is within 0.25 % of a 96 × 128 one (worst at grazing view;
-            # ~0.1 ΔE00 on a mid-grey); rank 4 adds < 1e-4
-            np.testing.assert_allclose(lut[m, j, [2, 5, 8]] @ b, fine, rtol=2.5e-3)
+            fine = np.asarray(B.lobe_integral(model, iron, V, n_phi=64, n_psi=96))
+            # the LUT's 32 × 48 quadrature differs from 64 × 96 and 96 × 128 ones by up to 0.35 % at
+            # 75° from the normal (the lobe is cut by the horizon there, which Gauss–Legendre
+            # resolves slowly): ~0.1 ΔE00 on a mid-grey; elsewhere < 0.05 %; rank 4 adds < 1e-4
+            rtol = np.where(cos[[2, 5, 8]] < 0.5, 4e-3, 5e-4)[:, None]
+            np.testing.assert_array_less(np.abs(lut[m, j, [2, 5, 8]] @ b - fine), rtol * fine)
     # normalised lobe → a mirror of reflectance F as μ → 0 (hiraji, normal incidence)
-    _, narrow, _ = B.lobe_lut(iron, b, np.array([0.003]), n_cos=3)
+    _, narrow, _ = B.lobe_lut(iron, b, np.array([0.003, 0.1]), n_cos=9)   # same shapes: one compile
     F1 = np.asarray(iron.fresnel(jnp.asarray(1.0)))
     np.testing.assert_allclose(narrow[0, 0, -1] @ b, F1, rtol=2e-2)
-    # off normal incidence the reflected lobe is narrower (spread < 0), at normal incidence 0
-    assert np.all(spread[:, :, -1] == pytest.approx(0.0, abs=1e-9))
-    assert np.all(spread[:, :, 4] < 0)
+    # lobe shape: isotropic at normal incidence; at 60° narrower across the plane of incidence
+    # (log width ratio ≈ log cos θ) and wider along it
+    np.testing.assert_allclose(shape[:, :, -1, :2], 0.0, atol=1e-6)
+    assert np.all(shape[:, :, 4, 0] < -0.3) and np.all(shape[:, :, 4, 0] > -1.0)
+    assert np.all(shape[:, :, 4, 1] > 0.5 * mus[None, :])
 
 
 def test_missing_package_names_the_debian_package(monkeypatch, tmp_path):

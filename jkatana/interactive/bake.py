@@ -165,31 +165,49 @@ def lobe_integral(model, conductor: Conductor, V_local, n_phi=32, n_psi=48, mome
     total = jnp.sum(f * dw, axis=-2)
     if not moments:
         return total
+    # angles of L from the mirror direction R, along the plane of incidence (t, towards N) and across it (y)
     R = V * jnp.asarray([-1.0, -1.0, 1.0], dt)
-    ang2 = jnp.arccos(jnp.clip(jnp.sum(L * R, -1), -1.0, 1.0)) ** 2
+    nt = jnp.asarray([0.0, 0.0, 1.0], dt) - R[..., 2:3] * R
+    t = nt / jnp.maximum(jnp.linalg.norm(nt, axis=-1, keepdims=True), 1e-12)
+    t = jnp.where(jnp.linalg.norm(nt, axis=-1, keepdims=True) > 1e-9, t, jnp.asarray([1.0, 0.0, 0.0], dt))
+    y = jnp.cross(R, t)
+    lr = jnp.sum(L * R, -1)
+    a_par = jnp.arctan2(jnp.sum(L * t, -1), lr)
+    a_perp = jnp.arctan2(jnp.sum(L * y, -1), lr)
     wsum = jnp.sum(f * dw, axis=-1)
-    return total, jnp.sum(wsum * ang2, -1) / jnp.maximum(jnp.sum(wsum, -1), 1e-30)
+    norm = jnp.maximum(jnp.sum(wsum, -1), 1e-30)
+    mean = jnp.sum(wsum * a_par, -1) / norm
+    var_par = jnp.sum(wsum * (a_par - mean[..., None]) ** 2, -1) / norm
+    var_perp = jnp.sum(wsum * a_perp ** 2, -1) / norm
+    return total, (mean, var_par, var_perp)
 
 
 @jax.jit
 def _lut_column(mu, conductor, V, b):
-    out, spread = [], []
+    out, shape = [], []
     for cls in (Hiraji, Hamon):
         model = cls(jnp.ones((), mu.dtype), mu)
-        total, ms = lobe_integral(model, conductor, V, moments=True)
+        total, (mean, var_par, var_perp) = lobe_integral(model, conductor, V, moments=True)
         out.append(total @ b.T)
-        spread.append(0.5 * jnp.log(ms / ms[-1]))   # V[-1] is normal incidence
-    return jnp.stack(out), jnp.stack(spread)
+        iso = 0.5 * (var_par[-1] + var_perp[-1])                  # V[-1] is normal incidence: isotropic
+        shape.append(jnp.stack([0.5 * jnp.log(var_perp / iso),       # across-plane width → prefilter level
+                                jnp.sqrt(jnp.maximum(var_par - var_perp, 0.0)),   # ± tap offset (rad)
+                                mean], -1))                          # lobe centre offset towards N (rad)
+    return jnp.stack(out), jnp.stack(shape)
 
 
 def lobe_lut(conductor: Conductor, b: np.ndarray, mus=MU_LEVELS, n_cos: int = 64):
     """A_r(cos θv, μ) for hiraji and hamon: ``(2, n_mu, n_cos, rank)``, cos grid uniform on [0, 1].
 
-    Also returns ``spread (2, n_mu, n_cos)``: log of the lobe's rms angular
-    radius around the mirror direction relative to normal incidence. Off
-    normal incidence the reflected lobe narrows across the plane of
-    incidence (by cos θ), so the shader reads the environment prefiltered for
-    μ·exp(spread) — the isotropic kernel with the same second moment.
+    Also returns ``shape (2, n_mu, n_cos, 3)``, the reflected lobe's moments
+    from the same quadrature, in angles from the mirror direction R: (0) half
+    the log of its variance across the plane of incidence relative to normal
+    incidence, (1) the extra spread along the plane, √(var_par − var_perp),
+    (2) the mean offset along the plane towards N. Off normal incidence the
+    lobe narrows across the plane (by ≈ cos θ) but not along it; the shader
+    reads the environment prefiltered for the across-plane width at two taps
+    R rotated by mean ± spread in the plane — the two-tap kernel with the
+    lobe's first and second moments.
     """
     cos = np.linspace(0.0, 1.0, n_cos)
     cos_c = np.maximum(cos, 1e-3)
@@ -197,8 +215,8 @@ def lobe_lut(conductor: Conductor, b: np.ndarray, mus=MU_LEVELS, n_cos: int = 64
     dt = conductor.n.dtype
     cols = [_lut_column(jnp.asarray(mu, dt), conductor, jnp.asarray(V, dt), jnp.asarray(b, dt)) for mu in mus]
     out = np.stack([np.asarray(c[0], np.float64) for c in cols], axis=1)
-    spread = np.stack([np.asarray(c[1], np.float64) for c in cols], axis=1)
-    return cos, out, spread
+    shape = np.stack([np.asarray(c[1], np.float64) for c in cols], axis=1)
+    return cos, out, shape
 
 
 @dataclasses.dataclass
@@ -207,7 +225,7 @@ class Baked:
 
     - ``env`` ``(n_mu, rank, H, W, 3)``: P_{r,c}(ω; μ) (XYZ per basis function).
     - ``lut`` ``(2, n_mu, n_cos, rank)``: A_r for hiraji (0) and hamon (1).
-    - ``spread`` ``(2, n_mu, n_cos)``: log rms-width ratio of the lobe (see :func:`lobe_lut`).
+    - ``spread`` ``(2, n_mu, n_cos, 3)``: lobe shape moments (see :func:`lobe_lut`).
     - ``mus``: the μ levels; ``b`` the spectral basis ``(rank, wl)``; ``fresnel_err``.
     - ``xyz_to_rgb`` 3×3; ``transfer`` 1-D table of encode(s²) for s uniform in [0, 1].
     """

@@ -101,11 +101,12 @@ class ShadingState:
 
     - `baked`: :class:`jkatana.interactive.bake.Baked`; `refl_map`: ``(H, W, 3)`` w, μ0, μ1.
     - per frame: `exposure`, `env_rotation` (radians about +Y, turns the light around the blade),
-      and the static switches `rank` (≤ baked rank), `rough`, `blend`.
+      and the static switches `rank` (≤ baked rank), `rough`, `blend`, `two_tap` (anisotropic lobe:
+      two prefiltered taps along the plane of incidence; off: one isotropic tap).
     """
 
     def __init__(self, baked: Baked, refl_map: np.ndarray, *, exposure: float = 1.0, rank: int | None = None,
-                 rough: bool = True, blend: bool = True):
+                 rough: bool = True, blend: bool = True, two_tap: bool = True):
         self.baked = baked
         self.refl_map = np.asarray(refl_map, np.float64)
         self.exposure = float(exposure)
@@ -115,10 +116,12 @@ class ShadingState:
             raise ValueError(f"rank must be 1..{baked.rank} (baked), got {self.rank}")
         self.rough = bool(rough)
         self.blend = bool(blend)
+        self.two_tap = bool(two_tap)
         self._textures: dict[object, tuple[int, ...]] = {}
 
     def defines(self) -> dict:
-        return {"JK_RANK": self.rank, "JK_ROUGH": int(self.rough), "JK_BLEND": int(self.blend)}
+        return {"JK_RANK": self.rank, "JK_ROUGH": int(self.rough), "JK_BLEND": int(self.blend),
+                "JK_TWO_TAP": int(self.two_tap and self.rough)}
 
     def env_rot_matrix(self) -> np.ndarray:
         """World → environment-map rotation about +Y, as :func:`jkatana.render.renderer.rotation_y`
@@ -134,9 +137,10 @@ class ShadingState:
         if key not in self._textures:
             b = self.baked
             n_mu, rank, H, W, _ = b.env.shape
-            lut = np.zeros((3,) + b.lut.shape[1:-1] + (MAX_RANK,))
+            lut = np.zeros((4,) + b.lut.shape[1:-1] + (MAX_RANK,))
             lut[:2, ..., :rank] = b.lut
-            lut[2, ..., :2] = np.moveaxis(b.spread, 0, -1)              # layer 2: spread (hiraji, hamon)
+            lut[2, ..., :3] = b.spread[0]                                # layer 2: hiraji lobe shape
+            lut[3, ..., :3] = b.spread[1]                                # layer 3: hamon lobe shape
             self._textures[key] = (
                 _tex_array(lut),                                         # (2, n_mu, n_cos, 4)
                 _tex_2d(_rgba(self.refl_map)),

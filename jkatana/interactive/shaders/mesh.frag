@@ -16,7 +16,10 @@
 //
 // Static switches (pyrender text-replaces define names, so they are plain
 // integers here): JK_RANK (1..4), JK_ROUGH (0: mirror-like, the narrowest μ
-// level), JK_BLEND (0: hiraji everywhere).
+// level), JK_BLEND (0: hiraji everywhere), JK_TWO_TAP (the lobe's anisotropy:
+// two taps along the plane of incidence, prefiltered for the across-plane
+// width, at the lobe's mean ± its extra in-plane spread — moments baked from
+// the models by jkatana.interactive.bake.lobe_lut).
 
 in vec3 frag_position;
 in vec3 frag_normal;
@@ -35,8 +38,9 @@ uniform sampler3D jk_env2;
 #if JK_RANK > 3
 uniform sampler3D jk_env3;
 #endif
-uniform sampler2DArray jk_lut;      // layer 0 hiraji, 1 hamon: rgba = A_0..A_3; layer 2: rg = lobe spread
-                                    // (log rms-width ratio, hiraji, hamon); s: cos θv, t: μ level
+uniform sampler2DArray jk_lut;      // layer 0 hiraji, 1 hamon: rgba = A_0..A_3; layers 2, 3: lobe shape of
+                                    // hiraji, hamon (rgb = log across-width ratio, ± tap offset, mean offset)
+                                    // s: cos θv, t: μ level
 uniform sampler2D jk_map;           // r = w, g = μ0, b = μ1
 uniform sampler2D jk_transfer;      // 1 row: encode(s²)
 uniform mat3 jk_xyz_to_rgb;
@@ -67,6 +71,22 @@ float encode1(float x)
     return texture(jk_transfer, vec2((s * (jk_n_transfer - 1.0) + 0.5) / jk_n_transfer, 0.5)).r;
 }
 
+vec3 env_xyz(vec3 d, float lz, vec4 a)
+{
+    vec3 p = vec3(0.5 + atan(d.x, -d.z) / (2.0 * JK_PI), acos(clamp(d.y, -1.0, 1.0)) / JK_PI, lz);
+    vec3 xyz = a.x * texture(jk_env0, p).rgb;
+#if JK_RANK > 1
+    xyz += a.y * texture(jk_env1, p).rgb;
+#endif
+#if JK_RANK > 2
+    xyz += a.z * texture(jk_env2, p).rgb;
+#endif
+#if JK_RANK > 3
+    xyz += a.w * texture(jk_env3, p).rgb;
+#endif
+    return xyz;
+}
+
 void main()
 {
     vec3 N = normalize(frag_normal);
@@ -74,7 +94,8 @@ void main()
     float cv = dot(N, Vd);
     vec3 xyz = vec3(0.0);
     if (cv > 0.0) {
-        vec3 R = jk_env_rot * (2.0 * cv * N - Vd);
+        vec3 R0 = 2.0 * cv * N - Vd;
+        vec3 R = jk_env_rot * R0;
         vec3 m = texture(jk_map, uv_0).rgb;
 #if JK_BLEND
         float w = m.r;
@@ -90,22 +111,20 @@ void main()
 #endif
         vec4 a = w * lobe(0.0, cv, lf) + (1.0 - w) * lobe(1.0, cv, lt);
 #if JK_ROUGH
-        vec2 spread = lobe(2.0, cv, mix(lt, lf, w)).rg / jk_log_mu_step;
-        float le = clamp(mix(lt + spread.g, lf + spread.r, w), 0.0, jk_n_levels - 1.0);
+        vec3 shape = w * lobe(2.0, cv, lf).rgb + (1.0 - w) * lobe(3.0, cv, lt).rgb;
+        float le = clamp(mix(lt, lf, w) + shape.r / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
 #else
         float le = 0.0;
 #endif
-        vec3 p = vec3(0.5 + atan(R.x, -R.z) / (2.0 * JK_PI), acos(clamp(R.y, -1.0, 1.0)) / JK_PI,
-                      (le + 0.5) / jk_n_levels);
-        xyz = a.x * texture(jk_env0, p).rgb;
-#if JK_RANK > 1
-        xyz += a.y * texture(jk_env1, p).rgb;
-#endif
-#if JK_RANK > 2
-        xyz += a.z * texture(jk_env2, p).rgb;
-#endif
-#if JK_RANK > 3
-        xyz += a.w * texture(jk_env3, p).rgb;
+        float lz = (le + 0.5) / jk_n_levels;
+#if JK_TWO_TAP
+        vec3 tn = N - dot(N, R0) * R0;
+        tn = jk_env_rot * (tn / max(length(tn), 1e-6));
+        vec3 Ra = cos(shape.b + shape.g) * R + sin(shape.b + shape.g) * tn;
+        vec3 Rb = cos(shape.b - shape.g) * R + sin(shape.b - shape.g) * tn;
+        xyz = 0.5 * (env_xyz(Ra, lz, a) + env_xyz(Rb, lz, a));
+#else
+        xyz = env_xyz(R, lz, a);
 #endif
     }
     vec3 rgb = jk_xyz_to_rgb * (xyz * jk_exposure);
