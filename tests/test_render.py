@@ -336,3 +336,12 @@ def test_region_parameter_file_sets_mu(tmp_path):
     assert np.isclose(np.median(prep.maps[..., 2][w < 1]), 0.12, rtol=0.05)
     assert float(prep.material.beta) == 40000.0
     assert scene.material["hamon"].name == "hamon.json"
+
+
+def test_example_scene_validates():
+    from pathlib import Path
+
+    import jkatana.render
+
+    scene = load_scene(Path(jkatana.render.__file__).parent / "example_scene.toml")
+    assert scene.render["mode"] == "reference" and scene.camera["resolution"] == (400, 300)
