@@ -247,9 +247,8 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
     env = prep.env
     if lights > 1 or light:
         rot = rotation_y(scene.environment["rotation_deg"] + 360.0 * light / lights)
-        env = dataclasses.replace(env, rotation=jnp.asarray(rot, prep.dtype)) if False else \
-            Environment(env.channels, env.basis, jnp.asarray(rot, prep.dtype), env.cdf, env.texel_p,
-                        env.prefiltered, env.prefilter_mus)
+        env = Environment(env.channels, env.basis, jnp.asarray(rot, prep.dtype), env.cdf, env.texel_p,
+                          env.prefiltered, env.prefilter_mus)
     cam = camera_for(scene, view, views)
     s = scene.render["seed"] if seed is None else seed
     return render_frame(prep.plan, prep.material, env, prep.lights, prep.geometry, cam, prep.maps, prep.cmf,
