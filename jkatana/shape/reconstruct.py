@@ -130,7 +130,8 @@ def principal_frame(points: np.ndarray) -> np.ndarray:
 
 def smooth_height_field(points: np.ndarray, *, degree: int = 3, patches: tuple[int, int] = (12, 12),
                         smoothness: float = 1e-4, resolution: int = 120,
-                        frame: np.ndarray | None = None, mask_radius: float | None = None):
+                        frame: np.ndarray | None = None, mask_radius: float | None = None,
+                        creases_y: list[float] = ()):
     """Fit a single-view scan as a height field over its principal plane; returns (mesh, surface, info).
 
     Grid cells farther than ``mask_radius`` (default: 2 × the median point
@@ -151,9 +152,16 @@ def smooth_height_field(points: np.ndarray, *, degree: int = 3, patches: tuple[i
         raise InputError("degenerate scan: the points span no area", field="points")
     s = (local[:, 0] - lo[0]) / (hi[0] - lo[0])
     t = (local[:, 1] - lo[1]) / (hi[1] - lo[1])
+    bt = np.linspace(0, 1, patches[1] + 1)
+    for y in creases_y:
+        c = (y - lo[1]) / (hi[1] - lo[1])
+        if 0 < c < 1:
+            inner = np.arange(1, len(bt) - 1)
+            if len(inner):
+                bt[inner[np.argmin(np.abs(bt[inner] - c))]] = c
+    bt = np.unique(bt)
     surf, info = fit_bezier(s, t, local[:, 2], degree=degree, patches=patches, smoothness=smoothness,
-                            breaks_s=np.linspace(0, 1, patches[0] + 1),
-                            breaks_t=np.linspace(0, 1, patches[1] + 1))
+                            breaks_s=np.linspace(0, 1, patches[0] + 1), breaks_t=bt)
     aspect = (hi[1] - lo[1]) / (hi[0] - lo[0])
     n_s, n_t = resolution, max(2, int(round(resolution * aspect)))
     S, Tt = np.meshgrid(np.linspace(0, 1, n_s), np.linspace(0, 1, n_t), indexing="ij")

@@ -142,7 +142,7 @@ def simulate_scans(mesh: trimesh.Trimesh, *, section_length: float = 0.05, overl
     intersector = mesh.ray
     for k in range(n_sec):
         x0 = lo[0] + k * section_length - overlap / 2
-        x1 = lo[0] + (k + 1) * section_length + overlap / 2
+        x1 = min(lo[0] + (k + 1) * section_length, hi[0]) + overlap / 2
         inside = (mesh.vertices[:, 0] >= x0) & (mesh.vertices[:, 0] <= x1)
         if not inside.any():
             continue
