@@ -87,8 +87,13 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     """Shade ``P`` pixels in fixed-size sharded calls; returns ``(xyz (P, 3), spectra or None)`` as NumPy."""
     n_dev = n_devices or len(jax.local_devices())
     P = px.normal.shape[0]
-    chunk = int(min(chunk, max(256, -(-P // n_dev))))
-    chunk = -(-chunk // 256) * 256
+    # call shapes from a fixed ladder (1024 · 4^k, capped at `chunk`), so that views with
+    # different coverage reuse one compiled program instead of compiling per pixel count
+    need = -(-P // n_dev)
+    size = 1024
+    while size < need and size < chunk:
+        size *= 4
+    chunk = int(min(size, chunk))
     call = n_dev * chunk
     n_calls = max(1, -(-P // call))
     pad = n_calls * call - P
