@@ -139,6 +139,7 @@ def run(quick: bool = False) -> list[dict]:
     g7 = WavelengthGrid(400, 700, 50)
     small = hosek_wilkie_sky(35.0, 180.0, 3.0, 0.1, (64, 128), g7, dtype=jnp.float64)
     sampler = EnvSampler.build(small)
+    sampler_c = EnvSampler.build(small, compensate=True)
     key = jax.random.PRNGKey(0)
     sample_1m = jax.jit(lambda k: sampler.sample(k, 1_000_000))
     t = timeit(lambda: sample_1m(key), repeats=3)
@@ -157,15 +158,19 @@ def run(quick: bool = False) -> list[dict]:
             ref = float(np.asarray(reflected_radiance_quadrature(small, brdf, Vl, fr, min(16 * mu, math.pi))) @ ybar7)
             M = 128 if quick else 512
             keys = jax.random.split(jax.random.PRNGKey(5), M)
-            for strategy, (ne, nl) in (("env", (16, 16)), ("lobe", (16, 16)), ("mis", (8, 8)), ("mis", (16, 16))):
-                f = jax.jit(jax.vmap(lambda k, strategy=strategy, ne=ne, nl=nl: reflected_radiance(
-                    k, small, sampler, brdf, Vl, fr, lambda kk, n, VV: sample_gaussian_lobe(kk, n, mu, VV),
+            for strategy, (ne, nl), smp, label in (("env", (16, 16), sampler, "env"),
+                                                   ("lobe", (16, 16), sampler, "lobe"),
+                                                   ("mis", (8, 8), sampler, "mis balance"),
+                                                   ("mis", (8, 8), sampler_c, "mis balance + compensation"),
+                                                   ("mis", (16, 16), sampler_c, "mis balance + compensation")):
+                f = jax.jit(jax.vmap(lambda k, strategy=strategy, ne=ne, nl=nl, smp=smp: reflected_radiance(
+                    k, small, smp, brdf, Vl, fr, lambda kk, n, VV: sample_gaussian_lobe(kk, n, mu, VV),
                     lambda L, VV: gaussian_lobe_pdf(L, VV, mu), ne, nl, strategy=strategy)))
                 Y = np.asarray(f(keys)) @ ybar7
                 t = timeit(lambda: f(keys), repeats=3)
                 n_tot = ne if strategy == "env" else nl if strategy == "lobe" else ne + nl
                 rows.append(record(B, {"stage": "reflected radiance", "mu": mu, "config": where,
-                                       "strategy": strategy, "samples": n_tot},
+                                       "strategy": label, "samples": n_tot},
                                    time_s={k2: v / M for k2, v in t.items() if k2 != "repeats"} | {"repeats": t["repeats"]},
                                    error={"bias_rel": float(Y.mean() / ref - 1),
                                           "bias_in_se": float((Y.mean() - ref) / (Y.std() / math.sqrt(M))),

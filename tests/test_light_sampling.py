@@ -106,34 +106,40 @@ def test_mis_weights_sum_to_one():
 
 
 def _estimates(env, mu, n_w, V_w, N=8, M=128, seed=11):
+    """Luminance of M independent estimates per strategy: env alone (N samples, luminance sampler),
+    lobe alone (N), MIS (N + N, balance heuristic, with the MIS-compensated environment sampler)."""
+    from jkatana.spectral import xyz_weights
+
     cond = Conductor.from_table("Fe-Johnson", G7, jnp.float64)
     model = Hiraji(mu=jnp.asarray(mu))  # array μ: a Python float is concretised by models (fails under jit)
     brdf = lambda L, V: model.brdf_cos(L, V, cond)  # noqa: E731
     fr = frame_from_normal(n_w)
     Vl = to_local(fr, V_w)
-    ref = reflected_radiance_quadrature(env, brdf, Vl, fr, min(16 * mu, math.pi))
-    sampler = EnvSampler.build(env)
+    ybar = np.asarray(xyz_weights(G7))[:, 1]
+    Y_ref = float(np.asarray(reflected_radiance_quadrature(env, brdf, Vl, fr, min(16 * mu, math.pi))) @ ybar)
+    plain, comp = EnvSampler.build(env), EnvSampler.build(env, compensate=True)
     ls = lambda k, n, V: sample_gaussian_lobe(k, n, mu, V)  # noqa: E731
     lp = lambda L, V: gaussian_lobe_pdf(L, V, mu)  # noqa: E731
     keys = jax.random.split(jax.random.PRNGKey(seed), M)
     out = {}
-    for strategy in ("env", "lobe", "mis"):
+    for strategy, sampler in (("env", plain), ("lobe", plain), ("mis", comp)):
         f = jax.jit(jax.vmap(lambda k: reflected_radiance(k, env, sampler, brdf, Vl, fr, ls, lp, N, N,
                                                           strategy=strategy)))
-        Y = np.asarray(f(keys)) @ np.asarray(__import__("jkatana").spectral.xyz_weights(G7))[:, 1]
-        out[strategy] = Y
-    Y_ref = float(np.asarray(ref) @ np.asarray(__import__("jkatana").spectral.xyz_weights(G7))[:, 1])
+        out[strategy] = np.asarray(f(keys)) @ ybar
     return Y_ref, out
 
 
-def _check(Y_ref, out):
+def _check(Y_ref, out, strict=True):
     for k, Y in out.items():
         se = Y.std() / math.sqrt(Y.size)
         assert abs(Y.mean() - Y_ref) < 4 * se + 1e-9 * abs(Y_ref), (k, Y.mean(), Y_ref, se)
         assert se < 0.2 * abs(Y_ref), (k, se, Y_ref)  # the bias check has power
     v = {k: Y.var() for k, Y in out.items()}
-    # MIS with N samples of each strategy vs each strategy alone with N samples (Veach 1997, thm 9.2)
-    assert v["mis"] < v["env"] and v["mis"] < v["lobe"], v
+    # MIS (N of each strategy) vs each strategy alone with N samples. Where the sun is in the lobe
+    # both strategies matter and MIS is strictly below both; where the lobe sees only smooth sky the
+    # compensated environment sampler adds nothing and MIS equals the lobe strategy (within 2 %).
+    assert v["mis"] < v["env"], v
+    assert (v["mis"] < v["lobe"]) if strict else (v["mis"] <= 1.02 * v["lobe"]), v
 
 
 def _configs(env):
@@ -154,14 +160,14 @@ def test_reflected_radiance_unbiased_and_mis_sky_with_sun():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["sky", "sunrise.exr", "pedestrian_overpass_1k.hdr", "forest.exr"])
-@pytest.mark.parametrize("mu", [0.05, 0.2])
+@pytest.mark.parametrize("name,mu", [("sky", 0.05), ("sky", 0.2), ("sunrise.exr", 0.05),
+                                     ("pedestrian_overpass_1k.hdr", 0.05), ("forest.exr", 0.2)])
 @pytest.mark.parametrize("where", ["sun", "sky"])
 def test_reflected_radiance_unbiased_and_mis_all_maps(name, mu, where):
     env = _sky() if name == "sky" else _photo(name)
     V, n_sun, n_sky = _configs(env)
-    Y_ref, out = _estimates(env, mu, n_sun if where == "sun" else n_sky, V, M=384)
-    _check(Y_ref, out)
+    Y_ref, out = _estimates(env, mu, n_sun if where == "sun" else n_sky, V, M=256)
+    _check(Y_ref, out, strict=where == "sun")
 
 
 def test_env_sampler_bilinear_weights_keep_sun_spill_bounded():

@@ -66,7 +66,7 @@ class EnvSampler(eqx.Module):
 
     @classmethod
     def build(cls, env: EnvMap, *, floor: float = 0.01, uniform: float = 1e-6,
-              bilinear: bool = True) -> "EnvSampler":
+              bilinear: bool = True, compensate: bool = False) -> "EnvSampler":
         """Tables from ``env``: weight per texel = ``(Y-weighted + floor·flat spectral mean)·Ω + uniform``.
 
         With ``bilinear`` (default) the weight is the texel's integral of the
@@ -76,6 +76,14 @@ class EnvSampler(eqx.Module):
         bilinear spill of the sun into neighbouring texels, sampled at sky
         density, makes the estimator heavy-tailed: unbiased in expectation but
         low with high probability at practical sample counts).
+
+        With ``compensate``, MIS compensation (Karlík, Šik, Vévoda, Skřivan &
+        Křivánek 2019, "MIS Compensation: Optimizing Sampling Techniques in
+        Multiple Importance Sampling", ACM TOG 38(6)): the weight is
+        ``max(y − ȳ, 0)`` with ȳ its solid-angle mean, so environment samples
+        go to what stands out (the sun) and the smooth rest is left to the BRDF
+        strategy. Only for use *with* MIS: alone, the estimator keeps just the
+        ``uniform`` floor elsewhere (still unbiased, but noisy).
 
         **Arguments:**
 
@@ -95,6 +103,8 @@ class EnvSampler(eqx.Module):
             y = (np.roll(y, 1, axis=1) + 6 * y + np.roll(y, -1, axis=1)) / 8
             yp = np.concatenate([y[:1], y, y[-1:]], axis=0)
             y = (yp[:-2] + 6 * yp[1:-1] + yp[2:]) / 8
+        if compensate:
+            y = np.maximum(y - (y * omega[:, None]).sum() / (4 * np.pi), 0.0)
         f = y * omega[:, None]
         total = f.sum()
         f = f + (uniform * total if total > 0 else 1.0) * omega[:, None] / (4 * np.pi)
