@@ -213,7 +213,7 @@ def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5
 
 
 def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation=None,
-                      prefilter_mus=(), prefilter_resolution: int = 256, dtype=jnp.float32, grid=None):
+                      prefilter_mus=(), prefilter_resolution: int = 128, dtype=jnp.float32, grid=None):
     """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
 
     The sampling density is piecewise constant in (u, v), ∝ sin θ × the largest
@@ -294,7 +294,7 @@ def env_lookup(env: Environment, d_world):
     return bilinear_equirect(env.channels, d_world @ env.rotation.T)
 
 
-def prefilter(channels: np.ndarray, mus: np.ndarray, resolution: int = 256, n_dirs: int = 1024,
+def prefilter(channels: np.ndarray, mus: np.ndarray, resolution: int = 128, n_dirs: int = 400,
               seed: int = 0) -> np.ndarray:
     """Pre-convolve an environment with the reflection lobe of the paper's facet distribution.
 
