@@ -278,6 +278,22 @@ def test_scene_roundtrip_and_outputs(tmp_path):
     assert im.size == (24, 18) and im.text["jkatana_mode"] == "reference"
 
 
+def test_spectral_exr_on_request(tmp_path):
+    from jkatana.light.spectral_exr import is_spectral_exr, read_spectral_exr
+    from jkatana.render.renderer import prepare, render_view, write_outputs
+
+    scene = load_scene(_write(tmp_path, SMALL.replace('name = "f"', 'name = "f"\nspectral = true')))
+    prep = prepare(scene)
+    frame = render_view(prep)
+    assert frame.spectra is not None and frame.spectra.shape == (18, 24, GRID.size)
+    paths = write_outputs(prep, frame, tmp_path / "out" / "f")
+    assert is_spectral_exr(paths["spectral"])
+    back = read_spectral_exr(paths["spectral"], GRID)
+    np.testing.assert_allclose(back, frame.spectra, rtol=1e-5, atol=1e-6 * frame.spectra.max())
+    # the XYZ file is the film of the same spectra
+    np.testing.assert_allclose(frame.spectra @ CMF, frame.xyz, rtol=1e-4, atol=1e-6 * frame.xyz.max())
+
+
 @pytest.mark.parametrize("text, field", [
     ("[camera\nfov_deg = 3", None),                                                    # malformed TOML
     ("[material]\nmap = 'nope.exr'", "material.map"),                                  # missing file
