@@ -21,7 +21,12 @@ def _setup_devices(n: int | None = None) -> None:
     """Ask XLA for one CPU device per core (must run before JAX is imported)."""
     if "jax" in sys.modules:
         return
-    n = n or len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if not n:
+        n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    # persistent XLA cache: a second `jkatana demo`/`render` (and Dask workers) skip recompilation
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR",
+                          os.path.join(os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")),
+                                       "jkatana", "jax"))
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in flags:
         os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={max(1, n)}").strip()
