@@ -1,8 +1,9 @@
-"""GL interactive path vs the per-pixel JAX reference: three environments × three views.
+"""GL interactive path vs the per-pixel JAX reference: three environments × four views.
 
 For each built-in environment (``sky``: default; ``sun``: sun-dominated;
 ``studio``: two softboxes) and three views (the demo camera, an orbit view of
-the whole blade from the left, and one from the right), renders the GL frame
+the whole blade from the left, one from the right, and a "glint" view in the
+mirror direction of the environment's key light), renders the GL frame
 (EGL, no MSAA) and the reference (:func:`jkatana.interactive.reference.shade`:
 exact Fresnel, 61 bands, lobe quadrature over the unfiltered environment) on
 the same ray-cast G-buffer camera, and reports ΔE2000 over the blade's pixels.
@@ -30,6 +31,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("-o", "--output", default="experiments/out/interactive")
     ap.add_argument("--res", type=int, nargs=2, default=(240, 180))
+    ap.add_argument("--views", nargs="+", default=["demo", "left", "right", "glint"])
+    ap.add_argument("--envs", nargs="+", default=["sky", "sun", "studio"])
     args = ap.parse_args(argv)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
@@ -45,12 +48,16 @@ def main(argv=None) -> int:
     mesh = S.blade()
     refl = S.reflectance_map().stacked()
     orbit = S.orbit_views(mesh, 3, W, H, distance=0.45)
-    views = {"demo": S.demo_view(W, H), "left": orbit[0], "right": orbit[2]}
-    summary = []
-    for env_name in ("sky", "sun", "studio"):
+    summary_path = out / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.exists() else []
+    for env_name in args.envs:
         rad = S.environment(env_name)
         baked = cached_bake(rad, rank=4)
-        for vname, view in views.items():
+        views = {"demo": S.demo_view(W, H), "left": orbit[0], "right": orbit[2],
+                 "glint": S.glint_view(mesh, S.KEY_LIGHT[env_name], W, H)}
+        for vname in args.views:
+            view = views[vname]
+            summary = [r for r in summary if (r["env"], r["view"]) != (env_name, vname)]
             t = time.perf_counter()
             gb = R.gbuffer(mesh, view)
             xyz = R.shade(gb, view, rad, refl, n_phi=20, n_psi=28)

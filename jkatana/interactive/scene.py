@@ -195,6 +195,21 @@ def orbit_views(mesh: trimesh.Trimesh, n: int, width: int = 800, height: int = 6
     return out
 
 
+#: Direction of each built-in environment's key light (sun or the D50 softbox).
+KEY_LIGHT = {"sky": _dir(35.0, 40.0), "sun": _dir(50.0, -30.0), "studio": _dir(25.0, -50.0)}
+
+
+def glint_view(mesh: trimesh.Trimesh, light_dir, width: int = 800, height: int = 600,
+               distance: float = 0.35) -> View:
+    """A camera in the mirror direction of ``light_dir`` off the flat that faces it: the key light's
+    glint lies on the blade's middle (the appraiser's "catching the light")."""
+    light_dir = np.asarray(light_dir, np.float64)
+    n = np.array([0.0, 0.0, 1.0 if light_dir[2] >= 0 else -1.0])
+    v = 2 * (n @ light_dir) * n - light_dir
+    target = np.array([0.35, mesh.bounds.mean(axis=0)[1], 0.0])
+    return View(look_at(target + distance * v, target), np.deg2rad(40.0), width, height)
+
+
 def closeup_view(mesh: trimesh.Trimesh, width: int = 800, height: int = 600) -> View:
     """A close-up in which the flat near the hamon fills the frame (as appraisers look)."""
     lo, hi = mesh.bounds
