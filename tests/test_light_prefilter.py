@@ -1,6 +1,5 @@
 """Prefiltered environments vs brute-force convolution; the low-rank Fresnel basis of iron."""
 
-import math
 
 import jax.numpy as jnp
 import numpy as np

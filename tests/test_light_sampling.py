@@ -11,7 +11,7 @@ import pytest
 from jkatana.light import EnvMap, hosek_wilkie_sky, load_envmap
 from jkatana.light.sampling import (
     EnvSampler, beckmann_pdf, frame_from_normal, gaussian_lobe_pdf, mis_weight, reflected_radiance,
-    reflected_radiance_quadrature, sample_beckmann, sample_gaussian_lobe, to_local, to_world,
+    reflected_radiance_quadrature, sample_beckmann, sample_gaussian_lobe, to_local,
 )
 from jkatana.models import Conductor, Hiraji
 from jkatana.spectral import WavelengthGrid

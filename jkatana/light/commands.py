@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -180,7 +179,7 @@ def _prefilter(args) -> int:
     from jkatana.light.spectral_exr import write_spectral_exr
 
     env = load_envmap(args.input, _grid(args), upsampling=args.upsampling)
-    pf = prefilter(env, args.mus, progress=sys.stderr.isatty() or True)
+    pf = prefilter(env, args.mus, progress=True)
     for mu, lvl in zip(pf.mus, pf.levels):
         path = Path(f"{args.output}_mu{mu:g}.exr")
         write_spectral_exr(path, np.asarray(lvl.radiance), lvl.grid)

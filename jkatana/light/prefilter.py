@@ -49,7 +49,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jkatana.errors import InputError
-from jkatana.light.envmap import EnvMap, texel_directions_np, texel_solid_angles_np
+from jkatana.light.envmap import EnvMap
 from jkatana.spectral.colorimetry import xyz_weights
 
 LN2 = math.log(2.0)
