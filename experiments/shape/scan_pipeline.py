@@ -154,7 +154,7 @@ def relief_experiment(res, tmp: Path):
 
         order = np.argsort(m.triangles_center[:, 2])
         ax.add_collection(PolyCollection(m.triangles[order][:, :, :2], facecolors=plt.cm.gray(lam[order]),
-                                         edgecolors="none"))
+                                         edgecolors="face", linewidths=0.3))
         ax.set_xlim(m.bounds[0][0], m.bounds[1][0]); ax.set_ylim(m.bounds[0][1], m.bounds[1][1])
         ax.set_aspect("equal"); ax.set_title(title)
     fig.tight_layout(); fig.savefig(OUT / "shape_relief_smoothing.png", dpi=110); plt.close(fig)

@@ -71,6 +71,8 @@ def read_scan(path: str | Path) -> Scan:
         raise InputError("scan file not found", path=path)
     suffix = path.suffix.lower()
     if suffix in (".xyz", ".txt", ".csv", ".pts"):
+        if not path.read_text(errors="replace").strip():
+            raise InputError("empty scan: no points", path=path)
         try:
             data = np.loadtxt(path, delimiter="," if suffix == ".csv" else None, ndmin=2,
                               usecols=(0, 1, 2))
