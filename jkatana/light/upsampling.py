@@ -22,7 +22,11 @@ Methods (registered in :data:`UPSAMPLING_METHODS`, chosen by name):
   ``RGBIlluminantSpectrum`` scaling (Pharr, Jakob & Humphreys 2023, §4.6.6):
   ``m = max(r, g, b)``, the LUT is queried at ``rgb / (2m)`` and the spectrum
   multiplied by ``2m``. The LUT is built once by colour-science (its optimiser,
-  minutes) and cached; a resolution-8 sRGB LUT ships with jkatana.
+  minutes) and cached; a resolution-8 sRGB LUT ships with jkatana. The LUT's
+  trilinear coefficients are then refined per texel by a few Newton steps
+  (vectorised, in normalised wavelength) so that the spectrum reproduces the
+  RGB on the target grid — the per-colour optimisation of the paper, started
+  from the LUT. ``"Jakob 2019 LUT"`` skips the refinement (LUT only).
 - ``"Mallett 2019"`` — Mallett & Yuksel (2019), "Spectral Primary
   Decomposition for Rendering with sRGB Reflectance", EGSR: ``R = r b_r + g b_g
   + b b_b`` with colour-science's ``MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019``
@@ -144,17 +148,76 @@ def jakob2019_lut(colourspace: str = "sRGB", size: int = 8, path: str | None = N
     return lut
 
 
-def _jakob(rgb, grid, colourspace, lut_size: int = 8):
+def _jakob_refine(coeffs, q, grid, colourspace, iters: int = 4):
+    """Newton steps on the sigmoid-polynomial coefficients so that the spectrum reproduces ``q``
+    exactly on ``grid`` (the LUT's trilinear interpolation is only approximate: ~3 % at size 8).
+
+    Works in normalised wavelength ``t = (λ − 550)/150``; a step is kept per texel only where it
+    lowers the residual, so colours no sigmoid spectrum can reach keep their best (LUT or refined)
+    approximation.
+    """
+    wl = grid.wavelengths
+    t = (wl - 550.0) / 150.0
+    c0, c1, c2 = coeffs[:, 0], coeffs[:, 1], coeffs[:, 2]
+    s, l0 = 150.0, 550.0
+    p = np.stack([c0 * s * s, s * (2 * c0 * l0 + c1), c0 * l0 * l0 + c1 * l0 + c2], axis=1)  # (N, 3)
+    white = _white(grid, colourspace)
+    cm = cmfs(grid)
+    A = (white[:, None] * cm / cm[:, 1].sum()) @ xyz_to_rgb_matrix(colourspace).T  # (wl, 3): R → rgb
+    T = np.stack([t * t, t, np.ones_like(t)], axis=1)  # (wl, 3)
+
+    def model(p):
+        U = p @ T.T
+        root = np.sqrt(1.0 + U * U)
+        return 0.5 + U / (2 * root), 1.0 / (2 * root**3)
+
+    R, dR = model(p)
+    res = R @ A - q
+    err = np.max(np.abs(res), axis=1)
+    for _ in range(iters):
+        if not np.any(err > 1e-9):
+            break
+        J = np.matmul(A.T, dR[:, :, None] * T[None])  # (N, 3, 3): d rgb_c / d p_k
+        try:
+            step = np.linalg.solve(J + 1e-12 * np.eye(3), res[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            break
+        p_new = p - step
+        R_new, dR_new = model(p_new)
+        res_new = R_new @ A - q
+        err_new = np.max(np.abs(res_new), axis=1)
+        ok = np.isfinite(err_new) & (err_new < err)
+        p = np.where(ok[:, None], p_new, p)
+        R = np.where(ok[:, None], R_new, R)
+        dR = np.where(ok[:, None], dR_new, dR)
+        res = np.where(ok[:, None], res_new, res)
+        err = np.where(ok, err_new, err)
+    return R
+
+
+def _jakob(rgb, grid, colourspace, lut_size: int = 8, refine: bool = True):
     lut = jakob2019_lut(colourspace, lut_size)
     m = np.max(rgb, axis=-1, keepdims=True)
     scale = 2.0 * m
     safe = np.where(scale > 0, scale, 1.0)
     q = np.clip(np.where(scale > 0, rgb / safe, 0.0), 0.0, 1.0)
     coeffs = lut.RGB_to_coefficients(q.reshape(-1, 3)).reshape(rgb.shape[:-1] + (3,))
-    wl = grid.wavelengths
-    U = coeffs[..., 0:1] * wl**2 + coeffs[..., 1:2] * wl + coeffs[..., 2:3]
-    R = 0.5 + U / (2.0 * np.sqrt(1.0 + U * U))
+    if refine:
+        out = np.empty(rgb.shape[:-1] + (grid.size,))
+        flat_c, flat_q, flat_o = coeffs.reshape(-1, 3), q.reshape(-1, 3), out.reshape(-1, grid.size)
+        for s0 in range(0, flat_c.shape[0], 1 << 15):
+            flat_o[s0:s0 + (1 << 15)] = _jakob_refine(flat_c[s0:s0 + (1 << 15)], flat_q[s0:s0 + (1 << 15)],
+                                                      grid, colourspace)
+        R = out
+    else:
+        wl = grid.wavelengths
+        U = coeffs[..., 0:1] * wl**2 + coeffs[..., 1:2] * wl + coeffs[..., 2:3]
+        R = 0.5 + U / (2.0 * np.sqrt(1.0 + U * U))
     return np.where(scale > 0, R * scale, 0.0)
+
+
+def _jakob_lut_only(rgb, grid, colourspace):
+    return _jakob(rgb, grid, colourspace, refine=False)
 
 
 def _flat(rgb, grid, colourspace):
@@ -164,6 +227,7 @@ def _flat(rgb, grid, colourspace):
 
 UPSAMPLING_METHODS = {
     "Jakob 2019": _jakob,
+    "Jakob 2019 LUT": _jakob_lut_only,
     "Mallett 2019": _mallett,
     "Smits 1999": _smits,
     "Flat": _flat,
