@@ -245,3 +245,23 @@ def test_smoothing_a_triangulated_scan_mesh_of_a_non_blade_object(tmp_path):
     t = (0 - pts[:, 1].min()) / np.ptp(pts[:, 1])
     top = box.bounds[1][2]
     assert np.abs(surf(x, np.full_like(x, t)) - top).max() < 60e-6
+
+
+def test_cli_shape(tmp_path, capsys):
+    from jkatana.cli import main
+
+    out = tmp_path / "blade.glb"
+    assert main(["shape", "--blade", "-o", str(out)]) == 0
+    assert len(trimesh.load(out, force="mesh").faces) == len(default_blade().faces)
+    box = trimesh.creation.box([0.06, 0.03, 0.03])
+    box.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 4, [1, 0, 0]))
+    scan = simulate_scans(box, section_length=1.0, resolution=(80, 60), sides=(1,), seed=0)[0]
+    np.savetxt(tmp_path / "scan.xyz", scan.points)
+    out = tmp_path / "smooth.ply"
+    assert main(["shape", str(tmp_path / "scan.xyz"), "--height-field", "--patches", "4", "4",
+                 "-o", str(out)]) == 0
+    assert "converged" in capsys.readouterr().err
+    assert len(trimesh.load(out, process=False).faces) > 100
+    (tmp_path / "nan.xyz").write_text("0 0 0\n0 0 nan\n")
+    assert main(["shape", str(tmp_path / "nan.xyz"), "-o", str(out)]) == 2
+    assert "nan.xyz" in capsys.readouterr().err
