@@ -240,7 +240,7 @@ def rgb_to_spectrum(rgb, method: str = "Jakob 2019", grid: WavelengthGrid = DEFA
 
     **Arguments:**
 
-    - `rgb`: linear RGB in `colourspace` (negative values are clipped to 0).
+    - `rgb`: linear RGB in `colourspace` (negative and non-finite values become 0).
     - `method`: a key of :data:`UPSAMPLING_METHODS`.
     - `grid`: target wavelength grid.
     - `chunk`: texels per batch (bounds the float64 temporaries).
@@ -251,7 +251,7 @@ def rgb_to_spectrum(rgb, method: str = "Jakob 2019", grid: WavelengthGrid = DEFA
     if method not in UPSAMPLING_METHODS:
         raise InputError(f"unknown upsampling method {method!r}; choose one of {sorted(UPSAMPLING_METHODS)}",
                          field="upsampling")
-    rgb = np.maximum(np.nan_to_num(np.asarray(rgb, np.float64)), 0.0)
+    rgb = np.maximum(np.nan_to_num(np.asarray(rgb, np.float64), nan=0.0, posinf=0.0, neginf=0.0), 0.0)
     if rgb.shape[-1] != 3:
         raise InputError(f"RGB input must have a last axis of 3, got {rgb.shape}", field="rgb")
     flat = rgb.reshape(-1, 3)
