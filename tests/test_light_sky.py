@@ -137,3 +137,11 @@ def test_bad_parameters():
         hosek_wilkie_sky(30.0, albedo=1.5)
     with pytest.raises(InputError, match="320"):
         hosek_wilkie_sky(30.0, grid=WavelengthGrid(380, 780, 10))
+
+
+@pytest.mark.parametrize("elev,turbidity,albedo", [(0.0, 3, 0.1), (90.0, 3, 0.1), (45.0, 10, 1.0), (45.0, 1, 0.0),
+                                                   (0.1, 10, 0.5)])
+def test_edges_of_the_parameter_range_are_finite(elev, turbidity, albedo):
+    env = hosek_wilkie_sky(elev, 0.0, turbidity, albedo, (16, 32), G7)
+    L = np.asarray(env.radiance)
+    assert np.isfinite(L).all() and L.min() >= 0 and L.max() > 0
