@@ -7,14 +7,16 @@
   N(μ)·D is a normalised normal distribution (used by the rendering form).
 - :func:`beckmann` — Beckmann & Spizzichino (1963), in the normalised form of
   Walter et al. (2007), "Microfacet models for refraction through rough
-  surfaces", EGSR: D = exp(−tan²φ/α²)/(π α² cos⁴φ).
+  surfaces", EGSR: D = exp(−tan²φ/α²)/(π α² cos⁴φ); :func:`beckmann_phi` is
+  the same from φ (accurate for narrow lobes in float32).
 - :func:`vcavity` — Torrance & Sparrow (1967) / Cook & Torrance (1982) V-cavity
   G = min(1, 2(N·H)(N·V)/(V·H), 2(N·H)(N·L)/(V·H)).
 - :func:`smith_beckmann` — separable Smith G with Walter et al.'s (2007)
   rational approximation of the Beckmann G1.
 
 Guards: μ → 0 (the exponent is cut where exp underflows, so neither the
-value nor the derivative sees inf), cos φ → 0 (Beckmann's tan²), V·H → 0.
+value nor the derivative sees inf), cos φ → 0 (Beckmann's tan²), V·H → 0 and
+N·V → 0 (divisors floored at eps² of the dtype inside a double where).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.models._safe import safe_sqrt
+
 LN2 = math.log(2.0)
 # Gauss–Legendre nodes on [0, 1] for the normalisation integral (smooth integrand).
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
