@@ -121,7 +121,7 @@ def run(quick: bool) -> list[dict]:
         xyz_weights
 
     rng = np.random.default_rng(20260122)
-    n_pix = 2**17 if quick else 2**19
+    n_pix = 2**17 if quick else 2**18
     n_err = min(n_pix, 2**16 if quick else 2**17)
     repeats = 5 if quick else 9
     min_time = 0.3 if quick else 1.5

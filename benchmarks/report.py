@@ -159,6 +159,7 @@ def plot_study(name: str, rows: list[dict], path: Path) -> Path:
         ax.axhline(tol, color="0.4", ls="--", lw=0.8, label=f"tolerance {tol:g}")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    ax.margins(x=0.25, y=0.12)  # room for the labels
     ax.set_xlabel("measured time per item (s, median)" if per_item else "measured time (s, median)")
     ax.set_ylabel(f"measured error: {metric}")
     title = f"{name}"
