@@ -182,6 +182,13 @@ def delta_e_display(xyz_ref, xyz, *, exposure: float | None = None, colourspace:
         return out
 
     de = colour.delta_E(lab(xyz_ref), lab(xyz), method="CIE 2000")
-    return {"dE2000_mean": float(np.mean(de)), "dE2000_p95": float(np.percentile(de, percentile)),
-            "dE2000_max": float(np.max(de)), "exposure": float(exposure)}
+    out = {"dE2000_mean": float(np.mean(de)), "dE2000_p95": float(np.percentile(de, percentile)),
+           "dE2000_max": float(np.max(de)), "exposure": float(exposure)}
+    finite = np.isfinite(de)
+    if not finite.all():  # the headline stays non-finite; these say how the rest fared
+        out["nonfinite_frac"] = float(1.0 - finite.mean())
+        if finite.any():
+            out["dE2000_mean_finite"] = float(np.mean(de[finite]))
+            out["dE2000_p95_finite"] = float(np.percentile(de[finite], percentile))
+    return out
 
