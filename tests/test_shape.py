@@ -141,7 +141,7 @@ def test_bezier_reports_non_convergence():
 @pytest.fixture(scope="module")
 def blade_scans():  # noqa: D103
     mesh = build_blade(segments_along=200, segments_across=32)
-    scans = simulate_scans(mesh, resolution=(96, 72), seed=0)
+    scans = simulate_scans(mesh, resolution=(160, 120), seed=0)
     return mesh, scans
 
 
