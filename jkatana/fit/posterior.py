@@ -17,6 +17,7 @@ effective samples, and whether the chain is long enough.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 
@@ -47,14 +48,21 @@ def log_prob_fn(fit):
         lo = lo.at[j].set(-span)
         hi = hi.at[j].set(span)
 
+    s2 = jnp.asarray(scale2, w.dtype)
+    return lambda P: np.asarray(_log_prob(jnp.asarray(P, w.dtype), terms, y, w, lo, hi, s2, spec), np.float64)
+
+
+@functools.partial(jax.jit, static_argnames="spec")
+def _log_prob(P, terms, y, w, lo, hi, scale2, spec):
+    """Module-level and jitted on array arguments: compiled once per (shape, spec), not per fit."""
+
     def one(p):
         r = (green(p, terms, spec) - y) * w
         lp = -0.5 * jnp.sum(r * r) / scale2
         inside = jnp.all((p > lo) & (p < hi))
         return jnp.where(inside & jnp.isfinite(lp), lp, -jnp.inf)
 
-    f = jax.jit(jax.vmap(one))
-    return lambda P: np.asarray(f(jnp.asarray(P, w.dtype)), np.float64)
+    return jax.vmap(one)(P)
 
 
 def sample(fit, *, walkers: int = 32, chunk: int = 500, max_steps: int = 10000, min_steps: int = 1000,
