@@ -139,6 +139,8 @@ def plot_study(name: str, rows: list[dict], path: Path) -> Path:
     front = pareto_front(good)
     benches = sorted({r["benchmark"] for r in good})
     markers = dict(zip(benches, "osD^v<>p*h"))
+    xs = [scale(r) for r in good if scale(r) > 0]
+    x_split = math.exp(math.log(min(xs)) + 0.7 * (math.log(max(xs)) - math.log(min(xs)))) if xs else math.inf
     for r in good:
         x, y = scale(r), max(_err(r), floor)
         t = r.get("time_s") or {}
@@ -150,7 +152,9 @@ def plot_study(name: str, rows: list[dict], path: Path) -> Path:
                     mfc="none" if _err(r) <= 0 else None)
         label = str(r["variant"]) + (" (ref.)" if r.get("is_reference") else "") + \
             (" [err=0]" if _err(r) <= 0 else "")
-        ax.annotate(label, (x, y), textcoords="offset points", xytext=(5, 4), fontsize=7)
+        right = x >= x_split  # labels of the slowest points go to their left, inside the axes
+        ax.annotate(label, (x, y), textcoords="offset points", xytext=(-5 if right else 5, 4), fontsize=7,
+                    ha="right" if right else "left")
     if len(front) > 1:
         ax.step([scale(r) for r in front], [max(_err(r), floor) for r in front], where="post",
                 color="C3", lw=1, alpha=0.6, label="Pareto front")
