@@ -6,11 +6,14 @@ Cases (all jitted, CPU, the machine's cores as reported):
   form), 10⁶ (L, V) pairs × 61 wavelengths (10⁵ pairs in quick mode), float32
   and float64. The pairs are drawn half near the specular direction, half
   uniformly over the hemisphere (the models are branch-free, so the mix does
-  not change the work). Pairs go through the jitted model in chunks of 2¹⁷,
-  each producing its full ``(chunk, 61)`` output (as a renderer or a fit
-  would); chunking bounds memory to ~64 MB. Reductions inside the jitted
-  function were tried and are 2–5× *slower* on XLA's CPU backend, so they
-  are not used. The float64 result is the reference for the float32 error
+  not change the work). Pairs go through the jitted model in chunks of 2¹³,
+  each producing its full ``(chunk, 61)`` output (as a renderer's tile or a
+  fit's batch would). The chunk size matters more than anything else here:
+  measured on this machine, exact Fresnel in float64 ran at ~440 M evals/s
+  with 2¹³- and 2¹⁵-pair chunks but ~35 M/s with 2¹⁷ (a fresh 64 MB output
+  buffer per call: page faults and cache misses dominate). Reductions inside
+  the jitted function were also tried and are 2–5× *slower* on XLA's CPU
+  backend. The float64 result is the reference for the float32 error
   (on the first chunk).
 - ``fresnel``: F(n(λ), k(λ), θ) for every pair and wavelength: the exact
   real-arithmetic form (``fresnel_conductor``), the same physics in complex
@@ -39,7 +42,7 @@ from jkatana.models import Conductor, fresnel_conductor, fresnel_schlick, normal
 from jkatana.models.reflectance import Hamon, Hiraji  # noqa: E402
 
 NAME = "models"
-CHUNK = 1 << 17  # pairs per jitted call: a (131072, 61) float64 output is 64 MB
+CHUNK = 1 << 13  # pairs per jitted call: a (8192, 61) float64 output is 4 MB
 
 
 def _log(msg: str) -> None:
