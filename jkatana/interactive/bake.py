@@ -205,9 +205,10 @@ def lobe_lut(conductor: Conductor, b: np.ndarray, mus=MU_LEVELS, n_cos: int = 64
     incidence, (1) the extra spread along the plane, √(var_par − var_perp),
     (2) the mean offset along the plane towards N. Off normal incidence the
     lobe narrows across the plane (by ≈ cos θ) but not along it; the shader
-    reads the environment prefiltered for the across-plane width at two taps
-    R rotated by mean ± spread in the plane — the two-tap kernel with the
-    lobe's first and second moments.
+    reads the environment prefiltered for the across-plane width at three
+    taps, R rotated in the plane by mean and mean ± √2·spread with weights
+    ¼, ½, ¼ — a kernel with the lobe's first and second moments that keeps
+    the peak of a small bright source (a sun) within ~10 %.
     """
     cos = np.linspace(0.0, 1.0, n_cos)
     cos_c = np.maximum(cos, 1e-3)

@@ -102,7 +102,7 @@ class ShadingState:
     - `baked`: :class:`jkatana.interactive.bake.Baked`; `refl_map`: ``(H, W, 3)`` w, μ0, μ1.
     - per frame: `exposure`, `env_rotation` (radians about +Y, turns the light around the blade),
       and the static switches `rank` (≤ baked rank), `rough`, `blend`, `two_tap` (anisotropic lobe:
-      two prefiltered taps along the plane of incidence; off: one isotropic tap).
+      three binomial prefiltered taps along the plane of incidence; off: one tap).
     """
 
     def __init__(self, baked: Baked, refl_map: np.ndarray, *, exposure: float = 1.0, rank: int | None = None,

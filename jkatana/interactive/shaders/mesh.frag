@@ -17,9 +17,10 @@
 // Static switches (pyrender text-replaces define names, so they are plain
 // integers here): JK_RANK (1..4), JK_ROUGH (0: mirror-like, the narrowest μ
 // level), JK_BLEND (0: hiraji everywhere), JK_TWO_TAP (the lobe's anisotropy:
-// two taps along the plane of incidence, prefiltered for the across-plane
-// width, at the lobe's mean ± its extra in-plane spread — moments baked from
-// the models by jkatana.interactive.bake.lobe_lut).
+// three binomial taps along the plane of incidence, prefiltered for the
+// across-plane width, matching the lobe's in-plane mean and variance — moments
+// baked from the models by jkatana.interactive.bake.lobe_lut; the name is
+// historical: two extra taps).
 
 in vec3 frag_position;
 in vec3 frag_normal;
@@ -118,11 +119,15 @@ void main()
 #endif
         float lz = (le + 0.5) / jk_n_levels;
 #if JK_TWO_TAP
+        // three binomial taps (1/4, 1/2, 1/4) along the plane of incidence at mean, mean ± √2·spread:
+        // the in-plane variance of the sum is var_perp + spread² = var_par (the lobe's)
         vec3 tn = N - dot(N, R0) * R0;
         tn = jk_env_rot * (tn / max(length(tn), 1e-6));
-        vec3 Ra = cos(shape.b + shape.g) * R + sin(shape.b + shape.g) * tn;
-        vec3 Rb = cos(shape.b - shape.g) * R + sin(shape.b - shape.g) * tn;
-        xyz = 0.5 * (env_xyz(Ra, lz, a) + env_xyz(Rb, lz, a));
+        float off = 1.41421356 * shape.g;
+        vec3 Rc = cos(shape.b) * R + sin(shape.b) * tn;
+        vec3 Ra = cos(shape.b + off) * R + sin(shape.b + off) * tn;
+        vec3 Rb = cos(shape.b - off) * R + sin(shape.b - off) * tn;
+        xyz = 0.5 * env_xyz(Rc, lz, a) + 0.25 * (env_xyz(Ra, lz, a) + env_xyz(Rb, lz, a));
 #else
         xyz = env_xyz(R, lz, a);
 #endif
