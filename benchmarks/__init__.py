@@ -10,8 +10,9 @@ budget per module, and writes one JSON results file with the machine's facts.
 
 ## Modes and budgets
 
-``--quick`` (CI smoke, a few minutes in all) and ``--full`` (the default; the
-whole suite fits in 30 minutes on 2 cores). The runner gives each module a
+``--quick`` (CI smoke: small sizes, a 900 s budget for the whole suite) and
+``--full`` (the default; a 1680 s budget, so the whole suite fits in 30 minutes
+on 2 cores). The runner gives each module a
 wall-clock budget (``--budget-total`` shared among the modules still to run;
 time a module leaves unused rolls over to the next) and kills a module that
 overruns it; the records it had already made survive (``record`` appends each

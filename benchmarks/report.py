@@ -288,7 +288,9 @@ def write_report(results: dict | str | Path, out_dir: str | Path) -> dict[str, P
           f"**Mode:** {results.get('mode', '?')}; started {results.get('started', '?')}; "
           f"suite wall time {_fmt(results.get('wall_s'))} s of a {_fmt(results.get('budget_total_s'))} s budget.",
           "", "Every number below was measured in this run: errors against each study's "
-          "reference, times as medians over repeats (spread: min–max). ", "",
+          "reference, times as medians over repeats (spread: min–max). Reproduce with "
+          f"`python -m benchmarks --{results.get('mode', 'full')} -o results.json --report DIR` "
+          "(or `jkatana bench ...`).", "",
           "## Modules", "", "| module | status | records | wall (s) | budget (s) | load at start |",
           "|---|---|---|---|---|---|"]
     for name, res in results.get("benchmarks", {}).items():
