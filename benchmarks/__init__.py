@@ -39,6 +39,7 @@ passing these extra keyword arguments to ``record(...)``:
 | ``tolerance`` | float, optional | error below which the variant is "as good as the reference" (e.g. ΔE2000 1.0, a just-noticeable difference); drawn on the plot and used for the headline |
 | ``headline`` | bool, optional | force this record into the headline table |
 | ``note`` | str, optional | one line shown in the study's table |
+| ``series`` | str, optional | which method/renderer family this point belongs to (default: ``case["renderer"]`` if present); with ≥ 2 series of ≥ 2 points, the report gives their time ratio *at equal error* (log–log interpolation along each series' measured Pareto front, never extrapolated) |
 
 Error units: ``dE2000_mean`` / ``dE2000_p95`` (CIE ΔE 2000 after the same
 display transform, :func:`~benchmarks._harness.delta_e_display`) for images
@@ -48,9 +49,10 @@ parameters; ``coverage`` (fraction of true values inside the intervals) and
 Non-finite errors (an overflow in float16, a diverged fit) are kept: the
 report lists them in the table and leaves them out of the plot, saying so.
 
-A *comparison* (one number that is a ratio, e.g. Mitsuba 3 time / jkatana
-time at equal error) is a record with ``ratio`` (float) and ``ratio_label``
-(str); the report lists these in a section of their own.
+A *comparison* measured directly as one number is a record with ``ratio``
+(float) and ``ratio_label`` (str); the report lists these, and the
+equal-error ratios it derives from ``series``, in a section of their own
+(e.g. Mitsuba 3 time / jkatana time at equal ΔE2000, from one run).
 
 Example::
 

@@ -215,6 +215,58 @@ def study_table(rows: list[dict]) -> list[str]:
     return lines
 
 
+def _series(r: dict) -> str | None:
+    """A record's series within its study: ``series``, else its case's ``renderer`` (if any)."""
+    if r.get("series"):
+        return str(r["series"])
+    case = r.get("case")
+    return str(case["renderer"]) if isinstance(case, dict) and case.get("renderer") else None
+
+
+def _time_at_error(rows: list[dict], e: float) -> float:
+    """Time this series needs for error ``e``: log–log interpolation along its Pareto front."""
+    front = sorted(pareto_front(rows), key=_err)
+    le = [math.log(max(_err(r), 1e-300)) for r in front]
+    lt = [math.log(_time(r)) for r in front]
+    x = math.log(e)
+    for i in range(len(front) - 1):
+        if le[i] <= x <= le[i + 1]:
+            f = (x - le[i]) / (le[i + 1] - le[i]) if le[i + 1] > le[i] else 0.0
+            return math.exp(lt[i] + f * (lt[i + 1] - lt[i]))
+    return math.nan
+
+
+def equal_error_ratios(results: dict) -> list[dict]:
+    """For studies with ≥ 2 series (e.g. two renderers), time ratios at equal error.
+
+    The common error is the smallest error both series reach (the larger of their
+    minima), provided it lies within both measured ranges; each series' time at
+    it is interpolated (log–log) along its own Pareto front — measured points
+    only, no extrapolation. **Returns:** rows with ``study, a, b, error, t_a, t_b, ratio``.
+    """
+    out = []
+    for name, rs in studies(results).items():
+        groups: dict[str, list[dict]] = {}
+        for r in rs:
+            if _series(r) and math.isfinite(_err(r)) and _err(r) > 0 and math.isfinite(_time(r)):
+                groups.setdefault(_series(r), []).append(r)
+        keys = sorted(k for k, v in groups.items() if len(v) >= 2)
+        for i, a in enumerate(keys):
+            for b in keys[i + 1:]:
+                ea = [_err(r) for r in groups[a]]
+                eb = [_err(r) for r in groups[b]]
+                e = max(min(ea), min(eb))
+                row = {"study": name, "a": a, "b": b, "metric": rs[0]["error_metric"], "error": e}
+                if e <= min(max(ea), max(eb)):
+                    ta, tb = _time_at_error(groups[a], e), _time_at_error(groups[b], e)
+                    row.update(t_a=ta, t_b=tb, ratio=ta / tb if tb > 0 else math.nan)
+                else:
+                    row.update(t_a=math.nan, t_b=math.nan, ratio=math.nan,
+                               note="no common error range: not compared (no extrapolation)")
+                out.append(row)
+    return out
+
+
 def headline_rows(results: dict) -> list[dict]:
     """At most 10 rows: per study, the fastest variant within tolerance (or forced ``headline``)."""
     rows = []
@@ -321,8 +373,14 @@ def write_report(results: dict | str | Path, out_dir: str | Path) -> dict[str, P
                f"![{name}: error vs time]({png.name})", ""]
         md += study_table(rows) + [""]
     ratios = [r for r in all_records(results) if isinstance(r.get("ratio"), (int, float))]
-    if ratios:
+    eq = equal_error_ratios(results)
+    if ratios or eq:
         md += ["## Comparisons", "", "| comparison | ratio | module | note |", "|---|---|---|---|"]
+        for c in eq:
+            note = c.get("note") or (f"{c['a']} {fmt_time(c['t_a'])} vs {c['b']} {fmt_time(c['t_b'])}, "
+                                     "interpolated along each one's measured Pareto front")
+            md.append(f"| time of {c['a']} / time of {c['b']} at equal {c['metric']} = {_fmt(c['error'])} "
+                      f"({c['study']}) | {_fmt(c['ratio'])} | (from the study) | {note} |")
         for r in ratios:
             md.append(f"| {r.get('ratio_label', r.get('case'))} | {_fmt(r['ratio'])} | {r['benchmark']} | "
                       f"{r.get('note', '')} |")

@@ -171,3 +171,20 @@ def test_delta_e_display_same_transform_and_nonfinite():
     d = delta_e_display(xyz, bad)
     assert np.isnan(d["dE2000_mean"]) and d["nonfinite_frac"] == pytest.approx(1 / 500)
     assert d["dE2000_mean_finite"] == 0.0
+
+
+def test_equal_error_ratio_interpolates_measured_points_only():
+    from benchmarks.report import equal_error_ratios
+
+    def rec(series, t, e):
+        return dict(benchmark="b", study="s", variant=f"{series} {t}", error_metric="dE2000_mean",
+                    time_s={"median": t}, error={"dE2000_mean": e}, case={"renderer": series})
+
+    rows = [rec("A", 1.0, 4.0), rec("A", 4.0, 1.0), rec("B", 2.0, 2.0), rec("B", 8.0, 0.5)]
+    (c,) = equal_error_ratios({"benchmarks": {"b": {"records": rows}}})
+    # common error = max(min errors) = 1.0; A takes 4 s there; B (log–log between (2 s, 2), (8 s, 0.5)) 4 s
+    assert c["error"] == 1.0 and c["t_a"] == pytest.approx(4.0) and c["t_b"] == pytest.approx(4.0)
+    assert c["ratio"] == pytest.approx(1.0)
+    rows = [rec("A", 1.0, 4.0), rec("A", 4.0, 3.0), rec("B", 2.0, 2.0), rec("B", 8.0, 0.5)]
+    (c,) = equal_error_ratios({"benchmarks": {"b": {"records": rows}}})
+    assert np.isnan(c["ratio"]) and "no common error range" in c["note"]
