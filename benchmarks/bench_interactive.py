@@ -10,6 +10,7 @@ Cases (each on both views):
 
 - ``full``: rank 3, roughness (prefiltered μ levels), blend map — the default;
 - ``rank1`` / ``rank2`` / ``rank4``: spectral basis rank;
+- ``one_tap``: one isotropic prefiltered tap instead of the two-tap anisotropic lobe;
 - ``no_rough``: mirror-like (narrowest μ level); ``no_blend``: hiraji everywhere;
 - ``msaa4``: ``full`` with pyrender's 4× MSAA framebuffer (what pyrender does by default).
 
@@ -34,13 +35,14 @@ import numpy as np
 from benchmarks._harness import machine_facts, record, timeit
 
 CONFIGS = {
-    "full": dict(rank=3, rough=True, blend=True, samples=0),
-    "rank1": dict(rank=1, rough=True, blend=True, samples=0),
-    "rank2": dict(rank=2, rough=True, blend=True, samples=0),
-    "rank4": dict(rank=4, rough=True, blend=True, samples=0),
-    "no_rough": dict(rank=3, rough=False, blend=True, samples=0),
-    "no_blend": dict(rank=3, rough=True, blend=False, samples=0),
-    "msaa4": dict(rank=3, rough=True, blend=True, samples=4),
+    "full": dict(rank=3, rough=True, blend=True, two_tap=True, samples=0),
+    "rank1": dict(rank=1, rough=True, blend=True, two_tap=True, samples=0),
+    "rank2": dict(rank=2, rough=True, blend=True, two_tap=True, samples=0),
+    "rank4": dict(rank=4, rough=True, blend=True, two_tap=True, samples=0),
+    "one_tap": dict(rank=3, rough=True, blend=True, two_tap=False, samples=0),
+    "no_rough": dict(rank=3, rough=False, blend=True, two_tap=True, samples=0),
+    "no_blend": dict(rank=3, rough=True, blend=False, two_tap=True, samples=0),
+    "msaa4": dict(rank=3, rough=True, blend=True, two_tap=True, samples=4),
 }
 
 
@@ -74,7 +76,8 @@ def run(quick: bool = False) -> list[dict]:
         for cname, cfg in CONFIGS.items():
             if quick and cname in ("rank2", "msaa4") and vname == "demo":
                 continue
-            st = G.ShadingState(baked, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"])
+            st = G.ShadingState(baked, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
+                                two_tap=cfg["two_tap"])
             r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"])
             scene = G.build_scene(sc.mesh, view)
             ctx = ctx or describe_context()
@@ -98,5 +101,15 @@ def run(quick: bool = False) -> list[dict]:
                                fps=fps, blade_coverage=coverage, loadavg_1min=os.getloadavg()[0],
                                gl=ctx, bake_s=bake_s, reference_s=ref_s,
                                lp_num_threads=os.environ.get("LP_NUM_THREADS", "default")))
+    # fixed cost per frame: the same renderer with the blade out of the picture (clear + read-back)
+    away = S.View(S.look_at(np.array([0.0, 0.0, 5.0]), np.array([0.0, 0.0, 10.0])), sc.view.yfov, 800, 600)
+    st = G.ShadingState(baked, sc.refl_map)
+    r = G.BakedOffscreenRenderer(st, 800, 600)
+    scene = G.build_scene(sc.mesh, away)
+    tm = timeit(lambda: r.render(scene), repeats=reps, warmup=2)
+    r.delete()
+    _log(f"empty frame (clear + read-back): {1e3 * tm['median']:.1f} ms")
+    rows.append(record("bench_interactive", {"view": "empty", "config": "full", "width": 800, "height": 600},
+                       time_s=tm, fps=1.0 / tm["median"], loadavg_1min=os.getloadavg()[0], gl=ctx))
     rows.append(record("bench_interactive", {"machine": True}, **machine_facts()))
     return rows
