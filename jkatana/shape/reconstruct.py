@@ -184,7 +184,8 @@ def smooth_height_field(points: np.ndarray, *, degree: int = 3, patches: tuple[i
 def point_error(points: np.ndarray, reference: trimesh.Trimesh) -> dict[str, float]:
     """RMS and max distance (metres) from points to a reference surface."""
     _, d, _ = trimesh.proximity.closest_point(reference, np.asarray(points, float))
-    return {"rms": float(np.sqrt(np.mean(d**2))), "max": float(d.max()), "n": int(len(d))}
+    return {"rms": float(np.sqrt(np.mean(d**2))), "max": float(d.max()),
+            "p50": float(np.median(d)), "p90": float(np.percentile(d, 90)), "n": int(len(d))}
 
 
 def surface_error(mesh: trimesh.Trimesh, reference: trimesh.Trimesh, *, samples: int = 20000,
