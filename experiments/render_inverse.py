@@ -1,6 +1,6 @@
 """Inverse rendering: recover a region's μ and χ from rendered images by differentiating the renderer.
 
-Target: a hiraji sphere (χ = 79000, μ0 = 0.05, calibrated convention K = 1e5)
+Target: the sun's glint on a hiraji sphere (a 12° field around it) (χ = 79000, μ0 = 0.05, calibrated convention K = 1e5)
 under the Hosek–Wilkie sky, rendered in the reference mode at 256 spp (seed A).
 Fit: Levenberg–Marquardt (optimistix) on log μ, log χ, residuals = the image
 rendered at 32 spp with other random numbers (seed B, fixed during the fit so
@@ -45,7 +45,14 @@ def main(out: Path, size: int = 40) -> dict:
     env_rad = np.asarray(hosek_wilkie_sky(35.0, 160.0, 3.0, 0.1, (64, 128), DEFAULT_GRID).radiance)
     env, _, _ = build_environment(env_rad, dtype=dtype)
     c = Conductor.from_table("Fe-Johnson", DEFAULT_GRID, dtype=dtype)
-    cam = Camera(position=(0.0, 0.4, 3.2), look_at=(0.0, 0.0, 0.0), fov_deg=40.0, width=size, height=size)
+    # look at the sun's glint with a narrow field, so that the lobe (μ ≈ 3°) spans many pixels
+    from jkatana.light.sky import sun_direction
+
+    eye = np.array([0.0, 0.4, 3.2])
+    s = np.asarray(sun_direction(35.0, 160.0), np.float64)
+    n = s / np.linalg.norm(s) + eye / np.linalg.norm(eye)
+    n /= np.linalg.norm(n)
+    cam = Camera(position=tuple(eye), look_at=tuple(n), fov_deg=12.0, width=size, height=size)
     gb = gbuffer_sphere(cam)
     m = gb.mask.reshape(-1)
     take = lambda a, k: jnp.asarray(a.reshape(-1, k)[m], dtype)  # noqa: E731
