@@ -134,6 +134,15 @@ def test_gl_frame_agrees_with_per_pixel_reference(glr, sky_scene, tmp_path):
     img2 = r2.render(glr.build_scene(sc.mesh, sc.view))
     r2.delete()
     assert R.delta_e_2000(img2, ref)[m].mean() > de.mean()
+    # every combination of the static switches compiles and links (unused uniforms are allowed
+    # only where the switch removes them)
+    for rough in (False, True):
+        for blend in (False, True):
+            for two_tap in (False, True):
+                st3 = glr.ShadingState(baked, sc.refl_map, rank=2, rough=rough, blend=blend, two_tap=two_tap)
+                r3 = glr.BakedOffscreenRenderer(st3, 32, 24)
+                r3.render(glr.build_scene(sc.mesh, sc.view))
+                r3.delete()
 
 
 @pytest.mark.gl

@@ -166,8 +166,13 @@ class BakedProgram(ShaderProgram):
         return names, targets
 
     def check_uniforms(self):
-        need = [u for u in UNIFORMS if self.state.rough or u not in ("jk_log_mu_first", "jk_log_mu_step")]
-        missing = [u for u in need + self._samplers()[0] if GL.glGetUniformLocation(self._program_id, u) == -1]
+        optional = set()
+        if not self.state.rough:
+            optional |= {"jk_log_mu_first", "jk_log_mu_step"}
+        if not (self.state.rough or self.state.blend):
+            optional.add("jk_map")
+        need = dict.fromkeys(u for u in UNIFORMS + tuple(self._samplers()[0]) if u not in optional)
+        missing = [u for u in need if GL.glGetUniformLocation(self._program_id, u) == -1]
         if missing:
             raise RuntimeError(f"shader {self.fragment_shader} lacks uniforms {missing} (misspelt or unused)")
 
