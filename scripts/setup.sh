@@ -19,6 +19,16 @@ fi
 
 PY=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
-.venv/bin/python -m pip install -q --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
-.venv/bin/python -m pip install -q -e ".[test]" 2>&1 | grep -v "^WARNING: Location" || true
-.venv/bin/python -c "import jkatana, jax; print('[setup] jkatana ready; jax', jax.__version__)"
+# pip's output goes to a log; a failed install stops the set-up (and shows the log's tail).
+pip_install() {
+  local log; log=$(mktemp)
+  if ! .venv/bin/python -m pip install -q "$@" >"$log" 2>&1; then
+    grep -v "^WARNING: Location" "$log" | tail -40 >&2
+    echo "[setup] pip install $* failed" >&2
+    rm -f "$log"; return 1
+  fi
+  rm -f "$log"
+}
+pip_install --upgrade pip
+pip_install -e ".[test${JKATANA_EXTRAS:+,$JKATANA_EXTRAS}]"
+(cd / && "$OLDPWD/.venv/bin/python" -c "import jkatana, jax, pyrender; print('[setup] jkatana', jkatana.__file__, '; jax', jax.__version__)")
