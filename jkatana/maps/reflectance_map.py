@@ -8,7 +8,9 @@ Rendering Method for Japanese Swords Based on Measured Data"):
 
 ``w = 1`` is the mirror-like hiraji (Fresnel model, eq. 1), ``w = 0`` the rough
 hamon (Torrance–Sparrow, eq. 2). The paper's fitted values (χ = 79000,
-μ0 = 0.05 rad, β = 43000, μ1 = 0.05 rad) are the defaults.
+μ0 = 0.05 rad, β = 43000, μ1 = 0.05 rad) are :data:`PAPER_PARAMETERS`; the
+built-in :func:`default_map` keeps χ, μ0 and β but widens the hamon's μ1
+(see its docstring).
 
 ## Layout
 
@@ -175,9 +177,41 @@ def _hada(shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
     return (g - g.mean()) / (g.std() + 1e-12)
 
 
+#: μ1 of the built-in map's hamon (radians): wider than the paper's 0.05, see :func:`default_map`.
+DEFAULT_HAMON_MU: float = 0.2
+
+
 def default_map(resolution: tuple[int, int] = (256, 1024), *, seed: int = 0,
-                transition: float = 0.012, hada_strength: float = 0.12) -> ReflectanceMap:
-    """The built-in blade's map: hiraji above a notare/gunome hamon, hada grain, paper parameters.
+                transition: float = 0.012, hada_strength: float = 0.12,
+                hamon_mu: float = DEFAULT_HAMON_MU) -> ReflectanceMap:
+    """The built-in blade's map: hiraji above a notare/gunome hamon, hada grain.
+
+    χ = 79000, β = 43000 and the hiraji's μ0 = 0.05 rad are the paper's fitted
+    values (Mochizuki et al., §6.1). The hamon's lobe width is **not**: it is
+    `hamon_mu` = 0.2 rad by default, four times the paper's μ1 = 0.05.
+
+    *Why.* The paper fitted μ1 at its goniometer on one measured blade, in the
+    incidence plane, and found the hamon's lobe as narrow as the hiraji's; its
+    hamon differs mainly in level (β vs χ, camera units), not in shape. In the
+    normalised rendering convention (perfect mirror of reflectance F as μ → 0)
+    the levels cancel, so with μ0 = μ1 = 0.05 the two regions render almost
+    alike (``experiments/render_paper_check.py`` measures this: the hamon is
+    invisible). What makes a hamon visible to the eye is the martensite of the
+    hardened edge: nie and nioi crystals (tens of µm down to sub-µm) and the
+    polisher's hazuya/jizuya finishing scatter light far wider than the
+    burnished ji (which is why sword photographers light the blade so the ji
+    mirrors a dark field while the hamon glows). 0.15–0.3 rad is a visual
+    estimate of that spread, not a measurement; 0.2 rad makes the built-in
+    blade's hamon a soft bright band. The built-in map is a demonstration asset:
+    for a measured blade, pass fitted parameters (``jkatana fit``) instead.
+
+    **Arguments:**
+
+    - `resolution`: ``(H, W)`` = (pixels across, pixels along).
+    - `seed`: the pattern's random seed (deterministic).
+    - `transition`: width in v of the soft hiraji → hamon edge (the nioi line).
+    - `hada_strength`: relative modulation of μ0 and μ1 by the grain.
+    - `hamon_mu`: the hamon's mean μ1 in radians (> 0).
 
     **Arguments:**
 
@@ -189,12 +223,15 @@ def default_map(resolution: tuple[int, int] = (256, 1024), *, seed: int = 0,
     **Returns:**
 
     A :class:`ReflectanceMap`: w = 1 above the line (and on the shinogi-ji),
-    w = 0 from the line to the edge, a smoothstep between; μ0, μ1 = 0.05 rad
-    × (1 + hada_strength · grain), χ = 79000, β = 43000 (Mochizuki et al.).
+    w = 0 from the line to the edge, a smoothstep between; μ0 = 0.05 rad
+    × (1 + hada_strength/2 · grain), μ1 = `hamon_mu` × (1 + hada_strength · grain)
+    (a little rougher still at the nie along the line), χ = 79000, β = 43000.
     """
     H, W = int(resolution[0]), int(resolution[1])
     if H < 2 or W < 2:
         raise InputError(f"resolution must be at least (2, 2), got {resolution}", field="resolution")
+    if not (np.isfinite(hamon_mu) and hamon_mu > 0):
+        raise InputError(f"must be a positive angle in radians, got {hamon_mu!r}", field="hamon_mu")
     rng = np.random.default_rng(seed)
     u = (np.arange(W) + 0.5) / W
     v = (np.arange(H) + 0.5) / H
@@ -206,9 +243,10 @@ def default_map(resolution: tuple[int, int] = (256, 1024), *, seed: int = 0,
     nie = np.exp(-((v[:, None] - line) / (2.5 * transition)) ** 2) * (rng.random((H, W)) > 0.8)
     p = PAPER_PARAMETERS
     mu0 = p["mu0"] * (1 + 0.5 * hada_strength * grain)
-    mu1 = p["mu1"] * (1 + hada_strength * grain) * (1 + 0.3 * nie)
+    mu1 = hamon_mu * (1 + hada_strength * grain) * (1 + 0.3 * nie)
     return ReflectanceMap(
         w=w, mu0=np.clip(mu0, 0.2 * p["mu0"], None), chi=np.full((H, W), p["chi"]),
-        mu1=np.clip(mu1, 0.2 * p["mu1"], None), beta=np.full((H, W), p["beta"]),
-        meta={"source": "procedural default (notare/gunome hamon, hada grain)", "seed": seed},
+        mu1=np.clip(mu1, 0.2 * hamon_mu, None), beta=np.full((H, W), p["beta"]),
+        meta={"source": "procedural default (notare/gunome hamon, hada grain)", "seed": seed,
+              "hamon_mu": float(hamon_mu)},
     )

@@ -33,6 +33,13 @@ to the scene file)::
     spectrum = "D65"                 # CIE illuminant name or a CCT in K
     intensity = 1.0                  # scales the spectrum (W sr⁻¹ nm⁻¹ at 560 nm per 100 units)
 
+    [[occluders]]                    # optional, any number: geometry that blocks light (a stand,
+    box = [0.1, 0.4, 0.1]            #   a second blade): box extents (m), or sphere = radius (m),
+    center = [0.3, 0.0, 0.2]         #   or mesh = "stand.ply" (with scale = 1.0); center translates it
+                                     # Occluders are black: they hide what is behind them from the
+                                     # camera and shadow the environment and lights (visibility rays
+                                     # from every shaded point). No occluders → no visibility rays.
+
     [camera]
     type = "orbit"                   # or "lookat" (position, look_at, up)
     target = [0.45, -0.022, 0.0]
@@ -76,8 +83,8 @@ from typing import Any
 
 from jkatana.errors import InputError
 
-SECTIONS = ("scene", "geometry", "material", "environment", "lights", "camera", "spectral", "render",
-            "film", "output")
+SECTIONS = ("scene", "geometry", "material", "environment", "lights", "occluders", "camera", "spectral",
+            "render", "film", "output")
 ENV_TYPES = ("sky", "exr", "hdr", "constant")
 RENDER_MODES = ("reference", "paper", "prefiltered", "lowrank")
 
@@ -97,6 +104,7 @@ class Scene:
     film: dict
     output: dict
     raw: dict = dataclasses.field(repr=False, default_factory=dict)
+    occluders: list = dataclasses.field(default_factory=list)
 
     def to_toml_text(self) -> str:
         """The scene's raw TOML as a compact JSON string (stored with every output)."""
@@ -257,6 +265,8 @@ def scene_from_dict(raw: dict, path: Path | None = None) -> Scene:
                        "intensity": s.number("intensity", 1.0, positive=True)})
         s.check_unknown()
 
+    occluders = _occluders(raw.get("occluders", []), path)
+
     c = _Section("camera", raw.get("camera", {}), path)
     ctype = c.string("type", "orbit", choices=("orbit", "lookat"))
     camera: dict = {"type": ctype, "fov_deg": c.number("fov_deg", 30.0),
@@ -328,7 +338,35 @@ def scene_from_dict(raw: dict, path: Path | None = None) -> Scene:
     sc = raw.get("scene", {})
     if not isinstance(sc, dict):
         raise InputError("must be a table", path=path, field="scene")
-    return Scene(path, geometry, material, environment, lights, camera, spectral, render, film, output, raw)
+    return Scene(path, geometry, material, environment, lights, camera, spectral, render, film, output, raw,
+                 occluders=occluders)
+
+
+def _occluders(raw_occ, path) -> list[dict]:
+    """``[[occluders]]``: each exactly one of ``box`` (extents), ``sphere`` (radius), ``mesh`` (file)."""
+    if not isinstance(raw_occ, list):
+        raise InputError("must be an array of tables ([[occluders]])", path=path, field="occluders")
+    out = []
+    for i, oc in enumerate(raw_occ):
+        s = _Section(f"occluders[{i}]", oc, path)
+        kinds = [k for k in ("box", "sphere", "mesh") if k in s.t]
+        if len(kinds) != 1:
+            raise InputError(f"needs exactly one of box, sphere, mesh (got {kinds or 'none'})", path=path,
+                             field=f"occluders[{i}]")
+        spec: dict = {"kind": kinds[0], "center": s.vector("center", 3, [0.0, 0.0, 0.0])}
+        if kinds[0] == "box":
+            ext = s.vector("box", 3)
+            if min(ext) <= 0:
+                raise s._err("box", f"extents must be > 0, got {list(ext)}")
+            spec["extents"] = ext
+        elif kinds[0] == "sphere":
+            spec["radius"] = s.number("sphere", positive=True)
+        else:
+            spec["mesh"] = s.file("mesh")
+            spec["scale"] = s.number("scale", 1.0, positive=True)
+        s.check_unknown()
+        out.append(spec)
+    return out
 
 
 def _resolution(sec: _Section, key: str, default, allow_zero=False):
@@ -346,15 +384,22 @@ def default_scene() -> Scene:
     return scene_from_dict(DEMO_SCENE)
 
 
-#: The demo scene: built-in blade, its procedural map, a low afternoon Hosek–Wilkie sun whose
-#: glint falls on the hamon (near the edge) for a camera looking up at the omote flat.
+#: The demo scene: the built-in blade's upper ~30 cm with the kissaki, on a diagonal, seen from
+#: in front (+Z, the omote), a little toward the tip and 24° below. The hiraji's normals tilt
+#: 7–12° towards the edge (−Y), so from 24° below the ji mirrors the sky a few degrees above the
+#: horizon and the edge side mirrors the horizon/ground: a soft horizon gradient across the flat
+#: (the cue that makes polished steel read as a mirror), the shinogi-ji and mune a bluer sky. The
+#: afternoon sun (elevation 20°, compass azimuth 225°) stands ~25° from the ji's mirror
+#: direction: outside μ0 = 0.05 rad, so the ji shows no glint, but inside the built-in hamon's
+#: wider lobe (μ1 ≈ 0.2 rad, see default_map), which therefore glows as a soft bright band.
+#: Exposure is automatic: the 75th percentile of the blade pixels' Y maps to 0.6 (renderer.exposure_for).
 DEMO_SCENE: dict = {
     "geometry": {"mesh": "builtin:katana"},
     "material": {"map": "builtin", "optical_constants": "Fe-Johnson"},
-    "environment": {"type": "sky", "elevation_deg": 14.0, "azimuth_deg": 195.0, "turbidity": 3.0,
+    "environment": {"type": "sky", "elevation_deg": 20.0, "azimuth_deg": 225.0, "turbidity": 3.0,
                     "albedo": 0.1, "resolution": [256, 512]},
-    "camera": {"type": "orbit", "target": [0.45, -0.022, 0.0], "distance": 0.28, "azimuth_deg": 20.0,
-               "elevation_deg": -40.0, "roll_deg": 25.0, "fov_deg": 30.0, "resolution": [800, 600]},
+    "camera": {"type": "orbit", "target": [0.60, -0.025, 0.0], "distance": 0.30, "azimuth_deg": 20.0,
+               "elevation_deg": -24.0, "roll_deg": 26.0, "fov_deg": 30.0, "resolution": [800, 600]},
     "render": {"mode": "reference", "samples": 64},
     "film": {"colourspace": "sRGB", "exposure": "auto"},
     "output": {"directory": "out/demo", "name": "demo"},
