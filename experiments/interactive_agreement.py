@@ -1,19 +1,27 @@
-"""GL interactive path vs the per-pixel JAX reference: three environments × four views.
+"""GL interactive path vs the project's reference renderer (jkatana.render): 3 environments × 4 views.
 
 For each built-in environment (``sky``: default; ``sun``: sun-dominated;
-``studio``: two softboxes) and three views (the demo camera, an orbit view of
+``studio``: two softboxes) and four views (the demo camera, an orbit view of
 the whole blade from the left, one from the right, and a "glint" view in the
-mirror direction of the environment's key light), renders the GL frame
-(EGL, no MSAA) and the reference (:func:`jkatana.interactive.reference.shade`:
-exact Fresnel, 61 bands, lobe quadrature over the unfiltered environment) on
-the same ray-cast G-buffer camera, and reports ΔE2000 over the blade's pixels.
-Saves, per case, ``gl | reference | ΔE×25`` side by side (PNG), and a JSON summary.
+mirror direction of the environment's key light), renders
 
-It also attributes the residual: the same GL frame with rank 4 (the low-rank
-Fresnel error is what changes), and with one isotropic prefiltered tap instead
-of the two-tap anisotropic lobe (the split-sum lobe-shape error).
+- the reference: :mod:`jkatana.render` in ``reference`` mode (MIS of lobe and
+  environment sampling, exact conductor Fresnel, 61 bands, float32), twice with
+  two seeds of ``--samples`` each; their mean is the reference, their
+  difference measures its Monte-Carlo noise;
+- the GL frame (EGL, no MSAA, deferred shading) at rank 3, and the attributions:
+  rank 4 (what the low-rank Fresnel costs) and one isotropic prefiltered tap
+  (what the anisotropic three-tap lobe gains),
 
-Run: ``python experiments/interactive_agreement.py [-o experiments/out/interactive] [--res 240 180]``
+with the same camera, the same spectral environment (both look it up with
+:func:`jkatana.light.envmap.direction_to_uv`) and ONE fixed exposure: the
+reference's auto exposure (Y at the blade's 75th percentile → 0.6), computed
+once and used by both displays. ΔE2000 over the pixels both call blade.
+
+Saves, per case, ``GL | reference | ΔE×25`` (PNG; background grey in the ΔE
+panel) and ``summary.json``.
+
+Run: ``python experiments/interactive_agreement.py [-o experiments/output/interactive] [--res 240 180]``
 """
 
 from __future__ import annotations
@@ -29,8 +37,9 @@ import numpy as np
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("-o", "--output", default="experiments/out/interactive")
+    ap.add_argument("-o", "--output", default="experiments/output/interactive")
     ap.add_argument("--res", type=int, nargs=2, default=(240, 180))
+    ap.add_argument("--samples", type=int, default=128, help="per seed; the reference averages two seeds")
     ap.add_argument("--views", nargs="+", default=["demo", "left", "right", "glint"])
     ap.add_argument("--envs", nargs="+", default=["sky", "sun", "studio"])
     args = ap.parse_args(argv)
@@ -39,10 +48,11 @@ def main(argv=None) -> int:
 
     from PIL import Image
 
+    from jkatana.interactive import agreement as A
     from jkatana.interactive import glrender as G
-    from jkatana.interactive import reference as R
     from jkatana.interactive import scene as S
     from jkatana.interactive.bake import cached_bake
+    from jkatana.render.film import auto_exposure
 
     W, H = args.res
     mesh = S.blade()
@@ -59,31 +69,34 @@ def main(argv=None) -> int:
             view = views[vname]
             summary = [r for r in summary if (r["env"], r["view"]) != (env_name, vname)]
             t = time.perf_counter()
-            gb = R.gbuffer(mesh, view)
-            xyz = R.shade(gb, view, rad, refl, n_phi=20, n_psi=28)
+            fa = A.reference_frame(rad, view, samples=args.samples, seed=0)
+            fb = A.reference_frame(rad, view, samples=args.samples, seed=1)
             ref_s = time.perf_counter() - t
-            exposure = 1.0
-            ref = R.display8(xyz, exposure)
-            m = gb["mask"]
-            row = {"env": env_name, "view": vname, "pixels": int(m.sum()), "reference_s": round(ref_s, 1)}
+            xyz = 0.5 * (fa.xyz + fb.xyz)
+            exposure = auto_exposure(xyz, fa.mask, key=0.6, percentile=75.0)
+            ref = A.display8(xyz, exposure)
+            row = {"env": env_name, "view": vname, "exposure": exposure, "reference_s": round(ref_s, 1),
+                   "reference": f"jkatana.render reference mode, 2 × {args.samples} spp"}
+            # Monte-Carlo noise of the 2-seed mean: ΔE between the two halves / 2 (independent, equal variance)
+            half, _ = A.compare(A.display8(fa.xyz, exposure), A.display8(fb.xyz, exposure), fa.mask)
+            row["reference_noise_est"] = {k: (v / 2 if k != "pixels" else v) for k, v in half.items()}
             for tag, rank, two in (("rank3", 3, True), ("rank4", 4, True), ("one_tap", 3, False)):
                 st = G.ShadingState(baked, refl, exposure=exposure, rank=rank, two_tap=two)
-                r = G.BakedOffscreenRenderer(st, W, H)
-                img = r.render(G.build_scene(mesh, view))
-                r.delete()
-                de = R.delta_e_2000(img, ref)
-                row[tag] = {"mean": float(de[m].mean()), "p95": float(np.percentile(de[m], 95)),
-                            "max": float(de[m].max())}
+                img, gl_mask = A.gl_frame(st, view, mesh, return_mask=True)
+                m = fa.mask & gl_mask
+                row[tag], de = A.compare(img, ref, m)
+                row[tag]["silhouette_disagreement_px"] = int((fa.mask ^ gl_mask).sum())
                 if tag == "rank3":
                     diff = np.clip(de * 25, 0, 255).astype(np.uint8)[..., None].repeat(3, -1)
                     diff[~m] = 40
                     Image.fromarray(np.concatenate([img, ref, diff], 1)).save(out / f"{env_name}_{vname}.png")
             summary.append(row)
-            print(f"{env_name:7s} {vname:6s} px={row['pixels']:6d}  rank3 ΔE mean {row['rank3']['mean']:.2f} "
-                  f"p95 {row['rank3']['p95']:.2f} max {row['rank3']['max']:.1f} | rank4 mean "
-                  f"{row['rank4']['mean']:.2f} p95 {row['rank4']['p95']:.2f} | one-tap mean "
-                  f"{row['one_tap']['mean']:.2f} p95 {row['one_tap']['p95']:.2f}  (ref {ref_s:.0f} s)", flush=True)
-            (out / "summary.json").write_text(json.dumps(summary, indent=1))
+            print(f"{env_name:7s} {vname:6s} px={row['rank3']['pixels']:6d}  rank3 ΔE mean "
+                  f"{row['rank3']['mean']:.2f} p95 {row['rank3']['p95']:.2f} max {row['rank3']['max']:.1f} | rank4 "
+                  f"mean {row['rank4']['mean']:.2f} | one-tap mean {row['one_tap']['mean']:.2f} p95 "
+                  f"{row['one_tap']['p95']:.2f} | ref noise mean {row['reference_noise_est']['mean']:.2f} "
+                  f"p95 {row['reference_noise_est']['p95']:.2f}  (ref {ref_s:.0f} s)", flush=True)
+            summary_path.write_text(json.dumps(summary, indent=1))
     return 0
 
 

@@ -50,7 +50,8 @@ import numpy as np
 
 from jkatana.models import Conductor, Hamon, Hiraji, gaussian_facet
 from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
-from jkatana.spectral.colorimetry import encode, xyz_to_rgb_matrix, xyz_weights
+from jkatana.render.film import film_weights
+from jkatana.spectral.colorimetry import encode, xyz_to_rgb_matrix
 
 #: μ levels of the prefiltered environment (radians, log-spaced, ratio √2; 0.05 is a level).
 MU_LEVELS = 0.0125 * np.sqrt(2.0) ** np.arange(11)
@@ -307,7 +308,7 @@ def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor
         conductor = Conductor.from_table("Fe-Johnson", grid, dtype=jnp.float64 if jax.config.jax_enable_x64
                                          else jnp.float32)
     _, _, b, err = fresnel_basis(conductor, rank)
-    W = xyz_weights(grid)                                                            # (wl, 3)
+    W = film_weights(grid)            # (wl, 3); k = 1/∫ȳ dλ as jkatana.render: flat radiance 1 → Y = 1
     proj = np.einsum("hwl,rl,lc->hwrc", radiance, b, W).reshape(*radiance.shape[:2], rank * 3)
     env = np.stack([prefilter(proj, float(mu)) for mu in mus])                      # (n_mu, H, W, r*3)
     env = env.reshape(len(mus), *radiance.shape[:2], rank, 3).transpose(0, 3, 1, 2, 4)

@@ -53,9 +53,9 @@ def auto_exposure(radiance, grid, key: float = 0.85, percentile: float = 99.5) -
     """Exposure putting the environment's bright end (Y at ``percentile``) at ``key``/F̄ (F̄ ≈ 0.55 for iron)."""
     import numpy as np
 
-    from jkatana.spectral.colorimetry import xyz_weights
+    from jkatana.render.film import film_weights
 
-    Y = np.asarray(radiance) @ xyz_weights(grid)[:, 1]
+    Y = np.asarray(radiance) @ film_weights(grid)[:, 1]
     return float(key / max(0.55 * np.percentile(Y, percentile), 1e-12))
 
 

@@ -1,5 +1,18 @@
 """The GL side: pyrender scene, a program cache that serves jkatana's shaders, float textures.
 
+Two ways to draw a frame, the same shading (``shaders/shade.glsl``):
+
+- **deferred** (headless default): pyrender's forward pass draws the mesh with
+  ``gbuffer.frag`` into two RGBA32F targets (unit normal + u, world position + v)
+  and a depth buffer; then one full-screen triangle on the far plane, depth test
+  ``GL_GREATER`` against that depth, runs ``deferred.frag`` once per covered
+  pixel. llvmpipe rasterises in 4×4 blocks and runs the fragment shader on every
+  block a triangle touches, so on the dense blade mesh (51k triangles, most a few
+  pixels) a forward shader runs 2–4× per covered pixel; deferred, the expensive
+  shader runs once per pixel and the G-buffer pass costs a few stores per block.
+- **forward** (``mesh.frag``; the windowed Viewer, and MSAA frames): shades the
+  rasterised fragments directly.
+
 pyrender chooses shaders by file name through its renderer's
 ``ShaderProgramCache`` and binds only its own uniforms and 8-bit textures.
 :class:`BakedProgramCache` (a subclass, installed on the renderer) serves
@@ -41,7 +54,7 @@ from jkatana.interactive.bake import MAX_RANK, Baked  # noqa: E402
 
 SHADER_DIR = Path(__file__).parent / "shaders"
 _PYRENDER_SHADERS = Path(pyrender.__file__).parent / "shaders"
-_OWN = {"mesh.vert", "mesh.frag"}
+_OWN = {"mesh.vert", "mesh.frag", "gbuffer.frag", "deferred.vert", "deferred.frag"}
 _UNIT0 = 8
 
 #: Uniforms the fragment shader must expose (checked after linking).
@@ -151,18 +164,51 @@ class ShadingState:
 
     def delete_textures(self):
         for ids in self._textures.values():
-            GL.glDeleteTextures(len(ids), list(ids))
+            GL.glDeleteTextures(list(ids))
         self._textures.clear()
+
+
+def shader_source(path, defines: dict) -> str:
+    """GLSL text of ``path`` with ``#include "name"`` lines expanded from :data:`SHADER_DIR` and
+    ``#define NAME VALUE`` lines inserted after ``#version``."""
+    import re
+
+    text = Path(path).read_text()
+    text = re.sub(r'^#include "([^"]+)"[ \t]*$', lambda m: (SHADER_DIR / m.group(1)).read_text(), text,
+                  flags=re.MULTILINE)
+    head, sep, rest = text.partition("\n")
+    if not head.startswith("#version"):
+        raise ValueError(f"{path}: the first line must be #version")
+    lines = "".join(f"#define {k} {v}\n" for k, v in (defines or {}).items())
+    return head + sep + lines + rest
+
+
+class SourceProgram(ShaderProgram):
+    """pyrender's ShaderProgram reading its source with :func:`shader_source` (the G-buffer pass)."""
+
+    def _load(self, shader_filename):
+        return shader_source(shader_filename, self.defines)
 
 
 class BakedProgram(ShaderProgram):
     """pyrender's ShaderProgram whose ``_bind`` also binds jkatana's textures and uniforms."""
 
     state: ShadingState = None
+    #: extra 2-D samplers (the G-buffer of the deferred pass): name → GL texture id, set before drawing
+    gbuffer: dict = None
+
+    def _load(self, shader_filename):
+        """The shader's text with ``#include "file"`` lines expanded (from :data:`SHADER_DIR`) and one
+        ``#define NAME VALUE`` line per define inserted after ``#version`` (pyrender's own ``_load``
+        text-replaces define names anywhere in the source instead)."""
+        return shader_source(shader_filename, self.defines)
 
     def _samplers(self):
         names = ["jk_lut", "jk_map", "jk_transfer"] + [f"jk_env{r}" for r in range(self.state.rank)]
         targets = [GL.GL_TEXTURE_2D_ARRAY, GL.GL_TEXTURE_2D, GL.GL_TEXTURE_2D] + [GL.GL_TEXTURE_3D] * self.state.rank
+        if self.gbuffer is not None:
+            names += list(self.gbuffer)
+            targets += [GL.GL_TEXTURE_2D] * len(self.gbuffer)
         return names, targets
 
     def check_uniforms(self):
@@ -213,7 +259,8 @@ class BakedProgram(ShaderProgram):
         st, b = self.state, self.state.baked
         pid = self._program_id
         names, targets = self._samplers()
-        for i, (name, tex, target) in enumerate(zip(names, st.textures(), targets)):
+        textures = st.textures()[:3 + st.rank] + tuple((self.gbuffer or {}).values())
+        for i, (name, tex, target) in enumerate(zip(names, textures, targets)):
             GL.glActiveTexture(GL.GL_TEXTURE0 + _UNIT0 + i)
             GL.glBindTexture(target, tex)
             GL.glUniform1i(GL.glGetUniformLocation(pid, name), _UNIT0 + i)
@@ -235,6 +282,8 @@ class BakedProgramCache(ShaderProgramCache):
     def __init__(self, state: ShadingState):
         super().__init__(shader_dir=str(SHADER_DIR))
         self.state = state
+        #: True while a deferred renderer draws: pyrender's request for the mesh shader gets the G-buffer one
+        self.deferred = False
         self._fallback = ShaderProgramCache(shader_dir=str(_PYRENDER_SHADERS))
 
     def get_program(self, vertex_shader, fragment_shader, geometry_shader=None, defines=None):
@@ -242,13 +291,22 @@ class BakedProgramCache(ShaderProgramCache):
             return self._fallback.get_program(vertex_shader, fragment_shader, geometry_shader, defines)
         import OpenGL.contextdata
 
+        if self.deferred and fragment_shader == "mesh.frag":
+            fragment_shader = "gbuffer.frag"
         defines = dict(defines or {})
-        defines.update(self.state.defines())
+        if fragment_shader != "gbuffer.frag":
+            defines.update(self.state.defines())
         key = (OpenGL.contextdata.getContext(), vertex_shader, fragment_shader, *sorted(defines.items()))
         if key not in self._program_cache:
-            program = BakedProgram(str(SHADER_DIR / vertex_shader), str(SHADER_DIR / fragment_shader),
-                                   defines=defines)
-            program.state = self.state
+            if fragment_shader == "gbuffer.frag":
+                program = SourceProgram(str(SHADER_DIR / vertex_shader), str(SHADER_DIR / fragment_shader),
+                                        defines=defines)
+            else:
+                program = BakedProgram(str(SHADER_DIR / vertex_shader), str(SHADER_DIR / fragment_shader),
+                                       defines=defines)
+                program.state = self.state
+                if fragment_shader == "deferred.frag":
+                    program.gbuffer = {"jk_g0": 0, "jk_g1": 0}
             self._program_cache[key] = program
         return self._program_cache[key]
 
@@ -258,11 +316,27 @@ class BakedProgramCache(ShaderProgramCache):
 
 
 class SampleCountRenderer(Renderer):
-    """pyrender's Renderer with the offscreen framebuffer's MSAA sample count as a parameter (0 = none)."""
+    """pyrender's Renderer with the offscreen framebuffer's MSAA sample count as a parameter (0 = none),
+    and, with ``deferred=True`` (needs ``samples=0``), deferred shading (see the module docstring).
 
-    def __init__(self, viewport_width, viewport_height, point_size=1.0, samples: int = 0):
+    Deferred: pyrender's offscreen forward pass draws into :attr:`_main_fb_ms`, which here is the
+    G-buffer framebuffer (two RGBA32F textures and a depth renderbuffer); the shading pass runs in
+    :meth:`_read_main_framebuffer` (called by pyrender right after the forward pass) into
+    :attr:`_main_fb` (an RGBA8 renderbuffer sharing that depth renderbuffer), which is read back.
+    After each frame :attr:`last_mask` holds the rasterised blade pixels (row 0 at the top) when
+    :attr:`want_mask` is set.
+    """
+
+    def __init__(self, viewport_width, viewport_height, point_size=1.0, samples: int = 0,
+                 deferred: bool = False):
         super().__init__(viewport_width, viewport_height, point_size)
         self.samples = int(samples)
+        if deferred and self.samples:
+            raise ValueError("deferred shading is single-sample (samples=0)")
+        self.deferred = bool(deferred)
+        self.want_mask = False
+        self.last_mask = None
+        self._gtex = None
 
     def _configure_main_framebuffer(self):
         if self._main_fb is not None and (self.viewport_width, self.viewport_height) != self._main_fb_dims:
@@ -284,8 +358,79 @@ class SampleCountRenderer(Renderer):
             return fb, cb, db
 
         self._main_fb, self._main_cb, self._main_db = fbo(0)
-        self._main_fb_ms, self._main_cb_ms, self._main_db_ms = fbo(self.samples)
+        if not self.deferred:
+            self._main_fb_ms, self._main_cb_ms, self._main_db_ms = fbo(self.samples)
+        else:
+            # G-buffer: two float textures + the output framebuffer's depth renderbuffer
+            self._gtex = [int(x) for x in np.atleast_1d(GL.glGenTextures(2))]
+            for tex in self._gtex:
+                GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
+                GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA32F, w, h, 0, GL.GL_RGBA, GL.GL_FLOAT, None)
+                for prm in (GL.GL_TEXTURE_MIN_FILTER, GL.GL_TEXTURE_MAG_FILTER):
+                    GL.glTexParameteri(GL.GL_TEXTURE_2D, prm, GL.GL_NEAREST)
+            GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+            fb = GL.glGenFramebuffers(1)
+            GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, fb)
+            for i, tex in enumerate(self._gtex):
+                GL.glFramebufferTexture2D(GL.GL_DRAW_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0 + i, GL.GL_TEXTURE_2D,
+                                          tex, 0)
+            GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER,
+                                         self._main_db)
+            GL.glDrawBuffers(2, [GL.GL_COLOR_ATTACHMENT0, GL.GL_COLOR_ATTACHMENT1])
+            status = GL.glCheckFramebufferStatus(GL.GL_DRAW_FRAMEBUFFER)
+            if status != GL.GL_FRAMEBUFFER_COMPLETE:
+                raise RuntimeError(f"G-buffer framebuffer incomplete (status 0x{int(status):x})")
+            self._main_fb_ms, self._main_cb_ms, self._main_db_ms = fb, None, None
+        GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, 0)
         self._main_fb_dims = (w, h)
+
+    def _delete_main_framebuffer(self):
+        if not self.deferred:
+            return super()._delete_main_framebuffer()
+        if self._main_fb is not None:
+            GL.glDeleteFramebuffers(2, [self._main_fb, self._main_fb_ms])
+            GL.glDeleteRenderbuffers(2, [self._main_cb, self._main_db])
+            GL.glDeleteTextures(self._gtex)
+        self._main_fb = self._main_cb = self._main_db = None
+        self._main_fb_ms = self._main_cb_ms = self._main_db_ms = None
+        self._gtex = None
+        self._main_fb_dims = (None, None)
+
+    def _read_main_framebuffer(self, scene, flags):
+        from pyrender.constants import RenderFlags
+
+        if not self.deferred or flags & (RenderFlags.DEPTH_ONLY | RenderFlags.SEG | RenderFlags.RGBA):
+            return super()._read_main_framebuffer(scene, flags)
+        w, h = self._main_fb_dims
+        program = self._program_cache.get_program("deferred.vert", "deferred.frag")
+        if not program._in_context():
+            program._add_to_context()
+        program.gbuffer = {"jk_g0": self._gtex[0], "jk_g1": self._gtex[1]}
+        GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
+        GL.glViewport(0, 0, w, h)
+        GL.glClearColor(*scene.bg_color)
+        GL.glClear(GL.GL_COLOR_BUFFER_BIT)
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glDepthMask(GL.GL_FALSE)
+        GL.glDepthFunc(GL.GL_GREATER)          # only where the G-buffer pass drew (its depth < 1)
+        GL.glDisable(GL.GL_BLEND)
+        program._bind()
+        GL.glUniform3fv(GL.glGetUniformLocation(program._program_id, "cam_pos"), 1,
+                        np.asarray(scene.get_pose(scene.main_camera_node)[:3, 3], np.float32))
+        GL.glBindVertexArray(program._vao_id)
+        GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
+        GL.glBindVertexArray(0)
+        program._unbind()
+        GL.glDepthFunc(GL.GL_LESS)
+        GL.glDepthMask(GL.GL_TRUE)
+        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
+        GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+        buf = GL.glReadPixels(0, 0, w, h, GL.GL_RGB, GL.GL_UNSIGNED_BYTE)
+        color = np.frombuffer(buf, np.uint8).reshape(h, w, 3)[::-1]
+        if self.want_mask:
+            d = GL.glReadPixels(0, 0, w, h, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
+            self.last_mask = (np.frombuffer(d, np.float32).reshape(h, w) < 1.0)[::-1].copy()
+        return color, None
 
 
 def build_scene(mesh, view, bg=(0.08, 0.08, 0.09)):
@@ -303,10 +448,13 @@ def build_scene(mesh, view, bg=(0.08, 0.08, 0.09)):
 class BakedOffscreenRenderer:
     """Headless renderer: pyrender's OffscreenRenderer with jkatana's program cache and no MSAA.
 
-    **Arguments:** `state` (:class:`ShadingState`), `width`, `height`, `samples` (MSAA, default 0).
+    **Arguments:** `state` (:class:`ShadingState`), `width`, `height`, `samples` (MSAA, default 0),
+    `deferred` (G-buffer pass then one shading pass per pixel; default: on unless ``samples``).
+    After :meth:`render`, :attr:`last_mask` is the ``(H, W)`` mask of blade pixels (deferred only).
     """
 
-    def __init__(self, state: ShadingState, width: int, height: int, samples: int = 0):
+    def __init__(self, state: ShadingState, width: int, height: int, samples: int = 0,
+                 deferred: bool | None = None):
         self.state = state
         try:
             self._r = pyrender.OffscreenRenderer(width, height)
@@ -315,9 +463,16 @@ class BakedOffscreenRenderer:
 
             plat = os.environ.get("PYOPENGL_PLATFORM", "egl")
             raise GLUnavailable(f"no OpenGL context on {plat} ({type(err).__name__}: {err}); {diagnose(plat)}") from err
-        r = SampleCountRenderer(width, height, samples=samples)
+        deferred = samples == 0 if deferred is None else bool(deferred)
+        r = SampleCountRenderer(width, height, samples=samples, deferred=deferred)
         r._program_cache = BakedProgramCache(state)
+        r._program_cache.deferred = deferred
+        r.want_mask = deferred
         self._r._renderer = r
+
+    @property
+    def last_mask(self):
+        return self._r._renderer.last_mask
 
     def render(self, scene) -> np.ndarray:
         """One frame, ``(H, W, 3)`` uint8 display RGB (row 0 at the top)."""

@@ -33,7 +33,8 @@ import numpy as np
 from jkatana.interactive.bake import halfvector_quadrature
 from jkatana.models import Conductor, Hamon, Hiraji
 from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
-from jkatana.spectral.colorimetry import to_display, to_png8, xyz_weights
+from jkatana.render.film import film_weights
+from jkatana.spectral.colorimetry import to_display, to_png8
 
 
 def camera_rays(view):
@@ -140,7 +141,7 @@ def shade(gbuf: dict, view, radiance: np.ndarray, refl_map: np.ndarray, *, grid:
     env_rot = jnp.asarray([[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]], dtype)
     conductor = Conductor.from_table(source, grid, dtype=dtype)
     env = jnp.asarray(radiance, dtype)
-    wxyz = jnp.asarray(xyz_weights(grid), dtype)
+    wxyz = jnp.asarray(film_weights(grid), dtype)
     out = np.zeros((len(N), 3))
     n = len(N)
     for i in range(0, n, chunk):

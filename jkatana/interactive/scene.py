@@ -29,7 +29,8 @@ import numpy as np
 import trimesh
 
 from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
-from jkatana.spectral.colorimetry import illuminant, xyz_weights
+from jkatana.render.film import film_weights
+from jkatana.spectral.colorimetry import illuminant
 
 from jkatana.interactive.bake import texel_directions
 
@@ -37,7 +38,7 @@ ENVIRONMENTS = ("sky", "sun", "studio")
 
 
 def _unit_y(spectrum: np.ndarray, grid: WavelengthGrid) -> np.ndarray:
-    return spectrum / float(spectrum @ xyz_weights(grid)[:, 1])
+    return spectrum / float(spectrum @ film_weights(grid)[:, 1])
 
 
 def _dir(elev_deg: float, azim_deg: float) -> np.ndarray:

@@ -1,0 +1,78 @@
+"""The GL frame against the project's reference renderer :mod:`jkatana.render`, same camera, light, exposure.
+
+:func:`reference_frame` renders an :class:`~jkatana.interactive.scene.View`
+with :func:`jkatana.render.renderer.prepare` / :func:`~jkatana.render.renderer.render_view`
+(a ``lookat`` camera at the view's pose, the built-in blade and map, the same
+spectral environment radiance passed as ``env_radiance``, no rotation, float32,
+``reference`` mode: MIS of the lobe mixture and of the environment). Both paths
+look the environment up with :func:`jkatana.light.envmap.direction_to_uv`'s
+convention (u = 0.5 + atan2(x, −z)/2π, v = acos y/π, Y up) and weigh spectra with
+:func:`jkatana.render.film.film_weights` (flat radiance 1 → Y = 1), and both
+displays are :func:`jkatana.render.film.display` with one fixed exposure.
+
+:func:`compare` gives ΔE2000 (mean, p95, max) over the pixels that both paths
+call blade.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jkatana.interactive.scene import View
+
+
+def render_scene(view: View, *, mode: str = "reference", samples: int = 256, exposure: float = 1.0,
+                 seed: int = 0) -> dict:
+    """A :mod:`jkatana.render` scene dict for ``view`` (environment replaced at :func:`reference_frame`)."""
+    pose = np.asarray(view.pose, np.float64)
+    eye = pose[:3, 3]
+    return {
+        "geometry": {"mesh": "builtin:katana"},
+        "material": {"map": "builtin", "optical_constants": "Fe-Johnson"},
+        "environment": {"type": "constant", "radiance": 1.0, "resolution": [4, 8]},
+        "camera": {"type": "lookat", "position": eye.tolist(), "look_at": (eye - pose[:3, 2]).tolist(),
+                   "up": pose[:3, 1].tolist(), "fov_deg": float(np.rad2deg(view.yfov)),
+                   "resolution": [int(view.width), int(view.height)]},
+        "render": {"mode": mode, "samples": int(samples), "seed": int(seed), "precision": "float32"},
+        "film": {"colourspace": "sRGB", "exposure": float(exposure)},
+    }
+
+
+def reference_frame(radiance: np.ndarray, view: View, *, mode: str = "reference", samples: int = 256,
+                    seed: int = 0):
+    """:class:`jkatana.render.frame.Frame` of ``view`` under the spectral environment ``radiance (H, W, 61)``."""
+    from jkatana.render.renderer import prepare, render_view
+    from jkatana.render.scene import scene_from_dict
+
+    sc = scene_from_dict(render_scene(view, mode=mode, samples=samples, seed=seed))
+    prep = prepare(sc, env_radiance=np.asarray(radiance, np.float32))
+    return render_view(prep)
+
+
+def display8(xyz: np.ndarray, exposure: float) -> np.ndarray:
+    """:func:`jkatana.render.film.display` (sRGB) then 8 bits, as the render CLI writes its PNG."""
+    from jkatana.render.film import display
+    from jkatana.spectral.colorimetry import to_png8
+
+    return to_png8(display(xyz, "sRGB", None, exposure=exposure))
+
+
+def compare(gl8: np.ndarray, ref8: np.ndarray, mask: np.ndarray) -> dict:
+    """ΔE2000 statistics over ``mask`` and the ΔE image."""
+    from jkatana.interactive.reference import delta_e_2000
+
+    de = delta_e_2000(gl8, ref8)
+    d = de[mask]
+    return {"mean": float(d.mean()), "p95": float(np.percentile(d, 95)), "max": float(d.max()),
+            "pixels": int(mask.sum())}, de
+
+
+def gl_frame(state, view: View, mesh, *, return_mask: bool = False):
+    """The GL frame of ``view`` (EGL, no MSAA) and, on request, the mask of rasterised blade pixels."""
+    from jkatana.interactive import glrender as G
+
+    r = G.BakedOffscreenRenderer(state, view.width, view.height)
+    img = r.render(G.build_scene(mesh, view))
+    mask = r.last_mask.copy() if return_mask else None
+    r.delete()
+    return (img, mask) if return_mask else img

@@ -1,0 +1,131 @@
+// jkatana interactive path: the shading, shared by mesh.frag (forward: one pass over the mesh)
+// and deferred.frag (one full-screen pass over a G-buffer), included by BakedProgram._load.
+//
+// Shades the paper's blend (eq. 5) of hiraji (eq. 1) and hamon (eq. 2) under
+// an environment, with tables baked by jkatana.interactive.bake from the JAX
+// models (nothing here re-derives a model):
+//   XYZ = sum_r A_r(cos θv, μ) · P_r(R; μ)
+// with A = w A_hiraji(μ0) + (1 − w) A_hamon(μ1) and the environment read at
+// the blended level w·ℓ(μ0) + (1 − w)·ℓ(μ1) (ℓ: log-spaced level index; exact
+// where w is 0 or 1). P_r is a 3-D texture (u, v, level), so one trilinear
+// fetch per basis function interpolates the μ levels too.
+// A_r: lobe LUT (Fresnel low-rank coefficients × lobe energy × G), per model;
+// P_r: environment projected on the spectral basis b_r and on the CIE 1931
+// weights, prefiltered per μ level. Then XYZ → linear RGB (eq. 7, baked
+// matrix) → transfer (eq. 8, baked table indexed by sqrt).
+//
+// Static switches (#define lines that BakedProgram._load inserts after #version; each combination
+// is its own program): JK_RANK (1..4), JK_ROUGH (0: mirror-like, the narrowest μ
+// level), JK_BLEND (0: hiraji everywhere), JK_TWO_TAP (the lobe's anisotropy:
+// three binomial taps along the plane of incidence, prefiltered for the
+// across-plane width, matching the lobe's in-plane mean and variance — moments
+// baked from the models by jkatana.interactive.bake.lobe_lut; the name is
+// historical: two extra taps).
+
+uniform vec3 cam_pos;
+uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
+#if JK_RANK > 1
+uniform sampler3D jk_env1;
+#endif
+#if JK_RANK > 2
+uniform sampler3D jk_env2;
+#endif
+#if JK_RANK > 3
+uniform sampler3D jk_env3;
+#endif
+uniform sampler2DArray jk_lut;      // layer 0 hiraji, 1 hamon: rgba = A_0..A_3; layers 2, 3: lobe shape of
+                                    // hiraji, hamon (rgb = log across-width ratio, ± tap offset, mean offset)
+                                    // s: cos θv, t: μ level
+uniform sampler2D jk_map;           // r = w, g = μ0, b = μ1
+uniform sampler2D jk_transfer;      // 1 row: encode(s²)
+uniform mat3 jk_xyz_to_rgb;
+uniform mat3 jk_env_rot;
+uniform float jk_exposure;
+uniform float jk_log_mu_first;
+uniform float jk_log_mu_step;
+uniform float jk_n_levels;
+uniform float jk_n_cos;
+uniform float jk_n_transfer;
+
+const float JK_PI = 3.14159265358979;
+
+float level_of(float mu)
+{
+    return clamp((log(max(mu, 1e-6)) - jk_log_mu_first) / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
+}
+
+vec4 lobe(float layer, float cv, float lvl)
+{
+    vec2 st = vec2((cv * (jk_n_cos - 1.0) + 0.5) / jk_n_cos, (lvl + 0.5) / jk_n_levels);
+    return texture(jk_lut, vec3(st, layer));
+}
+
+float encode1(float x)
+{
+    float s = sqrt(clamp(x, 0.0, 1.0));
+    return texture(jk_transfer, vec2((s * (jk_n_transfer - 1.0) + 0.5) / jk_n_transfer, 0.5)).r;
+}
+
+vec3 env_xyz(vec3 d, float lz, vec4 a)
+{
+    vec3 p = vec3(0.5 + atan(d.x, -d.z) / (2.0 * JK_PI), acos(clamp(d.y, -1.0, 1.0)) / JK_PI, lz);
+    vec3 xyz = a.x * texture(jk_env0, p).rgb;
+#if JK_RANK > 1
+    xyz += a.y * texture(jk_env1, p).rgb;
+#endif
+#if JK_RANK > 2
+    xyz += a.z * texture(jk_env2, p).rgb;
+#endif
+#if JK_RANK > 3
+    xyz += a.w * texture(jk_env3, p).rgb;
+#endif
+    return xyz;
+}
+
+// display-encoded RGBA of a surface point: unit normal N, world position P, map coordinates uv
+vec4 jk_shade(vec3 N, vec3 P, vec2 uv)
+{
+    vec3 Vd = normalize(cam_pos - P);
+    float cv = dot(N, Vd);
+    vec3 xyz = vec3(0.0);
+    if (cv > 0.0) {
+        vec3 R0 = 2.0 * cv * N - Vd;
+        vec3 R = jk_env_rot * R0;
+        vec3 m = texture(jk_map, uv).rgb;
+#if JK_BLEND
+        float w = m.r;
+#else
+        float w = 1.0;
+#endif
+#if JK_ROUGH
+        float lf = level_of(m.g);
+        float lt = level_of(m.b);
+#else
+        float lf = 0.0;
+        float lt = 0.0;
+#endif
+        vec4 a = w * lobe(0.0, cv, lf) + (1.0 - w) * lobe(1.0, cv, lt);
+#if JK_ROUGH
+        vec3 shape = w * lobe(2.0, cv, lf).rgb + (1.0 - w) * lobe(3.0, cv, lt).rgb;
+        float le = clamp(mix(lt, lf, w) + shape.r / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
+#else
+        float le = 0.0;
+#endif
+        float lz = (le + 0.5) / jk_n_levels;
+#if JK_TWO_TAP
+        // three binomial taps (1/4, 1/2, 1/4) along the plane of incidence at mean, mean ± √2·spread:
+        // the in-plane variance of the sum is var_perp + spread² = var_par (the lobe's)
+        vec3 tn = N - dot(N, R0) * R0;
+        tn = jk_env_rot * (tn / max(length(tn), 1e-6));
+        float off = 1.41421356 * shape.g;
+        vec3 Rc = cos(shape.b) * R + sin(shape.b) * tn;
+        vec3 Ra = cos(shape.b + off) * R + sin(shape.b + off) * tn;
+        vec3 Rb = cos(shape.b - off) * R + sin(shape.b - off) * tn;
+        xyz = 0.5 * env_xyz(Rc, lz, a) + 0.25 * (env_xyz(Ra, lz, a) + env_xyz(Rb, lz, a));
+#else
+        xyz = env_xyz(R, lz, a);
+#endif
+    }
+    vec3 rgb = jk_xyz_to_rgb * (xyz * jk_exposure);
+    return vec4(encode1(rgb.r), encode1(rgb.g), encode1(rgb.b), 1.0);
+}
