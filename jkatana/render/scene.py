@@ -384,21 +384,22 @@ def default_scene() -> Scene:
     return scene_from_dict(DEMO_SCENE)
 
 
-#: The demo scene: the built-in blade's upper ~30 cm with the kissaki, on a diagonal, seen from
+#: The demo scene: the built-in blade's upper ~28 cm with the kissaki, on a diagonal, seen from
 #: in front (+Z, the omote), a little toward the tip and 24° below. The hiraji's normals tilt
 #: 7–12° towards the edge (−Y), so from 24° below the ji mirrors the sky a few degrees above the
 #: horizon and the edge side mirrors the horizon/ground: a soft horizon gradient across the flat
 #: (the cue that makes polished steel read as a mirror), the shinogi-ji and mune a bluer sky. The
-#: afternoon sun (elevation 20°, compass azimuth 225°) stands ~25° from the ji's mirror
-#: direction: outside μ0 = 0.05 rad, so the ji shows no glint, but inside the built-in hamon's
-#: wider lobe (μ1 ≈ 0.2 rad, see default_map), which therefore glows as a soft bright band.
+#: afternoon sun (elevation 26°, compass azimuth 225°) stands ≥ 0.155 rad (median 0.25 rad) in
+#: facet angle from the ji pixels' mirror directions: far outside μ0 = 0.05 rad, so the ji shows
+#: no glint, but at ~1.5 μ1 of the built-in hamon's wider lobe (μ1 ≈ 0.2 rad, see default_map),
+#: which therefore glows as a soft bright band (tests/test_render_demo.py checks these angles).
 #: Exposure is automatic: the 75th percentile of the blade pixels' Y maps to 0.6 (renderer.exposure_for).
 DEMO_SCENE: dict = {
     "geometry": {"mesh": "builtin:katana"},
     "material": {"map": "builtin", "optical_constants": "Fe-Johnson"},
-    "environment": {"type": "sky", "elevation_deg": 20.0, "azimuth_deg": 225.0, "turbidity": 3.0,
+    "environment": {"type": "sky", "elevation_deg": 26.0, "azimuth_deg": 225.0, "turbidity": 3.0,
                     "albedo": 0.1, "resolution": [256, 512]},
-    "camera": {"type": "orbit", "target": [0.60, -0.025, 0.0], "distance": 0.30, "azimuth_deg": 20.0,
+    "camera": {"type": "orbit", "target": [0.59, -0.025, 0.0], "distance": 0.33, "azimuth_deg": 20.0,
                "elevation_deg": -24.0, "roll_deg": 26.0, "fov_deg": 30.0, "resolution": [800, 600]},
     "render": {"mode": "reference", "samples": 64},
     "film": {"colourspace": "sRGB", "exposure": "auto"},
