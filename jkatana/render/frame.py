@@ -22,7 +22,8 @@ from jax.sharding import NamedSharding, PartitionSpec as PS
 
 from jkatana.render.camera import Camera
 from jkatana.render.gbuffer import GBuffer, gbuffer_mesh, gbuffer_sphere
-from jkatana.render.shading import Environment, Light, Material, Pixels, Plan, background, shade
+from jkatana.render.shading import (Environment, Light, Material, Pixels, Plan, Visibility, background,
+                                    ray_directions, shade)
 
 DEFAULT_CHUNK = 16384
 
@@ -66,15 +67,52 @@ def devices():
 def _compiled(plan: Plan, n_dev: int, chunk: int):
     mesh = jax.make_mesh((n_dev,), ("d",), devices=jax.local_devices()[:n_dev])
 
-    def per_device(mat, env, lights, px, maps_uv, cmf, key):
+    def per_device(mat, env, lights, px, vis, cmf, key):
         key = jax.random.fold_in(key, jax.lax.axis_index("d"))
-        return shade(plan, mat, env, lights, px, cmf, key)
+        return shade(plan, mat, env, lights, px, cmf, key, vis)
 
     f = jax.shard_map(per_device, mesh=mesh,
-                      in_specs=(PS(), PS(), PS(), PS("d"), PS(), PS(), PS()),
+                      in_specs=(PS(), PS(), PS(), PS("d"), PS("d"), PS(), PS()),
                       out_specs=(PS("d"), PS("d") if plan.spectral and not plan.factored else PS()),
                       check_vma=False)
     return jax.jit(f), mesh
+
+
+@functools.lru_cache(maxsize=32)
+def _compiled_rays(plan: Plan, n_dev: int, chunk: int):
+    """The directions :func:`shade` will trace, with the same per-device key (visibility pass)."""
+    mesh = jax.make_mesh((n_dev,), ("d",), devices=jax.local_devices()[:n_dev])
+
+    def per_device(env, lights, px, key):
+        key = jax.random.fold_in(key, jax.lax.axis_index("d"))
+        return ray_directions(plan, env, lights, px, key)
+
+    f = jax.shard_map(per_device, mesh=mesh, in_specs=(PS(), PS(), PS("d"), PS()), out_specs=PS("d"),
+                      check_vma=False)
+    return jax.jit(f)
+
+
+def visibility(occluders, rays, position, normal) -> Visibility:
+    """Host step: ray-cast every direction of ``rays`` (NumPy :class:`Rays`) from the pixels against ``occluders``.
+
+    Origins are the G-buffer positions nudged along the normal (relative to the
+    scene's scale) so that an occluder touching the surface does not shadow it
+    through round-off.
+    """
+    pos = np.asarray(position, np.float64)
+    eps = 1e-5 * max(1.0, float(np.abs(pos).max(initial=0.0)))
+    origin = pos + eps * np.asarray(normal, np.float64)
+
+    def cast(d, max_dist=None):
+        P, K = d.shape[0], d.shape[1]
+        if K == 0:
+            return np.ones((P, 0), np.float32)
+        o = np.broadcast_to(origin[:, None, :], d.shape)
+        md = None if max_dist is None else np.asarray(max_dist).reshape(-1)
+        return occluders.visible(o.reshape(-1, 3), np.asarray(d).reshape(-1, 3), md, eps).reshape(P, K)
+
+    return Visibility(cast(np.asarray(rays.mirror)[:, None])[:, 0], cast(np.asarray(rays.lobe)),
+                      cast(np.asarray(rays.env)), cast(np.asarray(rays.lights), np.asarray(rays.light_dist)))
 
 
 @functools.lru_cache(maxsize=8)
@@ -83,8 +121,17 @@ def _compiled_background(spectral: bool):
 
 
 def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels,
-                 cmf, key, *, n_devices: int | None = None, chunk: int = DEFAULT_CHUNK):
-    """Shade ``P`` pixels in fixed-size sharded calls; returns ``(xyz (P, 3), spectra or None)`` as NumPy."""
+                 cmf, key, *, n_devices: int | None = None, chunk: int = DEFAULT_CHUNK, occluders=None):
+    """Shade ``P`` pixels in fixed-size sharded calls; returns ``(xyz (P, 3), spectra or None)`` as NumPy.
+
+    With ``plan.visibility`` each call first computes the directions it will
+    trace (:func:`~jkatana.render.shading.ray_directions`, jitted), ray-casts
+    them on the host against ``occluders`` (:class:`~jkatana.render.gbuffer.Occluders`)
+    and passes the :class:`~jkatana.render.shading.Visibility` to the jitted
+    shader. Without it there is no visibility step at all.
+    """
+    if plan.visibility and occluders is None:
+        raise ValueError("plan.visibility needs occluders")
     n_dev = n_devices or len(jax.local_devices())
     P = px.normal.shape[0]
     # call shapes from a fixed ladder (1024 · 4^k, capped at `chunk`), so that views with
@@ -112,10 +159,18 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     split = NamedSharding(mesh, PS("d"))
     mat, env, lights, cmf = jax.device_put((mat, env, lights, jnp.asarray(cmf, dtype)), rep)
     outs = []
+    rays_f = _compiled_rays(plan, n_dev, chunk) if plan.visibility else None
     for i in range(n_calls):
         sl = slice(i * call, (i + 1) * call)
         chunk_px = jax.device_put(jax.tree.map(lambda a: a[sl], px), split)
-        outs.append(f(mat, env, lights, chunk_px, None, cmf, jax.device_put(jax.random.fold_in(key, i), rep)))
+        ckey = jax.device_put(jax.random.fold_in(key, i), rep)
+        vis = None
+        if rays_f is not None:
+            rays = jax.tree.map(np.asarray, rays_f(env, lights, chunk_px, ckey))
+            vis = jax.device_put(jax.tree.map(lambda a: jnp.asarray(a, dtype),
+                                              visibility(occluders, rays, np.asarray(chunk_px.position),
+                                                         np.asarray(chunk_px.normal))), split)
+        outs.append(f(mat, env, lights, chunk_px, vis, cmf, ckey))
     xyz = np.concatenate([np.asarray(o[0]) for o in outs])[:P]
     spec = None
     if outs[0][1] is not None:
@@ -132,7 +187,8 @@ def gbuffer(geometry, camera: Camera) -> GBuffer:
 
 def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | None, geometry,
                  camera: Camera, maps, cmf, *, seed: int = 0, dtype=jnp.float32,
-                 n_devices: int | None = None, chunk: int = DEFAULT_CHUNK, gb: GBuffer | None = None) -> Frame:
+                 n_devices: int | None = None, chunk: int = DEFAULT_CHUNK, gb: GBuffer | None = None,
+                 occluders=None) -> Frame:
     """Render one frame.
 
     **Arguments:**
@@ -142,14 +198,26 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
     - `camera`: :class:`~jkatana.render.camera.Camera`.
     - `maps`: ``(H, W, 3)`` array of (w, μ0, μ1) sampled at the pixels' UV.
     - `cmf`: ``(wl, 3)`` film weights (:func:`jkatana.render.film.film_weights`).
+    - `occluders`: :class:`~jkatana.render.gbuffer.Occluders` when ``plan.visibility``:
+      they hide what lies behind them from the camera (black pixels) and shadow
+      the traced directions.
 
     **Returns:** a :class:`Frame`.
     """
     t0 = time.perf_counter()
     gb = gb if gb is not None else gbuffer(geometry, camera)
-    t1 = time.perf_counter()
+    rays0, cast0 = (occluders.rays_cast, occluders.cast_s) if occluders is not None else (0, 0.0)
     H, W = gb.mask.shape
     m = gb.mask.reshape(-1)
+    blocked = np.zeros(H * W, bool)
+    if plan.visibility and occluders is not None:
+        # primary visibility: an occluder in front of the object (or of the sky) hides it
+        origin, _ = camera.rays()
+        d_occ = occluders.first_hit(np.broadcast_to(origin, (H * W, 3)), gb.ray.reshape(-1, 3))
+        d_obj = np.where(m, np.linalg.norm(gb.position.reshape(-1, 3) - origin, axis=-1), np.inf)
+        blocked = d_occ < d_obj
+        m = m & ~blocked
+    t1 = time.perf_counter()
     sel = np.nonzero(m)[0]
     xyz = np.zeros((H * W, 3), np.float32)
     spectra = np.zeros((H * W, env.basis.shape[-1]), np.float32) if plan.spectral and not plan.factored else None
@@ -161,12 +229,13 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
                     jnp.asarray(gb.normal.reshape(-1, 3)[sel], dtype),
                     jnp.asarray(gb.view.reshape(-1, 3)[sel], dtype),
                     mp[:, 0], mp[:, 1], mp[:, 2])
-        x, s = shade_pixels(plan, mat, env, lights, px, cmf, key, n_devices=n_devices, chunk=chunk)
+        x, s = shade_pixels(plan, mat, env, lights, px, cmf, key, n_devices=n_devices, chunk=chunk,
+                            occluders=occluders)
         xyz[sel] = x
         if spectra is not None and s is not None:
             spectra[sel] = s
     t2 = time.perf_counter()
-    bg = np.nonzero(~m)[0]
+    bg = np.nonzero(~m & ~blocked)[0]
     if len(bg):
         bx, bs = _compiled_background(spectra is not None)(env, jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype),
                                                            jnp.asarray(cmf, dtype))
@@ -175,6 +244,10 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
             spectra[bg] = np.asarray(bs)
     t3 = time.perf_counter()
     timing = {"gbuffer_s": t1 - t0, "shade_s": t2 - t1, "background_s": t3 - t2, "total_s": t3 - t0}
-    stats = {"pixels_shaded": int(len(sel)), "coverage": float(len(sel) / (H * W))}
-    return Frame(xyz.reshape(H, W, 3), gb.mask, None if spectra is None else spectra.reshape(H, W, -1),
+    if occluders is not None:
+        timing["visibility_rays"] = occluders.rays_cast - rays0
+        timing["visibility_cast_s"] = occluders.cast_s - cast0
+    stats = {"pixels_shaded": int(len(sel)), "coverage": float(len(sel) / (H * W)),
+             "occluded_pixels": int(blocked.sum())}
+    return Frame(xyz.reshape(H, W, 3), m.reshape(H, W), None if spectra is None else spectra.reshape(H, W, -1),
                  timing, stats)

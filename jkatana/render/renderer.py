@@ -46,6 +46,7 @@ class Prepared:
     plan: Plan
     cmf: np.ndarray
     load_s: float
+    occluders: object = None   # gbuffer.Occluders, or None: no visibility rays
 
 
 def _grid(scene: Scene) -> WavelengthGrid:
@@ -214,11 +215,17 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     plan = Plan(mode=mode, samples=int(samples), hiraji=hiraji, hamon=hamon, mirror=mirror,
                 env_sampling=True, factored=factored, lights=len(scene.lights),
                 calibration=scene.material["calibration"],
-                spectral=bool(scene.output["spectral"]) and not factored)
+                spectral=bool(scene.output["spectral"]) and not factored,
+                visibility=bool(scene.occluders))
+    occluders = None
+    if scene.occluders:
+        from jkatana.render.gbuffer import Occluders, occluder_mesh
+
+        occluders = Occluders(occluder_mesh(scene.occluders))
     env_info = {"channels": int(env.channels.shape[-1]), "factored": factored, "rank_residual": resid,
                 "grey": bool(factored and env_rank is None), "resolution": list(radiance.shape[:2])}
     return Prepared(scene, grid, dtype, geometry, maps, mat, env, env_info, lights, plan,
-                    film_weights(grid), time.perf_counter() - t0)
+                    film_weights(grid), time.perf_counter() - t0, occluders)
 
 
 def camera_for(scene: Scene, view: int = 0, views: int = 1) -> Camera:
@@ -252,7 +259,8 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
     cam = camera_for(scene, view, views)
     s = scene.render["seed"] if seed is None else seed
     return render_frame(prep.plan, prep.material, env, prep.lights, prep.geometry, cam, prep.maps, prep.cmf,
-                        seed=s + 7919 * view + 104729 * light, dtype=prep.dtype, chunk=scene.render["chunk"])
+                        seed=s + 7919 * view + 104729 * light, dtype=prep.dtype, chunk=scene.render["chunk"],
+                        occluders=prep.occluders)
 
 
 def exposure_for(prep: Prepared, frame: Frame) -> float:

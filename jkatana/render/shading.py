@@ -98,6 +98,9 @@ class Plan:
       and separable Smith G with Walter et al.'s 2007 rational G1 — the model
       Mitsuba 3's ``roughconductor`` uses; for validation against it).
     - `spectral`: also return spectra (full mode only).
+    - `visibility`: the scene has occluders: every traced light direction is
+      weighted by a host-computed visibility (:class:`Visibility`). ``False``
+      (no occluders) compiles no visibility input at all.
     """
 
     mode: str = "reference"
@@ -111,6 +114,7 @@ class Plan:
     rough_model: str = "paper"
     calibration: float | None = None
     spectral: bool = False
+    visibility: bool = False
 
 
 class Environment(eqx.Module):
@@ -154,6 +158,32 @@ class Pixels(NamedTuple):
     w: Float[Array, "P"]
     mu0: Float[Array, "P"]
     mu1: Float[Array, "P"]
+
+
+class Rays(NamedTuple):
+    """World directions the shader will trace for given pixels and key (see :func:`ray_directions`).
+
+    Pixel axis first everywhere (so one sharding splits them): ``mirror (P, 3)``
+    (mirror direction: the mirror hiraji and the prefiltered lookups),
+    ``lobe (P, S, 3)`` (lobe-sampled or the paper's jittered rays), ``env (P, S, 3)``
+    (environment samples of MIS; empty ``S = 0`` otherwise), ``lights (P, n, 3)`` and
+    ``light_dist (P, n)`` (distance to a point light, ``inf`` for directional ones).
+    """
+
+    mirror: Float[Array, "P 3"]
+    lobe: Float[Array, "P S 3"]
+    env: Float[Array, "P S2 3"]
+    lights: Float[Array, "P n 3"]
+    light_dist: Float[Array, "P n"]
+
+
+class Visibility(NamedTuple):
+    """1 where the direction of the matching :class:`Rays` entry reaches the environment/light, else 0."""
+
+    mirror: Float[Array, "P"]
+    lobe: Float[Array, "P S"]
+    env: Float[Array, "P S2"]
+    lights: Float[Array, "P n"]
 
 
 # ---------------------------------------------------------------- environment
@@ -509,25 +539,140 @@ def _mix_w(plan: Plan, px: Pixels):
 # ---------------------------------------------------------------- the shader
 
 
+def _frame(px: Pixels):
+    """Per-pixel tangent frame and the view direction in it."""
+    N = px.normal
+    t, b = _basis(N)
+    return (t, b, N), _to_local(px.view, t, b, N)
+
+
+def _mirror_ray(Vl, fr):
+    Rl = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
+    return Rl, _to_world(Rl, *fr)
+
+
+def _paper_grid(S: int):
+    nu = max(1, int(round(math.sqrt(S))))
+    return nu, -(-S // nu)
+
+
+def _paper_ray(plan: Plan, px: Pixels, Vl, fr, key, k):
+    """The k-th of the paper's jittered rays: ``(L_local, L_world, φ, μ)``."""
+    nu, nv = _paper_grid(plan.samples)
+    P = Vl.shape[0]
+    kk = jax.random.fold_in(key, k)
+    j = jax.random.uniform(kk, (P, 3), Vl.dtype)
+    su = ((k // nv) + j[:, 0]) / nu
+    sv = ((k % nv) + j[:, 1]) / nv
+    # lobe choice per sample (mixture), then a stratified point in the disk φ ≤ 2.5 μ
+    use0 = j[:, 2] < _mix_w(plan, px)
+    mu = jnp.where(use0, px.mu0, px.mu1)
+    phi = 2.5 * mu * jnp.sqrt(su)
+    psi = 2 * jnp.pi * sv
+    s = jnp.sin(phi)
+    h = jnp.stack([s * jnp.cos(psi), s * jnp.sin(psi), jnp.cos(phi)], -1)
+    Ll = _reflect(Vl, h)
+    return Ll, _to_world(Ll, *fr), phi, mu
+
+
+def _mis_offset(key, P, dtype):
+    """Randomised QMC: Roberts' R6 sequence with a per-pixel Cranley–Patterson rotation (one draw per pixel)."""
+    return jax.random.uniform(key, (P, 6), dtype)
+
+
+def _mis_rays(plan: Plan, env: Environment, px: Pixels, Vl, fr, offset, k):
+    """The k-th MIS pair: ``(Ll, Lw)`` from the lobe mixture, ``(Ll2, Lw2, pe2)`` from the environment (or None)."""
+    dtype = Vl.dtype
+    r = jnp.mod(offset + (k + 1).astype(dtype) * jnp.asarray(_R6, dtype), 1.0)
+    use0 = r[:, 0] < _mix_w(plan, px)
+    mu = jnp.where(use0, px.mu0, px.mu1)
+    h, _ = _rayleigh_sample(mu, r[:, 1], r[:, 2])
+    if plan.hamon and plan.rough_model == "beckmann":
+        h = jnp.where(use0[:, None], h, _beckmann_sample(px.mu1, r[:, 1], r[:, 2]))
+    Ll = _reflect(Vl, h)
+    Lw = _to_world(Ll, *fr)
+    if not plan.env_sampling:
+        return Ll, Lw, None, None, None
+    Lw2, pe2 = sample_environment(env, r[:, 3], r[:, 4], r[:, 5])
+    return Ll, Lw, _to_local(Lw2, *fr), Lw2, pe2
+
+
+def _light_ray(lights: Light, j: int, px: Pixels):
+    """Direction to light j (world), its 1/r² falloff and distance (inf for directional)."""
+    vec, kind = lights.vector[j], lights.kind[j]
+    to_l = vec[None, :] - px.position
+    r2 = jnp.sum(to_l * to_l, -1)
+    d_point = to_l / jnp.sqrt(jnp.maximum(r2, 1e-20))[:, None]
+    d_dir = jnp.broadcast_to(vec / jnp.linalg.norm(vec), d_point.shape)
+    Lw = jnp.where(kind > 0.5, d_dir, d_point)
+    falloff = jnp.where(kind > 0.5, 1.0, 1.0 / jnp.maximum(r2, 1e-20))
+    dist = jnp.where(kind > 0.5, jnp.inf, jnp.sqrt(r2))
+    return Lw, falloff, dist
+
+
+def _has_lobe(plan: Plan) -> bool:
+    return (plan.hiraji and not plan.mirror) or plan.hamon
+
+
+def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixels, key) -> Rays:
+    """Every direction :func:`shade` will look up for these pixels and this key, as :class:`Rays`.
+
+    Built from the same sampling helpers as :func:`shade` (same key → same
+    directions), so a host step can ray-cast them against occluders and hand
+    the result back to :func:`shade` as a :class:`Visibility`. Pure JAX.
+    """
+    fr, Vl = _frame(px)
+    P, dtype = Vl.shape[0], Vl.dtype
+    _, mirror = _mirror_ray(Vl, fr)
+    empty = jnp.zeros((P, 0, 3), dtype)
+    lobe, envd = empty, empty
+    ks = jnp.arange(plan.samples)
+    if plan.mode == "paper" and _has_lobe(plan):
+        lobe = jax.vmap(lambda k: _paper_ray(plan, px, Vl, fr, key, k)[1], out_axes=1)(ks)
+    elif plan.mode in ("reference", "lowrank") and _has_lobe(plan):
+        offset = _mis_offset(key, P, dtype)
+
+        def one(k):
+            _, Lw, _, Lw2, _ = _mis_rays(plan, env, px, Vl, fr, offset, k)
+            return Lw, (Lw2 if Lw2 is not None else jnp.zeros((P, 3), dtype))
+
+        lobe, envd = jax.vmap(one, out_axes=1)(ks)
+        if not plan.env_sampling:
+            envd = empty
+    n = plan.lights if lights is not None else 0
+    if n:
+        ls = [_light_ray(lights, j, px) for j in range(n)]
+        ldir = jnp.stack([x[0] for x in ls], 1)
+        ldist = jnp.stack([jnp.broadcast_to(x[2], (P,)) for x in ls], 1)
+    else:
+        ldir, ldist = empty, jnp.zeros((P, 0), dtype)
+    return Rays(mirror, lobe, envd, ldir, ldist)
+
+
 def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels,
-          cmf: Float[Array, "wl 3"], key) -> tuple[Array, Array | None]:
+          cmf: Float[Array, "wl 3"], key, vis: Visibility | None = None) -> tuple[Array, Array | None]:
     """Radiance of G-buffer pixels → ``(XYZ (P, 3), spectra (P, wl) or None)``.
 
     ``cmf`` are the XYZ weights (x̄ȳz̄ Δλ / ∫ȳ). Pure JAX; jit with ``plan``
     static. Differentiable in ``mat``, ``env.channels``/``env.basis``, ``lights``
-    and ``px`` (normals, maps).
+    and ``px`` (normals, maps). With ``plan.visibility``, ``vis`` holds the
+    visibility (0/1, or fractional) of each direction of :func:`ray_directions`
+    for the same pixels and key; every environment and light contribution along
+    that direction is multiplied by it (occluders are black: they block light
+    and neither emit nor reflect). In ``"prefiltered"`` mode the lobe's
+    visibility is approximated by that of the mirror direction.
     """
+    if plan.visibility and vis is None:
+        raise ValueError("plan.visibility needs a Visibility (see ray_directions)")
+    vis = vis if plan.visibility else None
     dtype = px.normal.dtype
     P = px.normal.shape[0]
-    N = px.normal
-    t, b = _basis(N)
-    Vl = _to_local(px.view, t, b, N)
+    fr, Vl = _frame(px)
     factored = plan.factored
     norms = _norms(plan, mat, px)
     if factored:
         # (T, J, 3): Fresnel folded with the basis spectra and the CMFs
         xtable = jnp.einsum("tl,jl,lc->tjc", mat.ftable, env.basis, cmf)
-        J = env.channels.shape[-1]
         acc = jnp.zeros((P, 3), dtype)
     else:
         acc = jnp.zeros((P, env.channels.shape[-1]), dtype)
@@ -544,110 +689,79 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
                 total = total + (a * weight)[:, None] * _table_lookup(mat.ftable, c) * E
         return total
 
+    def add_mirror_like(acc, weight, E, cos):
+        wv = jnp.where(Vl[:, 2] > 0, weight, 0.0)
+        if vis is not None:
+            wv = wv * vis.mirror
+        if factored:
+            return acc + wv[:, None] * jnp.einsum("pjc,pj->pc", _table_lookup(xtable, cos), E)
+        return acc + wv[:, None] * _table_lookup(mat.ftable, cos) * E
+
     # --- mirror hiraji: one deterministic lookup
     if plan.hiraji and plan.mirror:
-        Rl = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
-        Rw = _to_world(Rl, t, b, N)
-        E = env_lookup(env, Rw)
-        cos = jnp.clip(Vl[:, 2], 0.0, 1.0)
-        wv = jnp.where(Vl[:, 2] > 0, px.w, 0.0)
-        if factored:
-            acc = acc + wv[:, None] * jnp.einsum("pjc,pj->pc", _table_lookup(xtable, cos), E)
-        else:
-            acc = acc + wv[:, None] * _table_lookup(mat.ftable, cos) * E
+        _, Rw = _mirror_ray(Vl, fr)
+        acc = add_mirror_like(acc, px.w, env_lookup(env, Rw), jnp.clip(Vl[:, 2], 0.0, 1.0))
 
-    lobe = (plan.hiraji and not plan.mirror) or plan.hamon
-    if plan.mode == "prefiltered" and lobe:
+    S = plan.samples
+    ks = jnp.arange(S)
+    if plan.mode == "prefiltered" and _has_lobe(plan):
         # split sum: F(cos θv) × prefiltered env at the mirror direction, per lobe
-        Rl = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
-        Rw = _to_world(Rl, t, b, N)
+        _, Rw = _mirror_ray(Vl, fr)
         cos = jnp.clip(Vl[:, 2], 0.0, 1.0)
         for on, weight, mu in ((plan.hiraji and not plan.mirror, px.w, px.mu0), (plan.hamon, 1.0 - px.w, px.mu1)):
-            if not on:
-                continue
-            E = _lookup_prefiltered(env, mu, Rw)
-            wv = jnp.where(Vl[:, 2] > 0, weight, 0.0)
-            if factored:
-                acc = acc + wv[:, None] * jnp.einsum("pjc,pj->pc", _table_lookup(xtable, cos), E)
-            else:
-                acc = acc + wv[:, None] * _table_lookup(mat.ftable, cos) * E
-    elif plan.mode == "paper" and lobe:
-        S = plan.samples
-        nu = max(1, int(round(math.sqrt(S))))
-        nv = -(-S // nu)
-
-        def body(carry, k):
+            if on:
+                acc = add_mirror_like(acc, weight, _lookup_prefiltered(env, mu, Rw), cos)
+    elif plan.mode == "paper" and _has_lobe(plan):
+        def body(carry, xs):
             acc_, wsum = carry
-            kk = jax.random.fold_in(key, k)
-            j = jax.random.uniform(kk, (P, 3), dtype)
-            su = ((k // nv) + j[:, 0]) / nu
-            sv = ((k % nv) + j[:, 1]) / nv
-            # lobe choice per sample (mixture), then a stratified point in the disk φ ≤ 2.5 μ
-            use0 = j[:, 2] < _mix_w(plan, px)
-            mu = jnp.where(use0, px.mu0, px.mu1)
-            phi = 2.5 * mu * jnp.sqrt(su)
-            psi = 2 * jnp.pi * sv
-            s = jnp.sin(phi)
-            h = jnp.stack([s * jnp.cos(psi), s * jnp.sin(psi), jnp.cos(phi)], -1)
-            Ll = _reflect(Vl, h)
-            Lw = _to_world(Ll, t, b, N)
+            k, v = xs
+            Ll, Lw, phi, mu = _paper_ray(plan, px, Vl, fr, key, k)
             gauss = jnp.exp(-LN2 * (phi / jnp.maximum(mu, 1e-7)) ** 2)
             pdf = _lobe_pdf(plan, px, Ll, Vl)
             ok = (Ll[:, 2] > 0) & (pdf > 0)
             g = jnp.where(ok, gauss / jnp.where(ok, pdf, 1.0), 0.0)  # Gaussian weight × 1/pdf → throughput
+            if v is not None:
+                g = g * v
             return (acc_ + radiance_terms(Ll, Lw, g), wsum + gauss), None
 
-        (lob, wsum), _ = jax.lax.scan(body, (jnp.zeros_like(acc), jnp.zeros((P,), dtype)), jnp.arange(S))
+        xs = (ks, None if vis is None else vis.lobe.T)
+        (lob, wsum), _ = jax.lax.scan(body, (jnp.zeros_like(acc), jnp.zeros((P,), dtype)), xs)
         acc = acc + lob / jnp.maximum(wsum, 1e-30)[:, None]
-    elif lobe:  # reference / lowrank: MIS of lobe and environment sampling
-        S = plan.samples
+    elif _has_lobe(plan):  # reference / lowrank: MIS of lobe and environment sampling
+        offset = _mis_offset(key, P, dtype)
 
-        # Randomised quasi-Monte Carlo: Roberts' R6 Kronecker sequence with a per-pixel
-        # Cranley–Patterson rotation (one threefry draw per pixel, not per sample).
-        offset = jax.random.uniform(key, (P, 6), dtype)
-        alpha = jnp.asarray(_R6, dtype)
-
-        def body(acc_, k):
-            r = jnp.mod(offset + (k + 1).astype(dtype) * alpha, 1.0)
-            use0 = r[:, 0] < _mix_w(plan, px)
-            mu = jnp.where(use0, px.mu0, px.mu1)
-            h, _ = _rayleigh_sample(mu, r[:, 1], r[:, 2])
-            if plan.hamon and plan.rough_model == "beckmann":
-                h = jnp.where(use0[:, None], h, _beckmann_sample(px.mu1, r[:, 1], r[:, 2]))
-            Ll = _reflect(Vl, h)
-            Lw = _to_world(Ll, t, b, N)
+        def body(acc_, xs):
+            k, v1, v2 = xs
+            Ll, Lw, Ll2, Lw2, pe2 = _mis_rays(plan, env, px, Vl, fr, offset, k)
             pb = _lobe_pdf(plan, px, Ll, Vl)
             pe = env_pdf_map(env, Lw @ env.rotation.T) if plan.env_sampling else 0.0
             ok = (Ll[:, 2] > 0) & (pb > 0)
             wgt = jnp.where(ok, 1.0 / jnp.where(ok, pb + pe, 1.0), 0.0)
+            if v1 is not None:
+                wgt = wgt * v1
             acc_ = acc_ + radiance_terms(Ll, Lw, wgt)
             if plan.env_sampling:
-                Lw2, pe2 = sample_environment(env, r[:, 3], r[:, 4], r[:, 5])
-                Ll2 = _to_local(Lw2, t, b, N)
                 pb2 = _lobe_pdf(plan, px, Ll2, Vl)
                 ok2 = (Ll2[:, 2] > 0) & (pe2 > 0)
                 wgt2 = jnp.where(ok2, 1.0 / jnp.where(ok2, pb2 + pe2, 1.0), 0.0)
+                if v2 is not None:
+                    wgt2 = wgt2 * v2
                 acc_ = acc_ + radiance_terms(Ll2, Lw2, wgt2)
             return acc_, None
 
-        lob, _ = jax.lax.scan(body, jnp.zeros_like(acc), jnp.arange(S))
+        xs = (ks, None, None) if vis is None else (ks, vis.lobe.T, vis.env.T if plan.env_sampling else None)
+        lob, _ = jax.lax.scan(body, jnp.zeros_like(acc), xs)
         acc = acc + lob / S
 
-    # --- analytic lights (point: kind 0, directional: kind 1)
+    # --- analytic lights (point: kind 0, directional: kind 1); a delta hiraji lobe never sees one
     if plan.lights and lights is not None:
         for j in range(plan.lights):
-            vec, kind, spec = lights.vector[j], lights.kind[j], lights.spectrum[j]
-            to_l = vec[None, :] - px.position
-            r2 = jnp.sum(to_l * to_l, -1)
-            d_point = to_l / jnp.sqrt(jnp.maximum(r2, 1e-20))[:, None]
-            d_dir = jnp.broadcast_to(vec / jnp.linalg.norm(vec), d_point.shape)
-            Lw = jnp.where(kind > 0.5, d_dir, d_point)
-            falloff = jnp.where(kind > 0.5, 1.0, 1.0 / jnp.maximum(r2, 1e-20))
-            Ll = _to_local(Lw, t, b, N)
-            terms = _fcos_scalar(plan, mat, px, Ll, Vl, norms)
-            if plan.hiraji and plan.mirror:
-                pass  # a delta lobe never sees a point light
-            for a, c in terms:
+            Lw, falloff, _ = _light_ray(lights, j, px)
+            if vis is not None:
+                falloff = falloff * vis.lights[:, j]
+            Ll = _to_local(Lw, *fr)
+            spec = lights.spectrum[j]
+            for a, c in _fcos_scalar(plan, mat, px, Ll, Vl, norms):
                 Fs = _table_lookup(mat.ftable, c) * spec[None, :]
                 if factored:
                     acc = acc + (a * falloff)[:, None] * (Fs @ cmf)
