@@ -55,15 +55,17 @@ def test_demo_ji_mirrors_sky_near_horizon_and_sun_lights_only_the_hamon(demo_gbu
     elev = np.degrees(np.arcsin(np.clip(r[..., 1], -1, 1)))
     ji = m & (v > 0.35) & (v < 0.6)
     ha = m & (v > 0.8)
-    # the ji mirrors the sky a few degrees above the horizon, the edge side the horizon itself
-    assert 0 < np.median(elev[ji]) < 20 and np.percentile(elev[ha], 5) < 0 < np.percentile(elev[ha], 95)
+    # the ji mirrors sky 10-25° up (a gradient, not the zenith), the edge side lower still
+    assert 10 < np.median(elev[ji]) < 25 and 0 < np.median(elev[ha]) < np.median(elev[ji])
+    assert np.percentile(elev[ji], 99) - np.percentile(elev[ji], 1) > 5
     e = scene.environment
     sun = sun_direction(e["elevation_deg"], e["azimuth_deg"])
     facet = 0.5 * np.arccos(np.clip(r @ sun, -1, 1))  # facet angle between mirror and sun (rad)
     mu0 = PAPER_PARAMETERS["mu0"]
     hamon_mu = float(np.median(default_map((64, 256)).mu1[-8:]))
-    # no glint on the ji: the sun is ≥ 3 μ0 away in facet angle (paper lobe < 2 % of its peak) ...
-    assert facet[ji].min() > 3 * mu0
+    # the sun glints on the ji only through its lobe's tail: ≥ 3 μ0 away in facet angle everywhere
+    # (paper lobe < 0.2 % of its peak), ≥ 4 μ0 for most of the ji ...
+    assert facet[ji].min() > 3 * mu0 and np.median(facet[ji]) > 4 * mu0
     # ... but within ~1.7 μ1 of the hamon's mirror directions: the hamon's lobe catches it
     assert np.median(facet[ha]) < 1.7 * hamon_mu
     assert e["type"] == "sky" and DEMO_SCENE["film"]["exposure"] == "auto"

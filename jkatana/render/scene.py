@@ -384,23 +384,25 @@ def default_scene() -> Scene:
     return scene_from_dict(DEMO_SCENE)
 
 
-#: The demo scene: the built-in blade's upper ~28 cm with the kissaki, on a diagonal, seen from
-#: in front (+Z, the omote), a little toward the tip and 24° below. The hiraji's normals tilt
-#: 7–12° towards the edge (−Y), so from 24° below the ji mirrors the sky a few degrees above the
-#: horizon and the edge side mirrors the horizon/ground: a soft horizon gradient across the flat
-#: (the cue that makes polished steel read as a mirror), the shinogi-ji and mune a bluer sky. The
-#: afternoon sun (elevation 26°, compass azimuth 225°) stands ≥ 0.155 rad (median 0.25 rad) in
-#: facet angle from the ji pixels' mirror directions: far outside μ0 = 0.05 rad, so the ji shows
-#: no glint, but at ~1.5 μ1 of the built-in hamon's wider lobe (μ1 ≈ 0.2 rad, see default_map),
-#: which therefore glows as a soft bright band (tests/test_render_demo.py checks these angles).
-#: Exposure is automatic: the 75th percentile of the blade pixels' Y maps to 0.6 (renderer.exposure_for).
+#: The demo scene: the built-in blade's upper ~29 cm with the kissaki, on a diagonal (roll 26°),
+#: seen from in front (+Z, the omote), 20° toward the tip and 32° below. The hiraji's normals tilt
+#: 7–12° towards the edge (−Y), so from below the ji mirrors the sky 12–22° up and the hamon side
+#: 6–14° up: a sky gradient across and along the flat (the cue that makes polished steel read as
+#: a mirror), the shinogi-ji and mune a deeper blue. The sun (elevation 34°, compass azimuth 220°)
+#: stands ≥ 0.16 rad (median 0.22 rad) in facet angle from the ji pixels' mirror directions: the
+#: paper's μ0 = 0.05 rad lobe lets its tail through only as a white streak along the lower ji,
+#: where that angle is smallest (~3 μ0), while the sun sits at ~1.4 μ1 (median 0.28 rad) of the
+#: built-in hamon's wider lobe (μ1 ≈ 0.2 rad, see default_map), which therefore glows as a soft
+#: warm band (with the sun switched off the hamon is no brighter than the ji).
+#: tests/test_render_demo.py checks these angles. Exposure is automatic: the 75th percentile of
+#: the blade pixels' Y maps to 0.6 (jkatana.render.renderer.exposure_for).
 DEMO_SCENE: dict = {
     "geometry": {"mesh": "builtin:katana"},
     "material": {"map": "builtin", "optical_constants": "Fe-Johnson"},
-    "environment": {"type": "sky", "elevation_deg": 26.0, "azimuth_deg": 225.0, "turbidity": 3.0,
+    "environment": {"type": "sky", "elevation_deg": 34.0, "azimuth_deg": 220.0, "turbidity": 3.0,
                     "albedo": 0.1, "resolution": [256, 512]},
     "camera": {"type": "orbit", "target": [0.59, -0.025, 0.0], "distance": 0.33, "azimuth_deg": 20.0,
-               "elevation_deg": -24.0, "roll_deg": 26.0, "fov_deg": 30.0, "resolution": [800, 600]},
+               "elevation_deg": -32.0, "roll_deg": 26.0, "fov_deg": 30.0, "resolution": [800, 600]},
     "render": {"mode": "reference", "samples": 64},
     "film": {"colourspace": "sRGB", "exposure": "auto"},
     "output": {"directory": "out/demo", "name": "demo"},
