@@ -25,6 +25,23 @@ and the mean linear Y of hiraji pixels (w = 1 on the ji, between the shinogi
 and the hamon) and of hamon pixels (w = 0), and their ratio.
 
 Run: ``python experiments/render_paper_check.py [--quick]`` (``--quick``: 400×300, 16 spp).
+
+Measured (2026-11-22, demo scene: sun 34°/220°, camera 32° below; 800×600, 64 spp;
+19423 ji and 17285 hamon pixels; about 1 min on 2 loaded cores):
+
+| frame        | ji luma | hamon luma | hamon/ji Y | over baseline |
+|--------------|---------|------------|------------|---------------|
+| all_hiraji   | 0.700   | 0.728      | 1.084      | 1 (baseline)  |
+| normalised   | 0.700   | 0.728      | 1.083      | 1.00          |
+| calibrated   | 0.747   | 0.646      | 0.727      | 0.67          |
+| builtin_map  | 0.504   | 0.737      | 2.404      | 2.22          |
+
+With the paper's parameters the hamon is invisible in the normalised convention
+(the frame equals the all-hiraji one to 0.1 %) and in the calibrated one it is a
+slightly *darker* band (β/χ = 0.54, softened by Fresnel and geometry), its linear
+level 27× below the normalised one so that auto exposure blows the sky out. The
+built-in map's μ1 = 0.2 rad makes it a band 2.2× brighter than the ji under the
+demo sun. Images: ``experiments/output/render_paper_check_*.png``.
 """
 
 from __future__ import annotations
