@@ -15,7 +15,10 @@ Conventions matched (measured with Mitsuba 3.9.1):
   ``load_envmap(..., upsampling="Jakob 2019")`` (see :mod:`jkatana.light.upsampling`);
   Mitsuba's latitude–longitude mapping has u = atan2(x, −z)/2π, half a turn
   from :mod:`jkatana.light.envmap`'s (the image centre looks along +Z, not −Z):
-  the comparison turns jkatana's copy by 180° about +Y;
+  the comparison turns jkatana's copy by 180° about +Y. Its rows are
+  corner-aligned (row j at v = j/(H − 1), ours at (j + ½)/H; columns agree):
+  not compensated here — a shift below half a row, zero at the horizon
+  (``tests/test_render_mitsuba.py`` pins both facts);
 - Beckmann α = √2 × per-axis RMS slope (Mitsuba's parameter) is the α of
   :func:`jkatana.models.beckmann`; masking is separable Smith with Walter's
   rational G1 on both sides (``Plan(rough_model="beckmann")``);
