@@ -6,16 +6,23 @@ same bake), headless EGL — Mesa llvmpipe when there is no GPU. Two views at
 800×600: the demo camera (the blade covers a few % of the frame) and a
 close-up in which the flat fills the frame (as appraisers look).
 
-Cases (each on both views):
+Cases (each on both views); all but ``forward`` and ``msaa4`` use deferred shading (a G-buffer pass,
+then the shader once per covered pixel, see :mod:`jkatana.interactive.glrender`):
 
 - ``full``: rank 3, roughness (prefiltered μ levels), blend map — the default;
+- ``forward``: ``full`` shaded in the forward pass (the shader on every fragment llvmpipe rasterises:
+  the path before deferred shading; the windowed Viewer still draws this way);
 - ``rank1`` / ``rank2`` / ``rank4``: spectral basis rank;
 - ``one_tap``: one isotropic prefiltered tap instead of the two-tap anisotropic lobe;
 - ``no_rough``: mirror-like (narrowest μ level); ``no_blend``: hiraji everywhere;
 - ``msaa4``: ``full`` with pyrender's 4× MSAA framebuffer (what pyrender does by default).
 
-Time: one ``OffscreenRenderer.render`` call (draw + resolve + read-back of the
-800×600 RGB frame), median of repeats; fps = 1/median. Error: ΔE2000 (mean,
+Time: one ``OffscreenRenderer.render`` call (draw + shade + read-back of the
+800×600 RGB frame), median of repeats; fps = 1/median. ``cpu_s``: process CPU
+time per frame (user + system, llvmpipe's threads included) — unlike the wall
+time it hardly depends on what else runs on the machine; ``cores / cpu_s`` is
+the frame rate the frame's work allows on an idle machine with perfect
+parallelism (an upper bound). Error: ΔE2000 (mean,
 p95) over the blade's pixels of the GL frame against the direct per-pixel JAX
 evaluation (:mod:`jkatana.interactive.reference`: exact Fresnel, 61 bands,
 lobe quadrature of the unfiltered environment) at a reduced resolution
@@ -36,6 +43,7 @@ from benchmarks._harness import machine_facts, record, timeit
 
 CONFIGS = {
     "full": dict(rank=3, rough=True, blend=True, two_tap=True, samples=0),
+    "forward": dict(rank=3, rough=True, blend=True, two_tap=True, samples=0, deferred=False),
     "rank1": dict(rank=1, rough=True, blend=True, two_tap=True, samples=0),
     "rank2": dict(rank=2, rough=True, blend=True, two_tap=True, samples=0),
     "rank4": dict(rank=4, rough=True, blend=True, two_tap=True, samples=0),
@@ -48,6 +56,20 @@ CONFIGS = {
 
 def _log(*a):
     print("[bench_interactive]", *a, file=sys.stderr, flush=True)
+
+
+def _cpu() -> float:
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _cpu_per_frame(fn, n: int) -> float:
+    c = _cpu()
+    for _ in range(n):
+        fn()
+    return (_cpu() - c) / n
 
 
 def run(quick: bool = False) -> list[dict]:
@@ -78,27 +100,30 @@ def run(quick: bool = False) -> list[dict]:
                 continue
             st = G.ShadingState(baked, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
                                 two_tap=cfg["two_tap"])
-            r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"])
+            r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"],
+                                         deferred=cfg.get("deferred"))
             scene = G.build_scene(sc.mesh, view)
             ctx = ctx or describe_context()
             tm = timeit(lambda: r.render(scene), repeats=reps, warmup=2)
+            cpu_s = _cpu_per_frame(lambda: r.render(scene), 5)
             frame = r.render(scene)
             coverage = float(np.any(frame != frame[0, 0], -1).mean())
             r.delete()
-            r2 = G.BakedOffscreenRenderer(st, *err_res, samples=cfg["samples"])
+            r2 = G.BakedOffscreenRenderer(st, *err_res, samples=cfg["samples"], deferred=cfg.get("deferred"))
             img = r2.render(G.build_scene(sc.mesh, small))
             r2.delete()
             de = R.delta_e_2000(img, ref)[gb["mask"]]
             err = {"dE00_mean": float(de.mean()), "dE00_p95": float(np.percentile(de, 95)),
                    "dE00_max": float(de.max())}
             fps = 1.0 / tm["median"]
-            _log(f"{vname:8s} {cname:9s} {fps:6.1f} fps  ΔE mean {err['dE00_mean']:.2f} p95 {err['dE00_p95']:.2f}"
-                 f"  (load {os.getloadavg()[0]:.1f})")
+            _log(f"{vname:8s} {cname:9s} {fps:6.1f} fps  cpu {1e3 * cpu_s:5.1f} ms/frame  ΔE mean "
+                 f"{err['dE00_mean']:.2f} p95 {err['dE00_p95']:.2f}  (load {os.getloadavg()[0]:.1f})")
             rows.append(record("bench_interactive", {"view": vname, "config": cname, **cfg,
                                                      "width": view.width, "height": view.height},
                                time_s=tm, error=err,
                                reference=f"per-pixel JAX quadrature, 61 bands, {err_res[0]}×{err_res[1]}",
-                               fps=fps, blade_coverage=coverage, loadavg_1min=os.getloadavg()[0],
+                               fps=fps, cpu_s=cpu_s, idle_fps_bound=(os.cpu_count() or 1) / cpu_s,
+                               blade_coverage=coverage, loadavg_1min=os.getloadavg()[0],
                                gl=ctx, bake_s=bake_s, reference_s=ref_s,
                                lp_num_threads=os.environ.get("LP_NUM_THREADS", "default")))
     # fixed cost per frame: the same renderer with the blade out of the picture (clear + read-back)
@@ -107,9 +132,10 @@ def run(quick: bool = False) -> list[dict]:
     r = G.BakedOffscreenRenderer(st, 800, 600)
     scene = G.build_scene(sc.mesh, away)
     tm = timeit(lambda: r.render(scene), repeats=reps, warmup=2)
+    cpu_s = _cpu_per_frame(lambda: r.render(scene), 5)
     r.delete()
-    _log(f"empty frame (clear + read-back): {1e3 * tm['median']:.1f} ms")
+    _log(f"empty frame (vertex processing, clears, read-back): {1e3 * tm['median']:.1f} ms, cpu {1e3 * cpu_s:.1f} ms")
     rows.append(record("bench_interactive", {"view": "empty", "config": "full", "width": 800, "height": 600},
-                       time_s=tm, fps=1.0 / tm["median"], loadavg_1min=os.getloadavg()[0], gl=ctx))
+                       time_s=tm, fps=1.0 / tm["median"], cpu_s=cpu_s, loadavg_1min=os.getloadavg()[0], gl=ctx))
     rows.append(record("bench_interactive", {"machine": True}, **machine_facts()))
     return rows

@@ -16,7 +16,8 @@ mirror direction of the environment's key light), renders
 with the same camera, the same spectral environment (both look it up with
 :func:`jkatana.light.envmap.direction_to_uv`) and ONE fixed exposure: the
 reference's auto exposure (Y at the blade's 75th percentile → 0.6), computed
-once and used by both displays. ΔE2000 over the pixels both call blade.
+once and used by both displays. ΔE2000 over the pixels both call blade, the GL
+frame as it is displayed (8 bits) against the reference's unrounded display values.
 
 Saves, per case, ``GL | reference | ΔE×25`` (PNG; background grey in the ΔE
 panel) and ``summary.json``.
@@ -74,11 +75,11 @@ def main(argv=None) -> int:
             ref_s = time.perf_counter() - t
             xyz = 0.5 * (fa.xyz + fb.xyz)
             exposure = auto_exposure(xyz, fa.mask, key=0.6, percentile=75.0)
-            ref = A.display8(xyz, exposure)
+            ref = A.display255(xyz, exposure)
             row = {"env": env_name, "view": vname, "exposure": exposure, "reference_s": round(ref_s, 1),
                    "reference": f"jkatana.render reference mode, 2 × {args.samples} spp"}
             # Monte-Carlo noise of the 2-seed mean: ΔE between the two halves / 2 (independent, equal variance)
-            half, _ = A.compare(A.display8(fa.xyz, exposure), A.display8(fb.xyz, exposure), fa.mask)
+            half, _ = A.compare(A.display255(fa.xyz, exposure), A.display255(fb.xyz, exposure), fa.mask)
             row["reference_noise_est"] = {k: (v / 2 if k != "pixels" else v) for k, v in half.items()}
             for tag, rank, two in (("rank3", 3, True), ("rank4", 4, True), ("one_tap", 3, False)):
                 st = G.ShadingState(baked, refl, exposure=exposure, rank=rank, two_tap=two)
@@ -89,7 +90,7 @@ def main(argv=None) -> int:
                 if tag == "rank3":
                     diff = np.clip(de * 25, 0, 255).astype(np.uint8)[..., None].repeat(3, -1)
                     diff[~m] = 40
-                    Image.fromarray(np.concatenate([img, ref, diff], 1)).save(out / f"{env_name}_{vname}.png")
+                    Image.fromarray(np.concatenate([img, A.display8(xyz, exposure), diff], 1)).save(out / f"{env_name}_{vname}.png")
             summary.append(row)
             print(f"{env_name:7s} {vname:6s} px={row['rank3']['pixels']:6d}  rank3 ΔE mean "
                   f"{row['rank3']['mean']:.2f} p95 {row['rank3']['p95']:.2f} max {row['rank3']['max']:.1f} | rank4 "

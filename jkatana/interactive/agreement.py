@@ -49,16 +49,22 @@ def reference_frame(radiance: np.ndarray, view: View, *, mode: str = "reference"
     return render_view(prep)
 
 
-def display8(xyz: np.ndarray, exposure: float) -> np.ndarray:
-    """:func:`jkatana.render.film.display` (sRGB) then 8 bits, as the render CLI writes its PNG."""
+def display255(xyz: np.ndarray, exposure: float) -> np.ndarray:
+    """:func:`jkatana.render.film.display` (sRGB) × 255, NOT rounded: the reference side of a comparison
+    (the GL frame's own 8-bit rounding then counts as its error; rounding both would add a second one)."""
     from jkatana.render.film import display
-    from jkatana.spectral.colorimetry import to_png8
 
-    return to_png8(display(xyz, "sRGB", None, exposure=exposure))
+    return 255.0 * np.clip(display(xyz, "sRGB", None, exposure=exposure), 0.0, 1.0)
+
+
+def display8(xyz: np.ndarray, exposure: float) -> np.ndarray:
+    """:func:`display255` rounded to 8 bits, as the render CLI writes its PNG."""
+    return np.round(display255(xyz, exposure)).astype(np.uint8)
 
 
 def compare(gl8: np.ndarray, ref8: np.ndarray, mask: np.ndarray) -> dict:
-    """ΔE2000 statistics over ``mask`` and the ΔE image."""
+    """ΔE2000 statistics over ``mask`` and the ΔE image; images are sRGB-encoded on a 0–255 scale
+    (uint8, or float as :func:`display255`)."""
     from jkatana.interactive.reference import delta_e_2000
 
     de = delta_e_2000(gl8, ref8)
@@ -72,7 +78,7 @@ def gl_frame(state, view: View, mesh, *, return_mask: bool = False):
     from jkatana.interactive import glrender as G
 
     r = G.BakedOffscreenRenderer(state, view.width, view.height)
-    img = r.render(G.build_scene(mesh, view))
+    img = r.render(G.build_scene(mesh, view), mask=return_mask)
     mask = r.last_mask.copy() if return_mask else None
     r.delete()
     return (img, mask) if return_mask else img

@@ -396,6 +396,21 @@ class SampleCountRenderer(Renderer):
         self._gtex = None
         self._main_fb_dims = (None, None)
 
+    def _screen_box(self, scene, w, h):
+        """``(x, y, width, height)`` pixel rectangle holding every mesh's projected world bounding box,
+        or None when a corner lies behind the camera (then the whole viewport is shaded)."""
+        V, P = self._get_camera_matrices(scene)
+        lo, hi = scene.bounds
+        corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        clip = corners @ (P @ V).T
+        if np.any(clip[:, 3] <= 1e-9):
+            return None
+        ndc = clip[:, :2] / clip[:, 3:4]
+        x0, y0 = np.floor((ndc.min(0) * 0.5 + 0.5) * (w, h)).astype(int) - 1
+        x1, y1 = np.ceil((ndc.max(0) * 0.5 + 0.5) * (w, h)).astype(int) + 1
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+        return (int(x0), int(y0), int(max(x1 - x0, 0)), int(max(y1 - y0, 0)))
+
     def _read_main_framebuffer(self, scene, flags):
         from pyrender.constants import RenderFlags
 
@@ -413,6 +428,10 @@ class SampleCountRenderer(Renderer):
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthMask(GL.GL_FALSE)
         GL.glDepthFunc(GL.GL_GREATER)          # only where the G-buffer pass drew (its depth < 1)
+        box = self._screen_box(scene, w, h)    # and only inside the meshes' projected bounding box
+        if box is not None:
+            GL.glEnable(GL.GL_SCISSOR_TEST)
+            GL.glScissor(*box)
         GL.glDisable(GL.GL_BLEND)
         program._bind()
         GL.glUniform3fv(GL.glGetUniformLocation(program._program_id, "cam_pos"), 1,
@@ -421,12 +440,14 @@ class SampleCountRenderer(Renderer):
         GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
         GL.glBindVertexArray(0)
         program._unbind()
+        GL.glDisable(GL.GL_SCISSOR_TEST)
         GL.glDepthFunc(GL.GL_LESS)
         GL.glDepthMask(GL.GL_TRUE)
         GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
         GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
-        buf = GL.glReadPixels(0, 0, w, h, GL.GL_RGB, GL.GL_UNSIGNED_BYTE)
-        color = np.frombuffer(buf, np.uint8).reshape(h, w, 3)[::-1]
+        # RGBA, the renderbuffer's own layout: a straight copy in Mesa (RGB would be converted per pixel)
+        buf = GL.glReadPixels(0, 0, w, h, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)
+        color = np.frombuffer(buf, np.uint8).reshape(h, w, 4)[::-1, :, :3]
         if self.want_mask:
             d = GL.glReadPixels(0, 0, w, h, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
             self.last_mask = (np.frombuffer(d, np.float32).reshape(h, w) < 1.0)[::-1].copy()
@@ -467,15 +488,20 @@ class BakedOffscreenRenderer:
         r = SampleCountRenderer(width, height, samples=samples, deferred=deferred)
         r._program_cache = BakedProgramCache(state)
         r._program_cache.deferred = deferred
-        r.want_mask = deferred
         self._r._renderer = r
 
     @property
     def last_mask(self):
+        """``(H, W)`` bool: the pixels the mesh covered in the last :meth:`render` with ``mask=True``."""
         return self._r._renderer.last_mask
 
-    def render(self, scene) -> np.ndarray:
-        """One frame, ``(H, W, 3)`` uint8 display RGB (row 0 at the top)."""
+    def render(self, scene, mask: bool = False) -> np.ndarray:
+        """One frame, ``(H, W, 3)`` uint8 display RGB (row 0 at the top); ``mask=True`` (deferred only)
+        also reads the depth buffer back into :attr:`last_mask` (one more read-back: off for timing)."""
+        r = self._r._renderer
+        if mask and not r.deferred:
+            raise ValueError("mask=True needs the deferred renderer")
+        r.want_mask = bool(mask)
         color, _ = self._r.render(scene)
         return color
 

@@ -49,6 +49,10 @@ uniform float jk_n_transfer;
 
 const float JK_PI = 3.14159265358979;
 
+// Every table is sampled with textureLod(…, 0.0): none has mipmaps and minification and magnification
+// filters are both linear, so the result is texture()'s, without the per-fragment derivatives and LOD
+// that llvmpipe would otherwise compute for every fetch.
+
 float level_of(float mu)
 {
     return clamp((log(max(mu, 1e-6)) - jk_log_mu_first) / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
@@ -57,27 +61,27 @@ float level_of(float mu)
 vec4 lobe(float layer, float cv, float lvl)
 {
     vec2 st = vec2((cv * (jk_n_cos - 1.0) + 0.5) / jk_n_cos, (lvl + 0.5) / jk_n_levels);
-    return texture(jk_lut, vec3(st, layer));
+    return textureLod(jk_lut, vec3(st, layer), 0.0);
 }
 
 float encode1(float x)
 {
     float s = sqrt(clamp(x, 0.0, 1.0));
-    return texture(jk_transfer, vec2((s * (jk_n_transfer - 1.0) + 0.5) / jk_n_transfer, 0.5)).r;
+    return textureLod(jk_transfer, vec2((s * (jk_n_transfer - 1.0) + 0.5) / jk_n_transfer, 0.5), 0.0).r;
 }
 
 vec3 env_xyz(vec3 d, float lz, vec4 a)
 {
     vec3 p = vec3(0.5 + atan(d.x, -d.z) / (2.0 * JK_PI), acos(clamp(d.y, -1.0, 1.0)) / JK_PI, lz);
-    vec3 xyz = a.x * texture(jk_env0, p).rgb;
+    vec3 xyz = a.x * textureLod(jk_env0, p, 0.0).rgb;
 #if JK_RANK > 1
-    xyz += a.y * texture(jk_env1, p).rgb;
+    xyz += a.y * textureLod(jk_env1, p, 0.0).rgb;
 #endif
 #if JK_RANK > 2
-    xyz += a.z * texture(jk_env2, p).rgb;
+    xyz += a.z * textureLod(jk_env2, p, 0.0).rgb;
 #endif
 #if JK_RANK > 3
-    xyz += a.w * texture(jk_env3, p).rgb;
+    xyz += a.w * textureLod(jk_env3, p, 0.0).rgb;
 #endif
     return xyz;
 }
@@ -91,7 +95,7 @@ vec4 jk_shade(vec3 N, vec3 P, vec2 uv)
     if (cv > 0.0) {
         vec3 R0 = 2.0 * cv * N - Vd;
         vec3 R = jk_env_rot * R0;
-        vec3 m = texture(jk_map, uv).rgb;
+        vec3 m = textureLod(jk_map, uv, 0.0).rgb;
 #if JK_BLEND
         float w = m.r;
 #else
