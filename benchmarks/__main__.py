@@ -52,6 +52,10 @@ def bench_add_arguments(p: argparse.ArgumentParser) -> None:
                         f"(default {TOTAL_BUDGET['quick']:.0f} quick, {TOTAL_BUDGET['full']:.0f} full)")
     p.add_argument("--timeout", type=float, default=None,
                    help="cap on any one module's budget in seconds (default: none beyond its share)")
+    p.add_argument("--allow-timeout", action="store_true",
+                   help="exit 0 when modules only ran out of their time budget (their partial records "
+                        "and the timeout are still recorded and reported); a module that errors "
+                        "still fails the run. For smoke runs on a slow or shared machine (CI).")
 
 
 def _pump(stream, sink, tail: collections.deque) -> None:
@@ -167,6 +171,10 @@ def bench_run(args: argparse.Namespace) -> int:
         print(f"[bench] report: {paths['report']}", file=sys.stderr)
     if failed:
         print(f"[bench] FAILED: {', '.join(failed)}", file=sys.stderr)
+        errors = [k for k, r in results["benchmarks"].items() if r["status"] not in ("ok", "timeout")]
+        if args.allow_timeout and not errors:
+            print("[bench] only time-budget overruns (--allow-timeout): exit 0", file=sys.stderr)
+            return 0
         return 1
     return 0
 
