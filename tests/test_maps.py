@@ -119,3 +119,42 @@ def test_cli_map_from_photo_with_region_fits(tmp_path, photo, capsys):
     bad.write_text(json.dumps({"beta": -1}))
     assert main(["map", str(path), "-o", str(out), "--hamon", str(bad)]) == 2
     assert "bad.json" in capsys.readouterr().err
+
+
+def _bayer_dng(path, green, *, black=(512, 510, 514, 508), white=16383):
+    """An RGGB mosaic whose green photosites carry ``green`` (0..1) per 2×2 block; R, B carry other values."""
+    from jkatana.measure.goniometer import write_dng
+
+    h, w = green.shape
+    mosaic = np.zeros((2 * h, 2 * w))
+    b = np.asarray(black, float)  # per CFA position: R, G1, G2, B
+    span = white - b
+    mosaic[0::2, 0::2] = b[0] + span[0] * 0.9 * (1 - green)  # red: deliberately anti-correlated
+    mosaic[0::2, 1::2] = b[1] + span[1] * green
+    mosaic[1::2, 0::2] = b[2] + span[2] * green
+    mosaic[1::2, 1::2] = b[3] + span[3] * 0.05
+    write_dng(path, np.round(mosaic).astype(np.uint16), black=black, white=white)
+
+
+def test_raw_photo_through_the_measurement_decoder(tmp_path, photo):
+    img, truth = photo
+    half = img[::2, ::2]
+    path = tmp_path / "photo.dng"
+    _bayer_dng(path, half)
+    y = read_photo(path)
+    # green only, black per channel subtracted, /(white − black): back to the image within 14-bit rounding
+    assert y.shape == half.shape
+    assert np.max(np.abs(y - half)) < 1.0 / (16383 - 514)
+    m = map_from_photo(y, resolution=(150, 600), crop=(50, 25, 650, 175), expected_aspect=4.0)
+    assert np.mean(np.abs(m.w - truth[::2, ::2])) < 0.05
+
+
+def test_raw_photo_with_saturated_green_is_refused(tmp_path, photo):
+    img, _ = photo
+    half = img[::2, ::2].copy()
+    half[10, 10] = 1.2  # clips at the white level
+    path = tmp_path / "over.dng"
+    _bayer_dng(path, np.minimum(half, 1.0))
+    with pytest.raises(InputError, match="saturated") as err:
+        read_photo(path)
+    assert "over.dng" in str(err.value)

@@ -9,7 +9,7 @@ MAP_HELP = "Reflectance map (w and per-pixel parameters, EXR) from a diffuse-lit
 
 
 def map_add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("photo", nargs="?", help="photo under diffuse light (.exr, 16-bit .png/.tif); "
+    p.add_argument("photo", nargs="?", help="photo under diffuse light (.exr, 16-bit .png/.tif, or camera RAW via rawpy); "
                    "omit with --default")
     p.add_argument("-o", "--output", required=True, help="output map (.exr)")
     p.add_argument("--default", action="store_true", help="write the procedural default map instead")

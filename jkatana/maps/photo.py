@@ -25,7 +25,8 @@ LUMA_709 = np.array([0.2126, 0.7152, 0.0722])
 
 
 def read_photo(path: str | Path) -> np.ndarray:
-    """Linear luminance (H, W) of an EXR, 16-bit PNG or TIFF photo (8-bit images are decoded sRGB)."""
+    """Linear luminance (H, W) of an EXR, 16-bit PNG or TIFF photo (8-bit images are decoded sRGB),
+    or the green signal of a camera RAW (see :func:`_raw_green`)."""
     path = Path(path)
     if not path.is_file():
         raise InputError("photo not found", path=path)
@@ -52,9 +53,11 @@ def read_photo(path: str | Path) -> np.ndarray:
         with Image.open(path) as im:
             img = np.asarray(im)
         img = _normalise_int(img, path)
+    elif suffix in RAW_SUFFIXES:
+        return _raw_green(path)
     else:
-        raise InputError("photo must be .exr, .png, .tif or .tiff "
-                         "(convert RAW with `jkatana measure`'s decoder first)", path=path)
+        raise InputError(f"photo must be .exr, .png, .tif, .tiff or a camera RAW ({', '.join(RAW_SUFFIXES)})",
+                         path=path)
     if img.ndim == 3:
         img = img[..., :3] @ LUMA_709
     if img.ndim != 2 or img.size == 0:
@@ -62,6 +65,43 @@ def read_photo(path: str | Path) -> np.ndarray:
     if not np.all(np.isfinite(img)):
         raise InputError("photo has NaN or infinite pixels", path=path)
     return img
+
+
+#: Camera RAW suffixes read through the measurement decoder (rawpy/LibRaw).
+RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".orf", ".rw2", ".raf", ".pef",
+                ".srw", ".raw")
+
+
+def _raw_green(path: Path) -> np.ndarray:
+    """A RAW photo's green signal, one value per CFA block (half resolution for Bayer).
+
+    Decoded by the measurement code (:func:`jkatana.measure.decode.read_frame`):
+    per-channel black level from the file subtracted, divided by (white − black),
+    then the mean of the green photosites in each repeat block of the colour
+    filter array. The green channel stands in for luminance, as in the paper's
+    fits (Mochizuki et al. fit the camera's green channel). Saturated green
+    photosites make the photo unusable for w and are refused.
+    """
+    from jkatana.measure.decode import read_frame
+
+    frame = read_frame(path)
+    if frame.colors is None:  # pragma: no cover - read_frame returns a CFA for RAW files
+        raise InputError("RAW file without a colour filter array", path=path)
+    dn = frame.dn.astype(np.float64)
+    green = np.isin(frame.colors, frame.green_colors)
+    black = frame.black[frame.colors]
+    if np.any(green & (frame.dn >= frame.white)):
+        n = int(np.count_nonzero(green & (frame.dn >= frame.white)))
+        raise InputError(f"{n} green photosites are saturated: expose the diffuse-lit photo lower", path=path)
+    value = np.where(green, (dn - black) / (frame.white - black), 0.0)
+    block = 2  # the Bayer repeat; other CFAs are caught below (blocks with no green)
+    H, W = (dn.shape[0] // block) * block, (dn.shape[1] // block) * block
+    v = value[:H, :W].reshape(H // block, block, W // block, block).sum(axis=(1, 3))
+    n = green[:H, :W].reshape(H // block, block, W // block, block).sum(axis=(1, 3))
+    if np.any(n == 0):
+        raise InputError("colour filter array has 2×2 blocks without a green photosite "
+                         "(not a Bayer pattern): convert the photo to a linear TIFF", path=path)
+    return v / n
 
 
 def _normalise_int(img: np.ndarray, path) -> np.ndarray:
