@@ -13,7 +13,8 @@ then the shader once per covered pixel, see :mod:`jkatana.interactive.glrender`)
 - ``forward``: ``full`` shaded in the forward pass (the shader on every fragment llvmpipe rasterises:
   the path before deferred shading; the windowed Viewer still draws this way);
 - ``rank1`` / ``rank2`` / ``rank4``: spectral basis rank;
-- ``one_tap``: one isotropic prefiltered tap instead of the two-tap anisotropic lobe;
+- ``one_tap``: one isotropic prefiltered tap instead of the three-tap anisotropic lobe;
+- ``five_tap``: five binomial taps along the plane of incidence instead of three;
 - ``no_rough``: mirror-like (narrowest μ level); ``no_blend``: hiraji everywhere;
 - ``msaa4``: ``full`` with pyrender's 4× MSAA framebuffer (what pyrender does by default).
 
@@ -48,6 +49,7 @@ CONFIGS = {
     "rank2": dict(rank=2, rough=True, blend=True, two_tap=True, samples=0),
     "rank4": dict(rank=4, rough=True, blend=True, two_tap=True, samples=0),
     "one_tap": dict(rank=3, rough=True, blend=True, two_tap=False, samples=0),
+    "five_tap": dict(rank=3, rough=True, blend=True, two_tap=True, taps=5, samples=0),
     "no_rough": dict(rank=3, rough=False, blend=True, two_tap=True, samples=0),
     "no_blend": dict(rank=3, rough=True, blend=False, two_tap=True, samples=0),
     "msaa4": dict(rank=3, rough=True, blend=True, two_tap=True, samples=4),
@@ -99,7 +101,7 @@ def run(quick: bool = False) -> list[dict]:
             if quick and cname in ("rank2", "msaa4") and vname == "demo":
                 continue
             st = G.ShadingState(baked, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
-                                two_tap=cfg["two_tap"])
+                                two_tap=cfg["two_tap"], taps=cfg.get("taps", 3))
             r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"],
                                          deferred=cfg.get("deferred"))
             scene = G.build_scene(sc.mesh, view)

@@ -139,7 +139,8 @@ def test_gl_frame_agrees_with_per_pixel_reference(glr, sky_scene, tmp_path):
     for rough in (False, True):
         for blend in (False, True):
             for two_tap in (False, True):
-                st3 = glr.ShadingState(baked, sc.refl_map, rank=2, rough=rough, blend=blend, two_tap=two_tap)
+                st3 = glr.ShadingState(baked, sc.refl_map, rank=2, rough=rough, blend=blend, two_tap=two_tap,
+                                       taps=5 if blend else 3)
                 r3 = glr.BakedOffscreenRenderer(st3, 32, 24)
                 r3.render(glr.build_scene(sc.mesh, sc.view))
                 r3.delete()

@@ -115,11 +115,11 @@ class ShadingState:
     - `baked`: :class:`jkatana.interactive.bake.Baked`; `refl_map`: ``(H, W, 3)`` w, μ0, μ1.
     - per frame: `exposure`, `env_rotation` (radians about +Y, turns the light around the blade),
       and the static switches `rank` (≤ baked rank), `rough`, `blend`, `two_tap` (anisotropic lobe:
-      three binomial prefiltered taps along the plane of incidence; off: one tap).
+      three (or, with `taps=5`, five) binomial prefiltered taps along the plane of incidence; off: one tap).
     """
 
     def __init__(self, baked: Baked, refl_map: np.ndarray, *, exposure: float = 1.0, rank: int | None = None,
-                 rough: bool = True, blend: bool = True, two_tap: bool = True):
+                 rough: bool = True, blend: bool = True, two_tap: bool = True, taps: int = 3):
         self.baked = baked
         self.refl_map = np.asarray(refl_map, np.float64)
         self.exposure = float(exposure)
@@ -130,11 +130,14 @@ class ShadingState:
         self.rough = bool(rough)
         self.blend = bool(blend)
         self.two_tap = bool(two_tap)
+        if taps not in (3, 5):
+            raise ValueError(f"taps must be 3 or 5, got {taps}")
+        self.taps = int(taps)
         self._textures: dict[object, tuple[int, ...]] = {}
 
     def defines(self) -> dict:
         return {"JK_RANK": self.rank, "JK_ROUGH": int(self.rough), "JK_BLEND": int(self.blend),
-                "JK_TWO_TAP": int(self.two_tap and self.rough)}
+                "JK_TWO_TAP": int(self.two_tap and self.rough), "JK_TAPS": self.taps}
 
     def env_rot_matrix(self) -> np.ndarray:
         """World → environment-map rotation about +Y, as :func:`jkatana.render.renderer.rotation_y`

@@ -20,7 +20,7 @@
 // three binomial taps along the plane of incidence, prefiltered for the
 // across-plane width, matching the lobe's in-plane mean and variance — moments
 // baked from the models by jkatana.interactive.bake.lobe_lut; the name is
-// historical: two extra taps).
+// historical: two extra taps; JK_TAPS = 5: four extra taps).
 
 uniform vec3 cam_pos;
 uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
@@ -121,11 +121,24 @@ vec4 jk_shade(vec3 N, vec3 P, vec2 uv)
         // the in-plane variance of the sum is var_perp + spread² = var_par (the lobe's)
         vec3 tn = N - dot(N, R0) * R0;
         tn = jk_env_rot * (tn / max(length(tn), 1e-6));
+#if JK_TAPS == 5
+        // or five binomial taps (1, 4, 6, 4, 1)/16 at mean, mean ± spread, mean ± 2·spread: same mean and
+        // variance, a kernel closer to the lobe's own shape (a small bright source sees fewer steps)
+        float off = shape.g;
+        vec3 Rc = cos(shape.b) * R + sin(shape.b) * tn;
+        vec3 Ra = cos(shape.b + off) * R + sin(shape.b + off) * tn;
+        vec3 Rb = cos(shape.b - off) * R + sin(shape.b - off) * tn;
+        vec3 Rd = cos(shape.b + 2.0 * off) * R + sin(shape.b + 2.0 * off) * tn;
+        vec3 Re = cos(shape.b - 2.0 * off) * R + sin(shape.b - 2.0 * off) * tn;
+        xyz = 0.375 * env_xyz(Rc, lz, a) + 0.25 * (env_xyz(Ra, lz, a) + env_xyz(Rb, lz, a))
+            + 0.0625 * (env_xyz(Rd, lz, a) + env_xyz(Re, lz, a));
+#else
         float off = 1.41421356 * shape.g;
         vec3 Rc = cos(shape.b) * R + sin(shape.b) * tn;
         vec3 Ra = cos(shape.b + off) * R + sin(shape.b + off) * tn;
         vec3 Rb = cos(shape.b - off) * R + sin(shape.b - off) * tn;
         xyz = 0.5 * env_xyz(Rc, lz, a) + 0.25 * (env_xyz(Ra, lz, a) + env_xyz(Rb, lz, a));
+#endif
 #else
         xyz = env_xyz(R, lz, a);
 #endif
