@@ -50,7 +50,11 @@ Where the residual comes from: (1) the GL frame's 8-bit output — rounding the 
 shape: one isotropic tap → three taps removes most of it, what remains is concentrated where a small,
 bright source (the 1.5° sun at 120× the sky, the softbox edges) lies inside a wide, oblique lobe —
 the hamon's μ1 = 0.2 rad seen at ~55° in the glint views — where three taps prefiltered for the
-normal-incidence kernel do not reproduce the lobe's shape: those two views miss p95 ≤ 2.5.
+normal-incidence kernel do not reproduce the lobe's shape: those two views miss p95 ≤ 2.5. There
+the GL frame is ~10 % darker and less warm than the reference along the hamon band (the sun's light
+spread by the wide lobe). Five binomial taps (``ShadingState(taps=5)``) reduce it — sun glint mean
+1.00 → 0.89, p95 3.37 → 3.07, max 10.4 → 4.9; studio glint mean 1.04 → 0.98, p95 2.90 → 2.73 —
+but do not close it; a kernel prefiltered per view angle would.
 Raster and ray-cast coverage agree to ≤ 1 pixel per view.
 """
 
