@@ -9,8 +9,9 @@ Studies (records follow the convention in :mod:`benchmarks`):
   (the reference mode at many samples, another seed), for the default demo
   scene (blade, sky with a low sun) and a sun-dominated sphere.
 - ``render effects off``: time of a plan with an effect switched off by the
-  scene (mirror-only hiraji, grey environment, no hamon) against the plan that
-  traces it, on the same image.
+  scene (mirror-only hiraji, grey environment, no hamon, no occluders) against
+  the plan that traces it, on the same image (for occluders: an occluder that
+  blocks nothing, so the visibility pass runs in full).
 - ``render cold start``: ``jkatana demo`` in a fresh process (import + scene +
   JIT + frame + files).
 
@@ -202,13 +203,22 @@ def _effects(quick: bool) -> list[dict]:
     grey["environment"] = {"type": "constant", "radiance": 1.0, "resolution": [128, 256]}
     p_off = prepare(scene_from_dict(grey))
     cases.append(("grey environment → one band", p_off, None))
-    # 4. no point lights: none evaluated (vs. one light of zero intensity... not expressible: compare to 1 light)
+    # 4. no occluders: no visibility pass at all (vs. the same image with an occluder that blocks nothing:
+    #    a small box far below the horizon, so every direction is still traced and ray-cast)
+    occl = json.loads(json.dumps(base))
+    occl["occluders"] = [{"box": [0.01, 0.01, 0.01], "center": [0.0, -1000.0, 0.0]}]
+    p_on = prepare(scene_from_dict(occl))
+    cases.append(("no occluders → no visibility rays", prepare(scene_from_dict(base)), p_on))
+    # 5. no point lights: none evaluated (vs. one light of zero intensity... not expressible: compare to 1 light)
     for name, off, on in cases:
         t_off, f_off = timed(off)
         row = {"effect": name, "time_off_s": t_off["median"], "plan_off": dataclasses.asdict(off.plan)}
         if on is not None:
             t_on, f_on = timed(on)
             row.update(time_on_s=t_on["median"], same_image_max_abs=float(np.max(np.abs(f_on.xyz - f_off.xyz))))
+            if "visibility_rays" in f_on.timing:
+                row.update(visibility_rays=f_on.timing["visibility_rays"],
+                           visibility_cast_s=f_on.timing["visibility_cast_s"])
         rows.append(record(BENCH, {"study": "effects off", "effect": name}, time_s=t_off, **row))
         _log(f"[render] effect off: {name}: {row}")
     # the sampled version of the mirror case and the 61-band version of the grey case, for scale

@@ -98,7 +98,7 @@ def test_factored_grey_equals_full_spectral():
     from jkatana.render.shading import Environment
 
     env_full = Environment(jnp.asarray(grey), jnp.eye(GRID.size, dtype=jnp.float32), env_f.rotation,
-                           env_f.cdf, env_f.texel_p, env_f.prefiltered, env_f.prefilter_mus)
+                           env_f.sampler, env_f.prefiltered, env_f.prefilter_mus)
     kw = dict(mode="reference", samples=8, hiraji=True, hamon=True)
     a = render_frame(Plan(**kw, factored=True), mat, env_f, None, SPHERE, _cam(16), _maps(0.5, 0.05, 0.08), CMF)
     b = render_frame(Plan(**kw, factored=False), mat, env_full, None, SPHERE, _cam(16), _maps(0.5, 0.05, 0.08), CMF)
@@ -183,6 +183,7 @@ def test_effects_on_demand_are_static_choices(tmp_path):
 # ----------------------------------------------------------------- gradients
 
 
+@pytest.mark.slow  # ~25 s CPU (float64 compile of value and gradient); runs in CI
 def test_gradient_matches_finite_differences():
     """d(frame)/d(μ map, χ, environment) against central differences, float64, common random numbers."""
     from jkatana.render.frame import sample_map
@@ -204,7 +205,7 @@ def test_gradient_matches_finite_differences():
         mp = sample_map(maps, uv)
         px = Pixels(jnp.asarray(gb.position.reshape(-1, 3)[m]), jnp.asarray(gb.normal.reshape(-1, 3)[m]),
                     jnp.asarray(gb.view.reshape(-1, 3)[m]), mp[:, 0], mp[:, 1], mp[:, 2])
-        e = type(env)(channels, env.basis, env.rotation, env.cdf, env.texel_p, env.prefiltered, env.prefilter_mus)
+        e = type(env)(channels, env.basis, env.rotation, env.sampler, env.prefiltered, env.prefilter_mus)
         xyz, _ = shade(plan, Material(mat.ftable, chi, mat.beta), e, None, px, cmf, key)
         return jnp.sum(xyz[:, 1])
 

@@ -147,7 +147,7 @@ def test_no_occluders_means_no_visibility_step():
     from jkatana.render.renderer import prepare, render_view
 
     raw = {"geometry": {"sphere": {"radius": 1.0}}, "material": {"w": 0.5, "mu0": 0.05, "mu1": 0.05},
-           "environment": {"type": "sky", "resolution": [16, 32]},
+           "environment": {"type": "constant", "radiance": 1.0, "resolution": [8, 16]},
            "camera": {"type": "lookat", "position": [0, 0, 4], "look_at": [0, 0, 0], "resolution": [8, 8]},
            "render": {"samples": 2}}
     p = prepare(scene_from_dict(raw))

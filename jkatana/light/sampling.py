@@ -66,7 +66,7 @@ class EnvSampler(eqx.Module):
 
     @classmethod
     def build(cls, env: EnvMap, *, floor: float = 0.01, uniform: float = 1e-6,
-              bilinear: bool = True, compensate: bool = False) -> "EnvSampler":
+              bilinear: bool | str = True, compensate: bool = False) -> "EnvSampler":
         """Tables from ``env``: weight per texel = ``(Y-weighted + floor·flat spectral mean)·Ω + uniform``.
 
         With ``bilinear`` (default) the weight is the texel's integral of the
@@ -76,6 +76,10 @@ class EnvSampler(eqx.Module):
         bilinear spill of the sun into neighbouring texels, sampled at sky
         density, makes the estimator heavy-tailed: unbiased in expectation but
         low with high probability at practical sample counts).
+        ``bilinear="max"`` instead takes the *largest* texel value of the 3×3
+        neighbourhood (the bilinear lookup's support), which bounds ``f/p`` by
+        the texel's own weight everywhere (at the price of over-sampling the
+        ring around a sun); the reference renderer's choice.
 
         With ``compensate``, MIS compensation (Karlík, Šik, Vévoda, Skřivan &
         Křivánek 2019, "MIS Compensation: Optimizing Sampling Techniques in
@@ -99,7 +103,11 @@ class EnvSampler(eqx.Module):
         w = (1 - floor) * ybar / ybar.sum() + floor / n
         omega = (np.cos(np.arange(H) * np.pi / H) - np.cos(np.arange(1, H + 1) * np.pi / H)) * (2 * np.pi / W)
         y = np.maximum(L, 0.0) @ w
-        if bilinear:
+        if bilinear == "max":
+            from scipy.ndimage import maximum_filter
+
+            y = maximum_filter(y, size=3, mode=("nearest", "wrap"))
+        elif bilinear:
             y = (np.roll(y, 1, axis=1) + 6 * y + np.roll(y, -1, axis=1)) / 8
             yp = np.concatenate([y[:1], y, y[-1:]], axis=0)
             y = (yp[:-2] + 6 * yp[1:-1] + yp[2:]) / 8
@@ -125,9 +133,16 @@ class EnvSampler(eqx.Module):
 
     def sample(self, key, n: int) -> tuple[Float[Array, "n 3"], Float[Array, "n"]]:
         """``n`` world directions and their density (per steradian)."""
+        return self.sample_uniform(jax.random.uniform(key, (n, 4), self.texel_pdf.dtype))
+
+    def sample_uniform(self, u: Float[Array, "*b 4"]) -> tuple[Float[Array, "*b 3"], Float[Array, "*b"]]:
+        """Directions and densities from given uniforms ``u`` in [0, 1)⁴ (row, column, φ and cos θ
+        inside the texel): the warp behind :meth:`sample`, for quasi-Monte Carlo points
+        (the renderer's randomised R_d sequence)."""
         H, W = self.shape
-        dt = self.texel_pdf.dtype
-        u = jax.random.uniform(key, (n, 4), dt)
+        u = jnp.asarray(u, self.texel_pdf.dtype)
+        shape = u.shape[:-1]
+        u = u.reshape(-1, 4)
         j = jnp.clip(jnp.searchsorted(self.marginal, u[:, 0], side="right") - 1, 0, H - 1)
         i = _row_search(self.conditional, j, u[:, 1])
         phi = ((i + u[:, 2]) / W - 0.5) * 2 * jnp.pi
@@ -135,7 +150,7 @@ class EnvSampler(eqx.Module):
         cos_t = c0 + (c1 - c0) * u[:, 3]
         sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
         d = jnp.stack([sin_t * jnp.sin(phi), cos_t, -sin_t * jnp.cos(phi)], axis=-1)
-        return d, self.texel_pdf[j, i]
+        return d.reshape(shape + (3,)), self.texel_pdf[j, i].reshape(shape)
 
     def pdf(self, d: Float[Array, "*b 3"]) -> Float[Array, "*b"]:
         """Density (per steradian) of :meth:`sample` at world directions ``d``."""

@@ -17,6 +17,7 @@ import platform
 import time
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -254,8 +255,7 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
     env = prep.env
     if lights > 1 or light:
         rot = rotation_y(scene.environment["rotation_deg"] + 360.0 * light / lights)
-        env = Environment(env.channels, env.basis, jnp.asarray(rot, prep.dtype), env.cdf, env.texel_p,
-                          env.prefiltered, env.prefilter_mus)
+        env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rot, prep.dtype))
     cam = camera_for(scene, view, views)
     s = scene.render["seed"] if seed is None else seed
     return render_frame(prep.plan, prep.material, env, prep.lights, prep.geometry, cam, prep.maps, prep.cmf,

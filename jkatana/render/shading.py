@@ -54,7 +54,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jkatana.light.envmap import direction_to_uv, uv_to_direction
+from jkatana.light.envmap import EnvMap, direction_to_uv, uv_to_direction
+from jkatana.light.sampling import EnvSampler
 from jkatana.models import Hamon, Hiraji
 from jkatana.models.fresnel import fresnel_conductor
 from jkatana.models.geometry import facet_angle, half_vector_cos
@@ -70,12 +71,15 @@ def _kronecker_alpha(d: int) -> tuple[float, ...]:
     return tuple((x ** -(j + 1)) % 1.0 for j in range(d))
 
 
-_R6 = _kronecker_alpha(6)
+_R7 = _kronecker_alpha(7)
 #: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
 MIRROR_MU = 1e-4
 #: Cosine samples of the Fresnel table (linear interpolation error < 1e-6 for iron).
 FRESNEL_TABLE = 1024
 MODES = ("reference", "paper", "prefiltered", "lowrank")
+#: Texel weight of the environment density (:meth:`jkatana.light.sampling.EnvSampler.build`'s
+#: ``bilinear``): ``"max"`` (3×3 neighbourhood maximum) or ``True`` (exact bilinear integral).
+ENV_DENSITY = "max"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,18 +130,18 @@ class Environment(eqx.Module):
       unused) or coefficients on a spectral basis.
     - `basis`: ``(J, wl)`` spectra such that radiance = channels @ basis.
     - `rotation`: ``(3, 3)`` world → map rotation applied to every lookup.
-    - `cdf`: ``(H·W,)`` cumulative texel probabilities for sampling.
-    - `texel_p`: ``(H, W)`` texel probabilities (sum 1).
-    - `prefiltered`: ``(M, H', W', J)`` lobe-convolved maps for ``prefilter_mus`` (or empty).
-    - `prefilter_mus`: ``(M,)`` μ of each prefiltered level.
+    - `sampler`: :class:`jkatana.light.sampling.EnvSampler` of the map (luminance ×
+      solid angle, bilinear-safe), in map coordinates.
+    - `prefiltered`: ``M`` lobe-convolved maps ``(H_m, W_m, J)`` for ``prefilter_mus``
+      (:func:`jkatana.light.prefilter.prefilter`, projected on ``basis``), or ``()``.
+    - `prefilter_mus`: ``(M,)`` μ of each prefiltered level (increasing).
     """
 
     channels: Float[Array, "H W J"]
     basis: Float[Array, "J wl"]
     rotation: Float[Array, "3 3"]
-    cdf: Float[Array, "HW"]
-    texel_p: Float[Array, "H W"]
-    prefiltered: Float[Array, "M h w J"]
+    sampler: EnvSampler
+    prefiltered: tuple
     prefilter_mus: Float[Array, "M"]
 
 
@@ -246,77 +250,51 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
                       prefilter_mus=(), prefilter_resolution: int = 128, dtype=jnp.float32, grid=None):
     """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
 
-    The sampling density is piecewise constant in (u, v), ∝ sin θ × the largest
-    CIE Y in the texel's 3×3 neighbourhood (the bilinear lookup's support), the
-    equirectangular construction of Pharr, Jakob & Humphreys, *PBRT* 4th ed.,
-    §12.5.2, made safe for bilinear reconstruction.
+    Environment sampling is :class:`jkatana.light.sampling.EnvSampler` (the light
+    stage's): a piecewise-constant density ∝ luminance × solid angle per texel,
+    the texel's luminance being the integral of the *bilinear* radiance the
+    lookups return (so ``radiance / pdf`` stays bounded next to a one-texel
+    sun), uniform in solid angle inside a texel — Pharr, Jakob & Humphreys,
+    *PBRT* 4th ed., §A.5 and §12.5.
 
     **Returns:** ``(environment, factored, rel_residual)``.
     """
-    from jkatana.spectral.colorimetry import cmfs
+    from jkatana.spectral import DEFAULT_GRID
 
     radiance = np.asarray(radiance, np.float64)
     H, W, nwl = radiance.shape
     coeffs, basis, factored, resid = env_basis(radiance, rank)
-    ybar = cmfs_for(nwl, grid)
-    lum = np.maximum(radiance @ ybar, 0.0)
-    # The lookup is bilinear, so a texel's radiance leaks into its neighbours' footprint; a density
-    # from the texel alone would under-sample that leak (fireflies around the sun). Take the
-    # maximum over the 3×3 neighbourhood (wrapping in u) so that radiance / pdf stays bounded.
-    from scipy.ndimage import maximum_filter
-
-    lum = maximum_filter(lum, size=3, mode=("nearest", "wrap"))
-    theta = (np.arange(H) + 0.5) / H * np.pi
-    weight = lum * np.sin(theta)[:, None] + 1e-12 * lum.max()
-    p = weight / weight.sum()
-    cdf = np.cumsum(p.ravel())
-    cdf /= cdf[-1]
+    if grid is None:  # the density only steers sampling: an unknown grid borrows the default range
+        grid = DEFAULT_GRID if nwl == DEFAULT_GRID.size else type(DEFAULT_GRID).with_count(DEFAULT_GRID.start, DEFAULT_GRID.stop, nwl)
+    sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=ENV_DENSITY)
     rot = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
-    if len(prefilter_mus):
-        pre = prefilter(coeffs, np.asarray(prefilter_mus), prefilter_resolution)
-    else:
-        pre = np.zeros((0, 1, 1, coeffs.shape[-1]), np.float32)
-    del cmfs
-    env = Environment(jnp.asarray(coeffs, dtype), jnp.asarray(basis, dtype), jnp.asarray(rot, dtype),
-                      jnp.asarray(cdf, dtype), jnp.asarray(p, dtype), jnp.asarray(pre, dtype),
-                      jnp.asarray(np.asarray(prefilter_mus, np.float64), dtype))
+    mus = tuple(sorted(float(m) for m in prefilter_mus))
+    pre = ()
+    if mus:
+        # the light stage's exact convolution with the lobe kernel, on the source box-downsampled to
+        # at most `prefilter_resolution` columns, then projected on the environment's spectral basis
+        from jkatana.light.prefilter import prefilter as light_prefilter
+
+        src = EnvMap(jnp.asarray(radiance, jnp.float32), grid)
+        while src.width > prefilter_resolution and src.height % 2 == 0 and src.width % 2 == 0:
+            src = src.downsample(2)
+        levels = light_prefilter(src, mus).levels
+        pre = tuple(jnp.asarray(np.asarray(lvl.radiance, np.float64) @ basis.T.astype(np.float64), dtype)
+                    for lvl in levels)
+    env = Environment(jnp.asarray(coeffs, dtype), jnp.asarray(basis, dtype), jnp.asarray(rot, dtype), sampler,
+                      pre, jnp.asarray(np.asarray(mus, np.float64), dtype))
     return env, factored, resid
 
 
-_YBAR_CACHE: dict[int, np.ndarray] = {}
-
-
-def cmfs_for(nwl: int, grid=None) -> np.ndarray:
-    """ȳ on the grid with ``nwl`` samples (the default grid when it matches), for sampling densities."""
-    from jkatana.spectral import DEFAULT_GRID
-    from jkatana.spectral.colorimetry import cmfs
-
-    if grid is None and nwl != DEFAULT_GRID.size:
-        return np.ones(nwl)  # unknown grid: equal weights (the density only steers sampling)
-    return np.asarray(cmfs(grid or DEFAULT_GRID)[:, 1])
-
-
-def sample_environment(env: Environment, u1, u2, u3):
-    """Draw directions from the texel density: ``(d_world, pdf_solid_angle)``."""
-    H, W = env.texel_p.shape
-    idx = jnp.clip(jnp.searchsorted(env.cdf, u1, side="right"), 0, H * W - 1)
-    j, i = idx // W, idx % W
-    u = (i.astype(u2.dtype) + u2) / W
-    v = (j.astype(u3.dtype) + u3) / H
-    d_map = uv_to_direction(u, v)
-    pdf = env_pdf_map(env, d_map)
+def sample_environment(env: Environment, u):
+    """Directions from the environment's density for uniforms ``u (P, 4)``: ``(d_world, pdf_solid_angle)``."""
+    d_map, pdf = env.sampler.sample_uniform(u)
     return d_map @ env.rotation, pdf  # map → world (rotation is orthonormal)
 
 
 def env_pdf_map(env: Environment, d_map):
     """Solid-angle density of :func:`sample_environment` at map direction ``d_map``."""
-    H, W = env.texel_p.shape
-    u, v = direction_to_uv(d_map)
-    i = jnp.mod(jnp.floor(u * W).astype(jnp.int32), W)
-    j = jnp.clip(jnp.floor(v * H).astype(jnp.int32), 0, H - 1)
-    sin_t = jnp.sqrt(jnp.maximum(1.0 - d_map[..., 1] ** 2, 0.0))
-    dens = env.texel_p[j, i] * (H * W) / (2.0 * jnp.pi * jnp.pi)
-    return jnp.where(sin_t > 1e-6, dens / jnp.maximum(sin_t, 1e-6), 0.0)
+    return env.sampler.pdf(d_map)
 
 
 def env_lookup(env: Environment, d_world):
@@ -324,64 +302,21 @@ def env_lookup(env: Environment, d_world):
     return bilinear_equirect(env.channels, d_world @ env.rotation.T)
 
 
-def prefilter(channels: np.ndarray, mus: np.ndarray, resolution: int = 128, n_dirs: int = 400,
-              seed: int = 0) -> np.ndarray:
-    """Pre-convolve an environment with the reflection lobe of the paper's facet distribution.
-
-    For each μ and each output texel direction R, the average of the map over
-    mirror directions of facet normals drawn from D(φ, μ) cos φ about R
-    (normal incidence form of the lobe, as in Karis 2013's split sum).
-    Quadrature: ``n_dirs`` fixed stratified samples of the lobe, bilinear
-    lookups. Output ``(M, resolution/2, resolution, J)``.
-    """
-    ch = jnp.asarray(channels, jnp.float32)
-    h, w = resolution // 2, resolution
-    R = np.asarray(_texel_dirs(h, w)).reshape(-1, 3)
-    n = int(math.isqrt(n_dirs))
-    g = (np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="ij"), -1).reshape(-1, 2) + 0.5) / n
-    out = []
-    for mu in np.asarray(mus, np.float64):
-        sigma = max(mu, 1e-6) / math.sqrt(2 * LN2)
-        phi = np.minimum(sigma * np.sqrt(-2 * np.log1p(-g[:, 0] * (1 - math.exp(-(math.pi / 2) ** 2 / (2 * sigma**2))))),
-                         math.pi / 2)
-        psi = 2 * math.pi * g[:, 1]
-        # reflection about a facet tilted by φ at normal view: L tilted by 2φ
-        t = 2 * phi
-        local = np.stack([np.sin(t) * np.cos(psi), np.sin(t) * np.sin(psi), np.cos(t)], -1)
-        weight = np.where(t < math.pi / 2, np.cos(t), 0.0)  # cos θi of the reflected ray at normal view
-        local, weight = jnp.asarray(local, jnp.float32), jnp.asarray(weight / weight.sum(), jnp.float32)
-
-        @jax.jit
-        def conv(Rc):
-            t_, b_ = _basis(Rc)
-            d = local[None, :, 0:1] * t_[:, None] + local[None, :, 1:2] * b_[:, None] + local[None, :, 2:3] * Rc[:, None]
-            return jnp.einsum("pkc,k->pc", bilinear_equirect(ch, d), weight)
-
-        res = [np.asarray(conv(jnp.asarray(R[i:i + 4096], jnp.float32))) for i in range(0, R.shape[0], 4096)]
-        out.append(np.concatenate(res).reshape(h, w, -1))
-    return np.stack(out).astype(np.float32)
-
-
-def _texel_dirs(h, w):
-    u = (np.arange(w) + 0.5) / w
-    v = (np.arange(h) + 0.5) / h
-    return uv_to_direction(jnp.asarray(u)[None, :], jnp.asarray(v)[:, None])
-
-
 def _lookup_prefiltered(env: Environment, mu, R_world):
-    """Linear interpolation in μ between prefiltered levels (clamped to the range)."""
-    mus = env.prefilter_mus
-    M = mus.shape[0]
-    pos = jnp.interp(mu, mus, jnp.arange(M, dtype=mus.dtype))
-    k0 = jnp.clip(jnp.floor(pos).astype(jnp.int32), 0, M - 1)
-    k1 = jnp.minimum(k0 + 1, M - 1)
-    f = (pos - k0)[..., None]
+    """Prefiltered channels toward ``R_world`` for per-pixel ``mu``: bilinear in each level, linear
+    in log μ between levels, clamped to the tabulated range (as
+    :meth:`jkatana.light.prefilter.PrefilteredEnv.lookup`, in the environment's channel space)."""
     d = R_world @ env.rotation.T
-    levels = jax.vmap(lambda img: bilinear_equirect(img, d))(env.prefiltered)  # (M, P, J)
+    vals = jnp.stack([bilinear_equirect(lvl, d) for lvl in env.prefiltered])  # (M, P, J)
+    M = vals.shape[0]
+    if M == 1:
+        return vals[0]
+    logm = jnp.log(env.prefilter_mus)
+    x = jnp.clip(jnp.log(jnp.maximum(mu, 1e-12)), logm[0], logm[-1])
+    k0 = jnp.clip(jnp.searchsorted(logm, x, side="right") - 1, 0, M - 2)
+    t = ((x - logm[k0]) / (logm[k0 + 1] - logm[k0]))[:, None]
     P = R_world.shape[0]
-    a = levels[k0, jnp.arange(P)]
-    b = levels[k1, jnp.arange(P)]
-    return a * (1 - f) + b * f
+    return vals[k0, jnp.arange(P)] * (1 - t) + vals[k0 + 1, jnp.arange(P)] * t
 
 
 # ---------------------------------------------------------------- geometry helpers
@@ -576,14 +511,14 @@ def _paper_ray(plan: Plan, px: Pixels, Vl, fr, key, k):
 
 
 def _mis_offset(key, P, dtype):
-    """Randomised QMC: Roberts' R6 sequence with a per-pixel Cranley–Patterson rotation (one draw per pixel)."""
-    return jax.random.uniform(key, (P, 6), dtype)
+    """Randomised QMC: Roberts' R7 sequence with a per-pixel Cranley–Patterson rotation (one draw per pixel)."""
+    return jax.random.uniform(key, (P, 7), dtype)
 
 
 def _mis_rays(plan: Plan, env: Environment, px: Pixels, Vl, fr, offset, k):
     """The k-th MIS pair: ``(Ll, Lw)`` from the lobe mixture, ``(Ll2, Lw2, pe2)`` from the environment (or None)."""
     dtype = Vl.dtype
-    r = jnp.mod(offset + (k + 1).astype(dtype) * jnp.asarray(_R6, dtype), 1.0)
+    r = jnp.mod(offset + (k + 1).astype(dtype) * jnp.asarray(_R7, dtype), 1.0)
     use0 = r[:, 0] < _mix_w(plan, px)
     mu = jnp.where(use0, px.mu0, px.mu1)
     h, _ = _rayleigh_sample(mu, r[:, 1], r[:, 2])
@@ -593,7 +528,7 @@ def _mis_rays(plan: Plan, env: Environment, px: Pixels, Vl, fr, offset, k):
     Lw = _to_world(Ll, *fr)
     if not plan.env_sampling:
         return Ll, Lw, None, None, None
-    Lw2, pe2 = sample_environment(env, r[:, 3], r[:, 4], r[:, 5])
+    Lw2, pe2 = sample_environment(env, r[:, 3:7])
     return Ll, Lw, _to_local(Lw2, *fr), Lw2, pe2
 
 
