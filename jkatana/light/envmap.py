@@ -14,8 +14,18 @@ So the **centre of the image looks along −Z**, the left/right edges along +Z,
 and ``u = 0.75`` looks along +X. Read as a compass (−Z = north, +X = east),
 ``u − 0.5`` is the azimuth measured clockwise from north (east = 90°), which is
 how :mod:`jkatana.light.sky` places the sun; the image is seen from inside the
-sphere (east is to the right of north), as Poly Haven panoramas and the
-``latlong`` convention of Mitsuba 3 / pbrt-v4 (up to their choice of up axis) are.
+sphere (east is to the right of north), as Poly Haven panoramas are.
+
+Other renderers (measured, not assumed): Mitsuba 3.9.1's ``envmap`` has the
+same handedness and up axis but is turned **half a turn** about +Y — its
+``u = atan2(d_x, −d_z)/(2π)`` without the ``+½``, so its image centre looks
+along +Z — and its rows are corner-aligned (row ``j`` at ``v = j/(H − 1)``,
+zenith and nadir on the first and last rows; columns are centred as ours).
+To show a jkatana map in Mitsuba, or the reverse, rotate it by 180° about +Y
+(:data:`jkatana.render.mitsuba_check.MITSUBA_ENV_ROTATION_DEG`);
+``tests/test_render_mitsuba.py`` pins both facts against Mitsuba's own lookup.
+pbrt-v4's image infinite lights use an equal-area octahedral square mapping
+(Clarberg 2008), not a latitude–longitude one.
 
 Radiance is spectral, last axis on a :class:`~jkatana.spectral.WavelengthGrid`,
 in the map's own units (W m⁻² sr⁻¹ nm⁻¹ for the built-in sky; for an upsampled
