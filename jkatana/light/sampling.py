@@ -103,6 +103,8 @@ class EnvSampler(eqx.Module):
         w = (1 - floor) * ybar / ybar.sum() + floor / n
         omega = (np.cos(np.arange(H) * np.pi / H) - np.cos(np.arange(1, H + 1) * np.pi / H)) * (2 * np.pi / W)
         y = np.maximum(L, 0.0) @ w
+        if bilinear not in (True, False, "max"):
+            raise ValueError(f"bilinear must be True, False or 'max', got {bilinear!r}")
         if bilinear == "max":
             from scipy.ndimage import maximum_filter
 
