@@ -46,6 +46,32 @@ def _intersector(mesh: trimesh.Trimesh):
         return RayMeshIntersector(mesh), "triangle"
 
 
+#: Rays per intersector call. trimesh's pure-Python fallback (no embreex) holds
+#: candidate arrays proportional to the rays in one call — an 800×600 frame in one
+#: call took 24 GB — so rays go in chunks; with Embree chunking costs nothing.
+RAY_CHUNK = 1 << 15
+
+
+def _first_hits(isect, o: np.ndarray, d: np.ndarray, chunk: int = RAY_CHUNK):
+    """``intersects_location(..., multiple_hits=False)`` over ``chunk``-sized batches of rays."""
+    locs, rays, tris = [], [], []
+    for start in range(0, len(d), chunk):
+        loc, idx_ray, idx_tri = isect.intersects_location(o[start:start + chunk], d[start:start + chunk],
+                                                          multiple_hits=False)
+        locs.append(np.asarray(loc, np.float64).reshape(-1, 3))
+        rays.append(np.asarray(idx_ray, np.int64) + start)
+        tris.append(np.asarray(idx_tri, np.int64))
+    if not locs:
+        return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(locs), np.concatenate(rays), np.concatenate(tris)
+
+
+def _any_hits(isect, o: np.ndarray, d: np.ndarray, chunk: int = RAY_CHUNK) -> np.ndarray:
+    """``intersects_any`` over ``chunk``-sized batches of rays."""
+    return np.concatenate([np.asarray(isect.intersects_any(o[s:s + chunk], d[s:s + chunk]), bool)
+                           for s in range(0, len(d), chunk)] or [np.zeros(0, bool)])
+
+
 def gbuffer_mesh(mesh: trimesh.Trimesh, camera: Camera) -> GBuffer:
     """Ray-cast ``mesh`` from ``camera`` (first hit per pixel).
 
@@ -60,7 +86,7 @@ def gbuffer_mesh(mesh: trimesh.Trimesh, camera: Camera) -> GBuffer:
     d = dirs.reshape(-1, 3)
     o = np.broadcast_to(origin, d.shape)
     isect, _ = _intersector(mesh)
-    loc, idx_ray, idx_tri = isect.intersects_location(o, d, multiple_hits=False)
+    loc, idx_ray, idx_tri = _first_hits(isect, o, d)
     n = H * W
     mask = np.zeros(n, bool)
     pos = np.zeros((n, 3))
@@ -155,11 +181,11 @@ class Occluders:
         if len(o) == 0:
             return np.ones(0, np.float32)
         if max_dist is None or not np.isfinite(max_dist).any():
-            hit = self.intersector.intersects_any(o, d)
+            hit = _any_hits(self.intersector, o, d)
             self.cast_s += time.perf_counter() - t0
             return (~np.asarray(hit, bool)).astype(np.float32)
         md = np.asarray(max_dist, np.float64).reshape(-1)
-        loc, idx_ray, _ = self.intersector.intersects_location(o, d, multiple_hits=False)
+        loc, idx_ray, _ = _first_hits(self.intersector, o, d)
         blocked = np.zeros(len(o), bool)
         if len(idx_ray):
             t = np.linalg.norm(loc - o[idx_ray], axis=-1)
@@ -172,7 +198,7 @@ class Occluders:
         o = np.asarray(origins, np.float64).reshape(-1, 3)
         d = np.asarray(directions, np.float64).reshape(-1, 3)
         dist = np.full(len(o), np.inf)
-        loc, idx_ray, _ = self.intersector.intersects_location(o, d, multiple_hits=False)
+        loc, idx_ray, _ = _first_hits(self.intersector, o, d)
         if len(idx_ray):
             dist[idx_ray] = np.linalg.norm(loc - o[idx_ray], axis=-1)
         return dist
