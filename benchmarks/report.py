@@ -327,7 +327,9 @@ def headline_markdown(results: dict) -> str:
         t = fmt_time(h["per_item"]) + " per item" if h["per_item"] is not None else fmt_time(h["time"])
         vs = "–"
         if h["ref_time"] and h["time"] > 0:
-            vs = f"{h['ref_time'] / h['time']:.3g}× faster than {h['reference']}"
+            ratio = h["ref_time"] / h["time"]
+            vs = (f"{ratio:.3g}× faster than {h['reference']}" if ratio >= 1
+                  else f"{1 / ratio:.3g}× slower than {h['reference']}")
         within = "" if h["tolerance"] is None else (" ✓" if h["ok"] else " ✗ above tolerance")
         tail = "" if h["tail"] is None else f" (p95 {_fmt(h['tail'])})"
         lines.append(f"| {h['study']} | {h['variant']} | {h['metric']} = {_fmt(h['error'])}{tail}{within} | {t} | {vs} |")
