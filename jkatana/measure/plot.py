@@ -17,6 +17,20 @@ from jkatana.io.atomic import atomic_path
 from jkatana.measure.table import MeasurementTable
 
 
+
+def _save(fig, path: str | Path, title: str | None) -> Path:
+    """Optional suptitle, tight layout, atomic PNG write, close the figure."""
+    import matplotlib.pyplot as plt
+
+    if title:
+        fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    return path
+
 def plot_table(table: MeasurementTable, path: str | Path, *, overlay: MeasurementTable | None = None,
                overlay_label: str = "truth", title: str | None = None, log: bool = True) -> Path:
     """Write a PNG of ``table`` (module docstring); ``overlay`` is drawn as lines. Returns the path."""
@@ -57,14 +71,7 @@ def plot_table(table: MeasurementTable, path: str | Path, *, overlay: Measuremen
                      fontsize=10)
         ax.grid(True, which="both", alpha=0.25)
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="incidence", title_fontsize=7)
-    if title:
-        fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, title)
 
 
 def plot_residuals(table: MeasurementTable, reference: MeasurementTable, path: str | Path,
@@ -91,14 +98,7 @@ def plot_residuals(table: MeasurementTable, reference: MeasurementTable, path: s
         ok = np.isfinite(z)
         ax.set_title(f"{region}: χ²/n = {np.mean(z[ok] ** 2):.3f} over {ok.sum()} rows", fontsize=10)
         fig.colorbar(sc, ax=ax, label="θi (degrees)")
-    if title:
-        fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, title)
 
 
 __all__ = ["plot_table", "plot_residuals"]
