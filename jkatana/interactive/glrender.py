@@ -62,33 +62,29 @@ UNIFORMS = ("jk_lut", "jk_map", "jk_transfer", "jk_xyz_to_rgb", "jk_env_rot", "j
             "jk_log_mu_first", "jk_log_mu_step", "jk_n_levels", "jk_n_cos", "jk_n_transfer", "cam_pos")
 
 
-def _tex_array(data: np.ndarray) -> int:
-    """Upload ``(layers, H, W, 4)`` float32 as a GL_TEXTURE_2D_ARRAY RGBA32F, bilinear, s repeat, t clamp."""
+def _tex_layered(target: int, data: np.ndarray, wraps: tuple[int, ...]) -> int:
+    """Upload ``(layers, H, W, 4)`` float32 as RGBA32F to ``target`` (bilinear; s repeats, ``wraps`` clamp)."""
     data = np.ascontiguousarray(data, np.float32)
     layers, h, w, _ = data.shape
     tex = GL.glGenTextures(1)
-    GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, tex)
-    GL.glTexImage3D(GL.GL_TEXTURE_2D_ARRAY, 0, GL.GL_RGBA32F, w, h, layers, 0, GL.GL_RGBA, GL.GL_FLOAT, data)
-    for p, v in ((GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
-                 (GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT), (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE)):
-        GL.glTexParameteri(GL.GL_TEXTURE_2D_ARRAY, p, v)
-    GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, 0)
+    GL.glBindTexture(target, tex)
+    GL.glTexImage3D(target, 0, GL.GL_RGBA32F, w, h, layers, 0, GL.GL_RGBA, GL.GL_FLOAT, data)
+    params = [(GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
+              (GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT)] + [(wrap, GL.GL_CLAMP_TO_EDGE) for wrap in wraps]
+    for p, v in params:
+        GL.glTexParameteri(target, p, v)
+    GL.glBindTexture(target, 0)
     return int(tex)
+
+
+def _tex_array(data: np.ndarray) -> int:
+    """GL_TEXTURE_2D_ARRAY: bilinear within a layer, s repeat, t clamp."""
+    return _tex_layered(GL.GL_TEXTURE_2D_ARRAY, data, (GL.GL_TEXTURE_WRAP_T,))
 
 
 def _tex_3d(data: np.ndarray) -> int:
-    """Upload ``(D, H, W, 4)`` float32 as a GL_TEXTURE_3D RGBA32F, trilinear, s repeat, t and r clamp."""
-    data = np.ascontiguousarray(data, np.float32)
-    d, h, w, _ = data.shape
-    tex = GL.glGenTextures(1)
-    GL.glBindTexture(GL.GL_TEXTURE_3D, tex)
-    GL.glTexImage3D(GL.GL_TEXTURE_3D, 0, GL.GL_RGBA32F, w, h, d, 0, GL.GL_RGBA, GL.GL_FLOAT, data)
-    for p, v in ((GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
-                 (GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT), (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE),
-                 (GL.GL_TEXTURE_WRAP_R, GL.GL_CLAMP_TO_EDGE)):
-        GL.glTexParameteri(GL.GL_TEXTURE_3D, p, v)
-    GL.glBindTexture(GL.GL_TEXTURE_3D, 0)
-    return int(tex)
+    """GL_TEXTURE_3D: trilinear, s repeat, t and r clamp."""
+    return _tex_layered(GL.GL_TEXTURE_3D, data, (GL.GL_TEXTURE_WRAP_T, GL.GL_TEXTURE_WRAP_R))
 
 
 def _tex_2d(data: np.ndarray, wrap_s=GL.GL_CLAMP_TO_EDGE) -> int:
