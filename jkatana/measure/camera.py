@@ -109,28 +109,28 @@ def band_weights(E, sensitivity, grid: WavelengthGrid = DEFAULT_GRID) -> Float[n
     return ws / total
 
 
+def _on_grid(values, grid: WavelengthGrid, what: str, field: str) -> np.ndarray:
+    """``values`` as a float64 array of one sample per grid wavelength, or an InputError naming ``field``."""
+    out = np.asarray(values, np.float64)
+    if out.shape != (grid.size,):
+        raise InputError(f"{what} has shape {out.shape}, the grid needs ({grid.size},)", field=field)
+    return out
+
+
 def light_spectrum(light="D65", grid: WavelengthGrid = DEFAULT_GRID) -> Float[np.ndarray, "wl"]:
     """A light given as a CIE illuminant name / CCT, or an array on ``grid``."""
     if isinstance(light, (str, int, float)) and not isinstance(light, bool):
         from jkatana.spectral.colorimetry import illuminant
 
         return illuminant(light, grid)
-    E = np.asarray(light, np.float64)
-    if E.shape != (grid.size,):
-        raise InputError(f"light spectrum has shape {E.shape}, the grid needs ({grid.size},)",
-                         field="light")
-    return E
+    return _on_grid(light, grid, "light spectrum", "light")
 
 
 def camera_sensitivity(camera=DEFAULT_CAMERA, grid: WavelengthGrid = DEFAULT_GRID) -> np.ndarray:
     """A camera given by colour-science name (green channel) or as an array on ``grid``."""
     if isinstance(camera, str):
         return green_sensitivity(grid, camera)
-    s = np.asarray(camera, np.float64)
-    if s.shape != (grid.size,):
-        raise InputError(f"camera sensitivity has shape {s.shape}, the grid needs ({grid.size},)",
-                         field="camera")
-    return s
+    return _on_grid(camera, grid, "camera sensitivity", "camera")
 
 
 __all__ = ["DEFAULT_CAMERA", "green_sensitivity", "band_weights", "light_spectrum", "camera_sensitivity"]
