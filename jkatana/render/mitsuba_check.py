@@ -44,6 +44,9 @@ import numpy as np
 MITSUBA_Y_NORM = 106.75
 #: Mitsuba's latlong u origin differs from jkatana's by half a turn (measured, 3.9.1).
 MITSUBA_ENV_ROTATION_DEG = 180.0
+#: Our texel centres per Mitsuba texel (per axis) at which :func:`mitsuba_env_spectra` evaluates
+#: Mitsuba's envmap for jkatana's copy (see there).
+ENV_NODES = 4
 
 
 @functools.lru_cache(maxsize=1)
@@ -80,8 +83,12 @@ def small_envmap(src: str | Path, dst: str | Path, width: int = 256) -> Path:
 
 
 def render_mitsuba(env_path, *, alpha: float | None, size: int = 96, spp: int = 256,
-                   variant: str | None = None, fov: float = 38.0, eye=(0.0, 0.3, 3.2)) -> np.ndarray:
-    """Mitsuba 3: iron sphere (radius 1 at the origin), linear Rec. 709 ``(size, size, 3)``."""
+                   variant: str | None = None, fov: float = 38.0, eye=(0.0, 0.3, 3.2), seed: int = 0) -> np.ndarray:
+    """Mitsuba 3: iron sphere (radius 1 at the origin), linear Rec. 709 ``(size, size, 3)``.
+
+    ``seed`` seeds Mitsuba's sampler: two seeds give independent frames (their
+    difference estimates Mitsuba's own noise).
+    """
     import mitsuba as mi
 
     from jkatana.spectral.optical_constants import load
@@ -106,12 +113,19 @@ def render_mitsuba(env_path, *, alpha: float | None, size: int = 96, spp: int = 
                             "pixel_format": "rgb"},
                    "sampler": {"type": "independent", "sample_count": spp}},
     })
-    return np.asarray(mi.render(scene, spp=spp), np.float64)[..., :3]
+    return np.asarray(mi.render(scene, spp=spp, seed=seed), np.float64)[..., :3]
 
 
 def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: int = 256, supersample: int = 3,
-                   fov: float = 38.0, eye=(0.0, 0.3, 3.2), same_upsampling: bool = True):
-    """jkatana, same scene: ``(linear Rec. 709 (size, size, 3), mask, shading seconds)``."""
+                   fov: float = 38.0, eye=(0.0, 0.3, 3.2), same_upsampling: bool = True, seed: int = 0,
+                   env_nodes: int | None = ENV_NODES):
+    """jkatana, same scene: ``(linear Rec. 709 (size, size, 3), mask, shading seconds)``.
+
+    ``same_upsampling``: the environment is Mitsuba's own spectral envmap
+    (:func:`mitsuba_env_spectra` with ``nodes=env_nodes``: ``None`` = its texel
+    spectra at our texel centres, uncompensated); else jkatana's Jakob 2019 upsampling.
+    ``seed``: jkatana's sampling key.
+    """
     import jax.numpy as jnp
 
     from jkatana.light.envmap import load_envmap
@@ -124,7 +138,7 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
     from jkatana.spectral.grid import WavelengthGrid
 
     grid = WavelengthGrid(360.0, 830.0, 5.0)
-    radiance = mitsuba_env_spectra(env_path, grid) if same_upsampling else \
+    radiance = mitsuba_env_spectra(env_path, grid, nodes=env_nodes) if same_upsampling else \
         np.asarray(load_envmap(env_path, grid, upsampling="Jakob 2019").radiance)
     from jkatana.render.renderer import rotation_y
 
@@ -140,7 +154,7 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
         plan, maps = Plan(samples=samples, hiraji=False, hamon=True, rough_model="beckmann"), [0.0, 0.05, alpha]
     cmf = film_weights(grid)
     f = render_frame(plan, mat, E, None, ("sphere", (0.0, 0.0, 0.0), 1.0), cam,
-                     np.array([[maps]], np.float32).repeat(2, 0).repeat(2, 1), cmf)
+                     np.array([[maps]], np.float32).repeat(2, 0).repeat(2, 1), cmf, seed=seed)
     scale = float(xyz_weights(grid)[:, 1].sum()) / MITSUBA_Y_NORM
     rgb = xyz_to_linear_rgb(f.xyz.astype(np.float64) * scale, "ITU-R BT.709")
     rgb = rgb.reshape(size, supersample, size, supersample, 3).mean((1, 3))
@@ -164,14 +178,13 @@ def compare(rgb_mi: np.ndarray, rgb_jk: np.ndarray, mask: np.ndarray, erode: int
             "dE2000_max": p95["dE2000_max"], "pixels": int(m.sum())}
 
 
-def mitsuba_env_spectra(env_path, grid) -> np.ndarray:
-    """The environment exactly as Mitsuba 3's spectral ``envmap`` sees it, on ``grid``: ``(H, W, wl)``.
+def _mitsuba_texels(env_path, grid):
+    """Mitsuba 3's per-texel spectral envmap data on ``grid``: ``(sigmoid (H, W, wl), scale (H, W), D65 (wl,))``.
 
     Per texel (Mitsuba's ``envmap.cpp``): scale = 2·max(rgb), coefficients =
     ``srgb_model_fetch(rgb / scale)`` (Jakob & Hanika 2019, Mitsuba's 64³ LUT),
-    radiance(λ) = ``srgb_model_eval(coeff, λ)`` · scale · D65(λ) (Mitsuba's
-    ``d65`` plugin, normalised). Using it removes the upsampler from the
-    comparison, which then tests the renderers, not two RGB → spectrum LUTs.
+    sigmoid(λ) = ``srgb_model_eval(coeff, λ)``; D65 is Mitsuba's ``d65`` plugin
+    (normalised). The texel's radiance is sigmoid · scale · D65.
     """
     import mitsuba as mi
 
@@ -196,4 +209,53 @@ def mitsuba_env_spectra(env_path, grid) -> np.ndarray:
     # sigmoid of a quadratic in λ (srgb_model_eval), vectorised here
     x = coeffs[:, 0:1] * wl * wl + coeffs[:, 1:2] * wl + coeffs[:, 2:3]
     sig = 0.5 + 0.5 * x / np.sqrt(1.0 + x * x)
-    return (sig * scale[:, None] * d65_wl).reshape(H, W, -1).astype(np.float32)
+    return sig.reshape(H, W, -1), scale.reshape(H, W), d65_wl
+
+
+def _interp_matrix(pos: np.ndarray, n: int, wrap: bool) -> np.ndarray:
+    """``(len(pos), n)`` linear-interpolation weights at fractional texel positions ``pos``."""
+    if wrap:
+        p0 = np.floor(pos)
+        i0 = p0.astype(int) % n
+        i1 = (i0 + 1) % n
+    else:
+        p0 = np.clip(np.floor(pos), 0, n - 2)
+        i0 = p0.astype(int)
+        i1 = i0 + 1
+    f = pos - p0
+    A = np.zeros((len(pos), n))
+    np.add.at(A, (np.arange(len(pos)), i0), 1.0 - f)
+    np.add.at(A, (np.arange(len(pos)), i1), f)
+    return A
+
+
+def mitsuba_env_spectra(env_path, grid, nodes: int | None = None) -> np.ndarray:
+    """The environment as Mitsuba 3's spectral ``envmap`` sees it, on ``grid``: ``(H', W', wl)``.
+
+    ``nodes=None``: the texels' own spectra, ``sigmoid · scale · D65`` per texel
+    (see :func:`_mitsuba_texels`), ``(H, W, wl)``.
+
+    ``nodes=r``: an ``(r·H, r·W, wl)`` image whose value at each of *our*
+    texel centres — jkatana's lookup puts row j′ at v = (j′ + ½)/H′ and column
+    i′ at u = (i′ + ½)/W′ (:func:`jkatana.render.shading.bilinear_equirect`) —
+    is exactly what Mitsuba 3.9.1's ``envmap.eval`` returns in that direction:
+    rows corner-aligned (y = v·(H − 1)), columns centred (x = u·W − ½, wrapped),
+    and, in its spectral variants, the bilinear interpolant of the texels'
+    sigmoids *times* the bilinear interpolant of their scales (``eval_spectrum``
+    in ``src/emitters/envmap.cpp``), not the interpolant of their product.
+    Between our nodes our bilinear lookup differs from Mitsuba's by the
+    interpolation error on the finer grid, which falls as 1/r² (measured by
+    ``tests/test_render_mitsuba.py``). Directions are in the map's frame (the
+    comparison's half-turn rotation is applied by the renderer).
+    """
+    sig, scale, d65 = _mitsuba_texels(env_path, grid)
+    if nodes is None:
+        return (sig * scale[..., None] * d65).astype(np.float32)
+    H, W = scale.shape
+    r = int(nodes)
+    Ay = _interp_matrix((np.arange(r * H) + 0.5) / (r * H) * (H - 1), H, wrap=False)
+    Ax = _interp_matrix((np.arange(r * W) + 0.5) / r - 0.5, W, wrap=True)
+    s_up = np.einsum("ah,hwl->awl", Ay, sig)
+    s_up = np.einsum("bw,awl->abl", Ax, s_up)
+    f_up = Ay @ scale @ Ax.T
+    return (s_up * f_up[..., None] * d65).astype(np.float32)
