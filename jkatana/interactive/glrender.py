@@ -10,8 +10,15 @@ Two ways to draw a frame, the same shading (``shaders/shade.glsl``):
   block a triangle touches, so on the dense blade mesh (51k triangles, most a few
   pixels) a forward shader runs 2–4× per covered pixel; deferred, the expensive
   shader runs once per pixel and the G-buffer pass costs a few stores per block.
-- **forward** (``mesh.frag``; the windowed Viewer, and MSAA frames): shades the
-  rasterised fragments directly.
+- **forward** (``mesh.frag``; MSAA frames): shades the rasterised fragments directly.
+
+A deferred frame is :meth:`SampleCountRenderer._forward_pass` (replacing pyrender's):
+G-buffer pass (only depth is cleared: the shading pass reads the G-buffer only
+where this frame wrote depth, so clearing two float targets, 1.3 ms at 800×600
+on llvmpipe, is wasted), shading pass into an RGBA8 renderbuffer, then either the
+read-back of colour only (offscreen; pyrender also blits, reads and linearises
+depth) or a colour blit to the window (the Viewer). :meth:`BakedOffscreenRenderer.draw`
+draws and waits without reading back, which is what a window pays.
 
 pyrender chooses shaders by file name through its renderer's
 ``ShaderProgramCache`` and binds only its own uniforms and 8-bit textures.
@@ -62,13 +69,15 @@ UNIFORMS = ("jk_lut", "jk_map", "jk_transfer", "jk_xyz_to_rgb", "jk_env_rot", "j
             "jk_log_mu_first", "jk_log_mu_step", "jk_n_levels", "jk_n_cos", "jk_n_transfer", "cam_pos")
 
 
-def _tex_layered(target: int, data: np.ndarray, wraps: tuple[int, ...]) -> int:
-    """Upload ``(layers, H, W, 4)`` float32 as RGBA32F to ``target`` (bilinear; s repeats, ``wraps`` clamp)."""
+def _tex_layered(target: int, data: np.ndarray, wraps: tuple[int, ...], internal: int | None = None) -> int:
+    """Upload ``(layers, H, W, 4)`` float32 to ``target`` as ``internal`` (default RGBA32F) (bilinear; s repeats,
+    ``wraps`` clamp)."""
     data = np.ascontiguousarray(data, np.float32)
     layers, h, w, _ = data.shape
     tex = GL.glGenTextures(1)
     GL.glBindTexture(target, tex)
-    GL.glTexImage3D(target, 0, GL.GL_RGBA32F, w, h, layers, 0, GL.GL_RGBA, GL.GL_FLOAT, data)
+    GL.glTexImage3D(target, 0, GL.GL_RGBA32F if internal is None else internal, w, h, layers, 0, GL.GL_RGBA,
+                    GL.GL_FLOAT, data)
     params = [(GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
               (GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT)] + [(wrap, GL.GL_CLAMP_TO_EDGE) for wrap in wraps]
     for p, v in params:
@@ -82,9 +91,13 @@ def _tex_array(data: np.ndarray) -> int:
     return _tex_layered(GL.GL_TEXTURE_2D_ARRAY, data, (GL.GL_TEXTURE_WRAP_T,))
 
 
+#: GL internal format of the prefiltered environment textures (the shading's most-read tables)
+ENV_FORMAT = GL.GL_RGBA32F
+
+
 def _tex_3d(data: np.ndarray) -> int:
-    """GL_TEXTURE_3D: trilinear, s repeat, t and r clamp."""
-    return _tex_layered(GL.GL_TEXTURE_3D, data, (GL.GL_TEXTURE_WRAP_T, GL.GL_TEXTURE_WRAP_R))
+    """GL_TEXTURE_3D: trilinear, s repeat, t and r clamp; stored as :data:`ENV_FORMAT`."""
+    return _tex_layered(GL.GL_TEXTURE_3D, data, (GL.GL_TEXTURE_WRAP_T, GL.GL_TEXTURE_WRAP_R), ENV_FORMAT)
 
 
 def _tex_2d(data: np.ndarray, wrap_s=GL.GL_CLAMP_TO_EDGE) -> int:
@@ -318,10 +331,10 @@ class SampleCountRenderer(Renderer):
     """pyrender's Renderer with the offscreen framebuffer's MSAA sample count as a parameter (0 = none),
     and, with ``deferred=True`` (needs ``samples=0``), deferred shading (see the module docstring).
 
-    Deferred: pyrender's offscreen forward pass draws into :attr:`_main_fb_ms`, which here is the
-    G-buffer framebuffer (two RGBA32F textures and a depth renderbuffer); the shading pass runs in
-    :meth:`_read_main_framebuffer` (called by pyrender right after the forward pass) into
-    :attr:`_main_fb` (an RGBA8 renderbuffer sharing that depth renderbuffer), which is read back.
+    Deferred: :meth:`_forward_pass` draws the meshes into :attr:`_main_fb_ms`, which here is the
+    G-buffer framebuffer (two RGBA32F textures and a depth renderbuffer), then shades into
+    :attr:`_main_fb` (an RGBA8 renderbuffer sharing that depth renderbuffer), which is read back
+    (offscreen) or blitted to the window (on screen, pyrender's Viewer).
     After each frame :attr:`last_mask` holds the rasterised blade pixels (row 0 at the top) when
     :attr:`want_mask` is set.
     """
@@ -334,6 +347,8 @@ class SampleCountRenderer(Renderer):
             raise ValueError("deferred shading is single-sample (samples=0)")
         self.deferred = bool(deferred)
         self.want_mask = False
+        #: False: an offscreen frame is drawn and waited for (glFinish) but not read back (timing)
+        self.read_back = True
         self.last_mask = None
         self._gtex = None
 
@@ -410,12 +425,60 @@ class SampleCountRenderer(Renderer):
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
         return (int(x0), int(y0), int(max(x1 - x0, 0)), int(max(y1 - y0, 0)))
 
-    def _read_main_framebuffer(self, scene, flags):
+    def _forward_pass(self, scene, flags, seg_node_map=None):
+        """Deferred: G-buffer pass, shading pass, then the read-back (offscreen) or a colour blit to the
+        window (on screen); pyrender's forward pass otherwise."""
         from pyrender.constants import RenderFlags
 
         if not self.deferred or flags & (RenderFlags.DEPTH_ONLY | RenderFlags.SEG | RenderFlags.RGBA):
-            return super()._read_main_framebuffer(scene, flags)
+            return super()._forward_pass(scene, flags, seg_node_map=seg_node_map)
+        self._configure_main_framebuffer()
         w, h = self._main_fb_dims
+        self._gbuffer_pass(scene, flags, w, h)
+        self._shading_pass(scene, w, h)
+        if not flags & RenderFlags.OFFSCREEN:      # the Viewer: copy the shaded frame to the window
+            GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
+            GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, 0)
+            GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_COLOR_BUFFER_BIT, GL.GL_NEAREST)
+            GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, 0)
+            return None
+        if not self.read_back:                    # timing of the frame as drawn: wait for it, read nothing
+            GL.glFinish()
+            return None, None
+        return self._read_colour(w, h)
+
+    def _gbuffer_pass(self, scene, flags, w, h):
+        """Pass 1: the meshes with ``gbuffer.frag`` into the G-buffer. Only depth is cleared: the shading
+        pass reads the G-buffer only where this frame's depth is < 1, i.e. where this pass wrote it."""
+        from pyrender.constants import ProgramFlags
+
+        GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb_ms)
+        GL.glViewport(0, 0, w, h)
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glDepthMask(GL.GL_TRUE)
+        GL.glDepthFunc(GL.GL_LESS)
+        GL.glDepthRange(0.0, 1.0)
+        GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
+        GL.glDisable(GL.GL_MULTISAMPLE)
+        V, P = self._get_camera_matrices(scene)
+        program = None
+        for node in self._sorted_mesh_nodes(scene):
+            if not node.mesh.is_visible:
+                continue
+            for primitive in node.mesh.primitives:
+                program = self._get_primitive_program(primitive, flags, ProgramFlags.USE_MATERIAL)
+                program._bind()
+                program.set_uniform("V", V)
+                program.set_uniform("P", P)
+                self._bind_and_draw_primitive(primitive=primitive, pose=scene.get_pose(node), program=program,
+                                              flags=flags)
+                self._reset_active_textures()
+        if program is not None:
+            program._unbind()
+
+    def _shading_pass(self, scene, w, h):
+        """Pass 2: one full-screen triangle, ``deferred.frag`` once per pixel the G-buffer pass covered,
+        into :attr:`_main_fb` (RGBA8, sharing the G-buffer's depth)."""
         program = self._program_cache.get_program("deferred.vert", "deferred.frag")
         if not program._in_context():
             program._add_to_context()
@@ -432,6 +495,7 @@ class SampleCountRenderer(Renderer):
             GL.glEnable(GL.GL_SCISSOR_TEST)
             GL.glScissor(*box)
         GL.glDisable(GL.GL_BLEND)
+        GL.glDisable(GL.GL_CULL_FACE)
         program._bind()
         GL.glUniform3fv(GL.glGetUniformLocation(program._program_id, "cam_pos"), 1,
                         np.asarray(scene.get_pose(scene.main_camera_node)[:3, 3], np.float32))
@@ -442,14 +506,34 @@ class SampleCountRenderer(Renderer):
         GL.glDisable(GL.GL_SCISSOR_TEST)
         GL.glDepthFunc(GL.GL_LESS)
         GL.glDepthMask(GL.GL_TRUE)
+
+    def _read_main_framebuffer(self, scene, flags):
+        """Forward offscreen frames: resolve the (MSAA) colour into :attr:`_main_fb` and read back colour
+        only (pyrender also blits, reads and linearises depth, which nothing here uses)."""
+        from pyrender.constants import RenderFlags
+
+        if flags & (RenderFlags.DEPTH_ONLY | RenderFlags.SEG | RenderFlags.RGBA):
+            return super()._read_main_framebuffer(scene, flags)
+        w, h = self._main_fb_dims
+        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb_ms)
+        GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
+        GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_COLOR_BUFFER_BIT, GL.GL_NEAREST)
+        if not self.read_back:
+            GL.glFinish()
+            return None, None
+        return self._read_colour(w, h)
+
+    def _read_colour(self, w, h):
         GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
         GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
-        # RGBA, the renderbuffer's own layout: a straight copy in Mesa (RGB would be converted per pixel)
+        # RGBA, the renderbuffer's own layout: a straight copy in Mesa (RGB would be converted per pixel);
+        # no depth unless the mask is asked for (pyrender always reads and linearises depth)
         buf = GL.glReadPixels(0, 0, w, h, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE)
         color = np.frombuffer(buf, np.uint8).reshape(h, w, 4)[::-1, :, :3]
         if self.want_mask:
             d = GL.glReadPixels(0, 0, w, h, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
             self.last_mask = (np.frombuffer(d, np.float32).reshape(h, w) < 1.0)[::-1].copy()
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, 0)
         return color, None
 
 
@@ -503,6 +587,16 @@ class BakedOffscreenRenderer:
         r.want_mask = bool(mask)
         color, _ = self._r.render(scene)
         return color
+
+    def draw(self, scene) -> None:
+        """One frame drawn and waited for (``glFinish``) but not read back: what a window shows, the
+        cost of the frame without the copy to the CPU that :meth:`render` adds."""
+        r = self._r._renderer
+        r.want_mask, r.read_back = False, False
+        try:
+            self._r.render(scene)
+        finally:
+            r.read_back = True
 
     def delete(self):
         self._r.delete()
