@@ -216,7 +216,9 @@ def test_cli_offscreen_orbit(tmp_path):
 
 
 @pytest.mark.gl
-def test_windowed_viewer_under_xvfb(tmp_path):
+def test_windowed_viewer_under_xvfb(glr, tmp_path):
+    """The window (GLX on Xvfb, llvmpipe) draws the deferred path, and its frame is the headless
+    renderer's frame of the same view (same shaders, same tables: equal up to 8-bit rounding)."""
     import shutil
 
     from jkatana.interactive.commands import run_in_xvfb
@@ -227,6 +229,7 @@ def test_windowed_viewer_under_xvfb(tmp_path):
     shot = tmp_path / "window.png"
     res = run_in_xvfb(["--resolution", "320", "240", "--screenshot", str(shot)], timeout=300, size=(320, 240))
     assert res.returncode == 0, res.stderr[-2000:]
+    assert "window 320×240, deferred shading" in res.stderr, res.stderr[-2000:]
     from PIL import Image
 
     a = np.asarray(Image.open(shot))
@@ -236,6 +239,82 @@ def test_windowed_viewer_under_xvfb(tmp_path):
     mask = R.gbuffer(sc.mesh, sc.view)["mask"]
     iou = (drawn & mask).sum() / max((drawn | mask).sum(), 1)
     assert mask.mean() > 0.02 and iou > 0.9, (mask.mean(), iou)
+    # the same view headless (EGL, deferred), with the CLI's tables and exposure
+    from jkatana.interactive.bake import cached_bake
+    from jkatana.interactive.commands import auto_exposure
+
+    st = glr.ShadingState(cached_bake(sc.radiance, sc.grid, rank=3, colourspace=sc.colourspace,
+                                      transfer=sc.transfer, source=sc.source), sc.refl_map,
+                          exposure=auto_exposure(sc.radiance, sc.grid) if sc.exposure != sc.exposure else sc.exposure)
+    st.env_rotation = sc.env_rotation
+    r = glr.BakedOffscreenRenderer(st, 320, 240)
+    b = r.render(glr.build_scene(sc.mesh, sc.view))
+    r.delete()
+    diff = np.abs(a.astype(int) - b.astype(int)).max(-1)
+    blade = np.any(b != b[0, 0], -1)
+    assert blade.sum() > 1000
+    assert np.mean(diff[blade] <= 1) > 0.99 and np.percentile(diff[blade], 99.9) <= 3, (
+        np.mean(diff[blade] <= 1), diff.max())
+    # …and it is not equal by accident: a different rank-1 / one-tap frame is visibly different there
+    st1 = glr.ShadingState(st.baked, sc.refl_map, exposure=st.exposure, rank=1, two_tap=False)
+    st1.env_rotation = sc.env_rotation
+    r = glr.BakedOffscreenRenderer(st1, 320, 240)
+    c = r.render(glr.build_scene(sc.mesh, sc.view))
+    r.delete()
+    assert np.mean(np.abs(a.astype(int) - c.astype(int)).max(-1)[blade] > 1) > 0.2
+
+
+@pytest.mark.gl
+def test_viewer_measures_its_frame_rate_under_xvfb():
+    import re
+    import shutil
+
+    from jkatana.interactive.commands import run_in_xvfb
+
+    if shutil.which("Xvfb") is None:  # pragma: no cover
+        pytest.skip("Xvfb not installed (Debian package xvfb)")
+    res = run_in_xvfb(["--resolution", "160", "120", "--measure-fps", "10", "--taps", "1", "--rank", "2"],
+                      timeout=300, size=(160, 120))
+    assert res.returncode == 0, res.stderr[-2000:]
+    m = re.search(r"measured (\d+) frames 160×120 \(deferred\): median interval ([\d.]+) ms = ([\d.]+) fps",
+                  res.stderr)
+    assert m, res.stderr[-2000:]
+    assert int(m.group(1)) == 10 and 0 < float(m.group(2)) < 2000
+
+
+@pytest.mark.gl
+def test_cli_shading_switches(glr, tmp_path):
+    """--taps and --rank reach the shaders: each choice gives its own frame; bad values are refused."""
+    import argparse
+
+    from jkatana.interactive import commands as C
+
+    p = argparse.ArgumentParser()
+    C.view_add_arguments(p)
+    sc = S.default_scene("sky", 160, 120)
+    frames = {}
+    for argv in (["--taps", "1"], ["--taps", "3"], ["--taps", "5"], ["--taps", "3", "--rank", "1"]):
+        args = p.parse_args(argv)
+        st = C._state(sc, args, glr)
+        assert st.rank == args.rank and st.two_tap == (args.taps != 1) and (args.taps != 5 or st.taps == 5)
+        r = glr.BakedOffscreenRenderer(st, 160, 120)
+        frames[" ".join(argv)] = r.render(glr.build_scene(sc.mesh, sc.view)).astype(int)
+        r.delete()
+    keys = list(frames)
+    for i, k in enumerate(keys):
+        for k2 in keys[i + 1:]:
+            assert np.abs(frames[k] - frames[k2]).sum() > 0, (k, k2)
+    for bad in (["--taps", "2"], ["--rank", "5"]):
+        with pytest.raises(SystemExit):
+            p.parse_args(bad)
+    out = tmp_path / "o"
+    res = subprocess.run([sys.executable, "-m", "jkatana.cli", "view", "--offscreen", "--frames", "1", "--taps", "5",
+                          "--rank", "2", "--resolution", "80", "60", "-o", str(out)], capture_output=True, text=True,
+                         timeout=300, cwd=ROOT)
+    assert res.returncode == 0 and (out / "frame_0000.png").exists(), res.stderr[-2000:]
+    res = subprocess.run([sys.executable, "-m", "jkatana.cli", "view", "--offscreen", "--refresh", "0"],
+                         capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert res.returncode == 2 and "--refresh" in res.stderr, res.stderr[-2000:]
 
 
 @pytest.mark.slow

@@ -7,12 +7,29 @@ pan). Keys added by jkatana (pyrender's own keys still work, e.g. ``q`` quits):
 - ``e`` / ``d``: exposure × √2 / ÷ √2;
 - ``p``: save the current frame as a PNG in the output folder.
 
+The window draws on the same **deferred** path as the headless renderer
+(:class:`~jkatana.interactive.glrender.SampleCountRenderer`: G-buffer pass, one
+shading pass per covered pixel, then a colour blit to the window), so the
+shading is the one the agreement tests check. Two changes to pyrender's Viewer
+loop make the window cheap: a single-sample window (pyrender asks for 4× MSAA
+first; the deferred frame is single-sample, and a multisampled window cannot
+receive the blit), and one draw per timer tick (pyrender's timer callback calls
+``on_draw`` and pyglet's event loop then draws again before the flip: every
+displayed frame was rendered twice). The timer runs at ``refresh_rate`` (60 Hz
+here; pyrender's default is 30).
+
+``measure_frames=N`` draws N frames back to back (the light turning by 1° each)
+and prints the measured frame interval — the Viewer's real frame rate, flip to
+the X server included — then closes.
+
 Import this module only in a process that has not imported PyOpenGL for
 headless use: it selects the windowed (GLX) platform.
 """
 
 from __future__ import annotations
 
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -29,27 +46,95 @@ class BladeViewer(pyrender.Viewer):
 
     **Arguments:** `scene` (pyrender Scene from :func:`glrender.build_scene`), `state`
     (:class:`~glrender.ShadingState`), `out_dir` for saved frames, `screenshot` (a PNG
-    path: save the frame after `screenshot_after` draws and close — for tests and batch use).
+    path: save the frame after `screenshot_after` draws and close — for tests and batch use),
+    `deferred` (default True; False: the forward shader on every rasterised fragment),
+    `refresh_rate` (Hz of the redraw timer), `measure_frames` (draw that many frames back to back,
+    print the frame rate, close).
+    After the window closes, :attr:`frame_times` holds the intervals between draws (seconds).
     """
 
     def __init__(self, scene, state: "glrender.ShadingState", *, viewport_size=(800, 600),
                  out_dir: str | Path = ".", screenshot: str | Path | None = None, screenshot_after: int = 3,
-                 title: str = "jkatana view"):
+                 title: str = "jkatana view", deferred: bool = True, refresh_rate: float = 60.0,
+                 measure_frames: int = 0):
         self._jk_state = state
         self._jk_out = Path(out_dir)
         self._jk_shot = None if screenshot is None else Path(screenshot)
         self._jk_after = screenshot_after
         self._jk_draws = 0
         self._jk_saved = 0
+        self._jk_deferred = bool(deferred)
+        self._jk_measure = int(measure_frames)
+        self._jk_stamps: list[float] = []
+        self._jk_closing = False
+        self.frame_times: list[float] = []
         keys = {"j": (BladeViewer._turn_light, [-15.0]), "k": (BladeViewer._turn_light, [15.0]),
                 "e": (BladeViewer._expose, [np.sqrt(2.0)]), "d": (BladeViewer._expose, [1 / np.sqrt(2.0)]),
                 "p": BladeViewer.save_frame}
         super().__init__(scene, viewport_size=viewport_size, registered_keys=keys, run_in_thread=False,
-                         window_title=title, use_raymond_lighting=False, use_direct_lighting=False)
+                         window_title=title, use_raymond_lighting=False, use_direct_lighting=False,
+                         refresh_rate=float(refresh_rate))
+
+    @property
+    def pipeline(self) -> str:
+        """'deferred' or 'forward': how the window's frames are shaded."""
+        return "deferred" if self._jk_deferred else "forward"
 
     def _init_and_start_app(self):
-        self._renderer._program_cache = glrender.BakedProgramCache(self._jk_state)
-        super()._init_and_start_app()
+        """pyrender's ``Viewer._init_and_start_app`` with jkatana's renderer, a single-sample window and
+        :meth:`_tick` (one draw per tick) as the timer."""
+        import pyglet
+        from pyglet import clock
+        from pyglet.gl import Config
+        from pyrender.constants import (MIN_OPEN_GL_MAJOR, MIN_OPEN_GL_MINOR, TARGET_OPEN_GL_MAJOR,
+                                        TARGET_OPEN_GL_MINOR)
+
+        w, h = self._viewport_size
+        r = glrender.SampleCountRenderer(w, h, self.render_flags["point_size"], samples=0,
+                                         deferred=self._jk_deferred)
+        r._program_cache = glrender.BakedProgramCache(self._jk_state)
+        r._program_cache.deferred = self._jk_deferred
+        self._renderer = r
+        for major, minor in ((TARGET_OPEN_GL_MAJOR, TARGET_OPEN_GL_MINOR), (MIN_OPEN_GL_MAJOR, MIN_OPEN_GL_MINOR)):
+            conf = Config(depth_size=24, double_buffer=True, major_version=major, minor_version=minor)
+            try:
+                super(pyrender.Viewer, self).__init__(config=conf, resizable=True, width=w, height=h)
+                break
+            except pyglet.window.NoSuchConfigException:
+                pass
+        if not self.context:
+            raise ValueError("Unable to initialize an OpenGL 3+ context")
+        if self._jk_measure:
+            clock.schedule(BladeViewer._tick, self)           # every loop iteration: as fast as it draws
+        else:
+            clock.schedule_interval(BladeViewer._tick, 1.0 / self.viewer_flags["refresh_rate"], self)
+        self.switch_to()
+        self.set_caption(self.viewer_flags["window_title"])
+        print(f"[view] window {w}×{h}, {self.pipeline} shading", file=sys.stderr, flush=True)
+        pyglet.app.run()
+
+    @staticmethod
+    def _tick(dt, self):
+        """pyrender's ``Viewer._time_event`` without its ``on_draw`` call: pyglet's event loop draws
+        and flips every window after a scheduled function has run."""
+        if not self._is_active:
+            return
+        if self.viewer_flags["record"]:
+            self._record()
+        if self.viewer_flags["rotate"] and not self.viewer_flags["mouse_pressed"]:
+            self._rotate()
+        if self._message_text is not None:
+            if self._message_opac > 1.0:
+                self._message_opac -= 1.0
+            else:
+                self._message_opac *= 0.90
+            if self._message_opac < 0.05:
+                self._message_opac = 1.0 + self._ticks_till_fade
+                self._message_text = None
+        if self._jk_measure:
+            self._jk_state.env_rotation += np.deg2rad(1.0)
+        if self._should_close:
+            self.on_close()
 
     def _turn_light(self, degrees: float):
         self._jk_state.env_rotation += np.deg2rad(degrees)
@@ -92,8 +177,20 @@ class BladeViewer(pyrender.Viewer):
     def on_draw(self):
         super().on_draw()
         self._jk_draws += 1
+        self._jk_stamps.append(time.perf_counter())
+        close = False
         if self._jk_shot is not None and self._jk_draws == self._jk_after:
             self.save_frame(self._jk_shot, back=True)
+            close = True
+        if self._jk_measure and self._jk_draws == self._jk_measure + 4:     # 3 warm-up draws, N intervals
+            self.frame_times = list(np.diff(self._jk_stamps[3:]))
+            med = float(np.median(self.frame_times))
+            print(f"[view] measured {len(self.frame_times)} frames {self.viewport_size[0]}×{self.viewport_size[1]} "
+                  f"({self.pipeline}): median interval {1e3 * med:.2f} ms = {1 / med:.1f} fps "
+                  f"(min {1e3 * min(self.frame_times):.2f} ms)", file=sys.stderr, flush=True)
+            close = True
+        if close and not self._jk_closing:
+            self._jk_closing = True
             import pyglet
 
             pyglet.clock.schedule_once(lambda dt: self.on_close(), 0.0)
