@@ -11,25 +11,51 @@ then the shader once per covered pixel, see :mod:`jkatana.interactive.glrender`)
 
 - ``full``: rank 3, roughness (prefiltered μ levels), blend map — the default;
 - ``forward``: ``full`` shaded in the forward pass (the shader on every fragment llvmpipe rasterises:
-  the path before deferred shading; the windowed Viewer still draws this way);
+  the path before deferred shading);
 - ``rank1`` / ``rank2`` / ``rank4``: spectral basis rank;
 - ``one_tap``: one isotropic prefiltered tap instead of the three-tap anisotropic lobe;
 - ``five_tap``: five binomial taps along the plane of incidence instead of three;
 - ``no_rough``: mirror-like (narrowest μ level); ``no_blend``: hiraji everywhere;
 - ``msaa4``: ``full`` with pyrender's 4× MSAA framebuffer (what pyrender does by default).
 
-Time: one ``OffscreenRenderer.render`` call (draw + shade + read-back of the
-800×600 RGB frame), median of repeats; fps = 1/median. ``cpu_s``: process CPU
-time per frame (user + system, llvmpipe's threads included) — unlike the wall
-time it hardly depends on what else runs on the machine; ``cores / cpu_s`` is
-the frame rate the frame's work allows on an idle machine with perfect
-parallelism (an upper bound). Error: ΔE2000 (mean,
-p95) over the blade's pixels of the GL frame against the direct per-pixel JAX
-evaluation (:mod:`jkatana.interactive.reference`: exact Fresnel, 61 bands,
-lobe quadrature of the unfiltered environment) at a reduced resolution
-(200×150; 96×72 in quick mode) of the same view — the reference costs seconds
-per thousand pixels. The load average is recorded: on a shared machine the
-fps are lower bounds.
+Extra cases: ``env_f16`` / ``gbuffer_f16`` (``full`` with RGBA16F environment textures / G-buffer:
+the alternatives measured and not kept, see :data:`jkatana.interactive.glrender.ENV_FORMAT`), and
+``viewer`` (the windowed Viewer under Xvfb, below).
+
+Two times per case, both honest, for two uses:
+
+- **drawn** (``time_s``, ``fps``): :meth:`BakedOffscreenRenderer.draw` — the frame drawn and waited
+  for (``glFinish``), nothing read back: what a window pays per frame (the Viewer blits it to the
+  window instead, about the cost of a clear);
+- **read-back** (``readback_s``, ``fps_readback``): :meth:`BakedOffscreenRenderer.render` — the same
+  plus the 800×600 RGBA8 read-back into numpy (batch previews, ``view --offscreen``).
+
+Medians of repeats; fps = 1/median. ``cpu_s``: process CPU time per drawn frame (user + system,
+llvmpipe's threads included) — unlike the wall time it hardly depends on what else runs on the
+machine; ``cores / cpu_s`` is the frame rate the frame's work allows on an idle machine with
+perfect parallelism (an upper bound). ``ns_per_pixel_cpu``: cpu_s over the blade's pixels.
+The ``empty`` view (blade behind the camera) is the fixed cost per frame (vertex processing of the
+51k-triangle mesh, depth clear, colour clear, read-back).
+
+``viewer``: ``jkatana view --measure-fps N`` in a fresh process on a private Xvfb display (GLX,
+llvmpipe): the median interval between the window's draws, flip to the X server included, with the
+light turning every frame — the frame rate a user sees. Skipped (and said so) without Xvfb.
+
+What bounds the close-up (measured on this machine, closeup view, ~300k shaded pixels, CPU time per
+frame, shader variants A/B-timed in one process, load ~5 from other jobs, CPU time robust to it):
+full 42.5 ms; without the 9 trilinear environment fetches (3 taps × rank 3) 26–34 ms (≈ 5.5 ns
+CPU per fetch per pixel); without the equirectangular atan/acos (3 taps) 37.4 ms; analytic sRGB
+instead of the transfer table 40.4 ms; lobe-LUT fetches skipped where w is 0 or 1 (branch) no gain
+(the LUT is small and cached; llvmpipe's branch costs what it saves); sin/cos of the side taps by
+angle addition no gain; G-buffer pass and fixed cost alone 10 ms. The shading is ~140 ns CPU per
+pixel; at 2 cores a full 800×600 close-up therefore needs ~21 ms wall: 60 fps needs ``--rank 2``
+(ΔE within 0.01 of rank 3 on iron) and/or ``--taps 1``; the rows below give each one's fps and ΔE.
+
+Error: ΔE2000 (mean, p95) over the blade's pixels of the GL frame against the direct per-pixel JAX
+evaluation (:mod:`jkatana.interactive.reference`: exact Fresnel, 61 bands, lobe quadrature of the
+unfiltered environment) at a reduced resolution (200×150; 96×72 in quick mode) of the same view —
+the reference costs seconds per thousand pixels. The load average is recorded with every row: on
+a shared machine the fps are lower bounds.
 """
 
 from __future__ import annotations
@@ -53,7 +79,11 @@ CONFIGS = {
     "no_rough": dict(rank=3, rough=False, blend=True, two_tap=True, samples=0),
     "no_blend": dict(rank=3, rough=True, blend=False, two_tap=True, samples=0),
     "msaa4": dict(rank=3, rough=True, blend=True, two_tap=True, samples=4),
+    "env_f16": dict(rank=3, rough=True, blend=True, two_tap=True, samples=0, env_format="RGBA16F"),
+    "gbuffer_f16": dict(rank=3, rough=True, blend=True, two_tap=True, samples=0, gbuffer_format="RGBA16F"),
 }
+#: cases skipped in quick mode (per view)
+QUICK_SKIP = {"demo": {"rank2", "msaa4", "env_f16", "gbuffer_f16", "forward"}, "closeup": {"msaa4"}}
 
 
 def _log(*a):
@@ -74,8 +104,25 @@ def _cpu_per_frame(fn, n: int) -> float:
     return (_cpu() - c) / n
 
 
+def _viewer_fps(frames: int, closeup: bool, size=(800, 600)) -> dict:
+    """``jkatana view --measure-fps`` under Xvfb: the window's median frame interval (or why not)."""
+    import re
+    import shutil
+
+    from jkatana.interactive.commands import run_in_xvfb
+
+    if shutil.which("Xvfb") is None:
+        return {"skipped": "Xvfb not installed (Debian package xvfb)"}
+    argv = ["--resolution", str(size[0]), str(size[1]), "--measure-fps", str(frames)] + (["--closeup"] if closeup else [])
+    res = run_in_xvfb(argv, timeout=300, size=size)
+    m = re.search(r"median interval ([\d.]+) ms = ([\d.]+) fps \(min ([\d.]+) ms\)", res.stderr)
+    if res.returncode != 0 or not m:
+        return {"skipped": f"viewer failed (rc {res.returncode}): {res.stderr.strip().splitlines()[-1:]}"}
+    return {"median_s": float(m.group(1)) * 1e-3, "min_s": float(m.group(3)) * 1e-3, "fps": float(m.group(2))}
+
+
 def run(quick: bool = False) -> list[dict]:
-    from jkatana.interactive import glrender as G
+    from jkatana.interactive import glrender as G      # first: it chooses the GL platform (EGL)
     from jkatana.interactive import reference as R
     from jkatana.interactive import scene as S
     from jkatana.interactive.bake import cached_bake
@@ -90,6 +137,9 @@ def run(quick: bool = False) -> list[dict]:
     reps = 5 if quick else 15
     rows = []
     ctx = None
+    from OpenGL import GL
+
+    formats = {"RGBA32F": GL.GL_RGBA32F, "RGBA16F": GL.GL_RGBA16F}
     for vname, view in views.items():
         small = S.View(view.pose, view.yfov, *err_res)
         t = time.perf_counter()
@@ -98,46 +148,84 @@ def run(quick: bool = False) -> list[dict]:
         ref_s = time.perf_counter() - t
         _log(f"{vname}: reference {small.width}×{small.height} ({gb['mask'].sum()} px) in {ref_s:.1f} s")
         for cname, cfg in CONFIGS.items():
-            if quick and cname in ("rank2", "msaa4") and vname == "demo":
+            if quick and cname in QUICK_SKIP[vname]:
                 continue
-            st = G.ShadingState(baked, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
-                                two_tap=cfg["two_tap"], taps=cfg.get("taps", 3))
-            r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"],
-                                         deferred=cfg.get("deferred"))
-            scene = G.build_scene(sc.mesh, view)
-            ctx = ctx or describe_context()
-            tm = timeit(lambda: r.render(scene), repeats=reps, warmup=2)
-            cpu_s = _cpu_per_frame(lambda: r.render(scene), 5)
-            frame = r.render(scene)
-            coverage = float(np.any(frame != frame[0, 0], -1).mean())
-            r.delete()
-            r2 = G.BakedOffscreenRenderer(st, *err_res, samples=cfg["samples"], deferred=cfg.get("deferred"))
-            img = r2.render(G.build_scene(sc.mesh, small))
-            r2.delete()
+            G.ENV_FORMAT = formats[cfg.get("env_format", "RGBA32F")]
+            G.GBUFFER_FORMAT = formats[cfg.get("gbuffer_format", "RGBA32F")]
+            try:
+                st = G.ShadingState(baked, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
+                                    two_tap=cfg["two_tap"], taps=cfg.get("taps", 3))
+                r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"],
+                                             deferred=cfg.get("deferred"))
+                scene = G.build_scene(sc.mesh, view)
+                ctx = ctx or describe_context()
+                drawn = timeit(lambda: r.draw(scene), repeats=reps, warmup=2)
+                readback = timeit(lambda: r.render(scene), repeats=reps, warmup=1)
+                cpu_s = _cpu_per_frame(lambda: r.draw(scene), 5)
+                frame = r.render(scene)
+                covered = int(np.any(frame != frame[0, 0], -1).sum())
+                r.delete()
+                r2 = G.BakedOffscreenRenderer(st, *err_res, samples=cfg["samples"], deferred=cfg.get("deferred"))
+                img = r2.render(G.build_scene(sc.mesh, small))
+                r2.delete()
+            finally:
+                G.ENV_FORMAT = G.GBUFFER_FORMAT = GL.GL_RGBA32F
             de = R.delta_e_2000(img, ref)[gb["mask"]]
             err = {"dE00_mean": float(de.mean()), "dE00_p95": float(np.percentile(de, 95)),
                    "dE00_max": float(de.max())}
-            fps = 1.0 / tm["median"]
-            _log(f"{vname:8s} {cname:9s} {fps:6.1f} fps  cpu {1e3 * cpu_s:5.1f} ms/frame  ΔE mean "
-                 f"{err['dE00_mean']:.2f} p95 {err['dE00_p95']:.2f}  (load {os.getloadavg()[0]:.1f})")
+            fps = 1.0 / drawn["median"]
+            load = os.getloadavg()[0]
+            _log(f"{vname:8s} {cname:11s} drawn {1e3 * drawn['median']:5.1f} ms ({fps:5.1f} fps)  read-back "
+                 f"{1e3 * readback['median']:5.1f} ms ({1 / readback['median']:5.1f} fps)  cpu "
+                 f"{1e3 * cpu_s:5.1f} ms/frame  ΔE mean {err['dE00_mean']:.2f} p95 {err['dE00_p95']:.2f}  "
+                 f"(load {load:.1f})")
             rows.append(record("bench_interactive", {"view": vname, "config": cname, **cfg,
                                                      "width": view.width, "height": view.height},
-                               time_s=tm, error=err,
+                               time_s=drawn, error=err,
                                reference=f"per-pixel JAX quadrature, 61 bands, {err_res[0]}×{err_res[1]}",
-                               fps=fps, cpu_s=cpu_s, idle_fps_bound=(os.cpu_count() or 1) / cpu_s,
-                               blade_coverage=coverage, loadavg_1min=os.getloadavg()[0],
+                               fps=fps, readback_s=readback, fps_readback=1.0 / readback["median"],
+                               cpu_s=cpu_s, idle_fps_bound=(os.cpu_count() or 1) / cpu_s,
+                               blade_pixels=covered, blade_coverage=covered / (view.width * view.height),
+                               ns_per_pixel_cpu=1e9 * cpu_s / max(covered, 1), loadavg_1min=load,
                                gl=ctx, bake_s=bake_s, reference_s=ref_s,
                                lp_num_threads=os.environ.get("LP_NUM_THREADS", "default")))
-    # fixed cost per frame: the same renderer with the blade out of the picture (clear + read-back)
+    # what the CPU time per blade pixel says about the texture fetches: rank 4 − rank 1 is 9 more
+    # trilinear environment fetches per pixel (3 taps × 3 ranks)
+    by = {(r_["case"]["view"], r_["case"]["config"]): r_ for r_ in rows}
+    for vname in views:
+        if (vname, "rank4") in by and (vname, "rank1") in by:
+            per = (by[vname, "rank4"]["ns_per_pixel_cpu"] - by[vname, "rank1"]["ns_per_pixel_cpu"]) / 9
+            _log(f"{vname}: {by[vname, 'full']['ns_per_pixel_cpu']:.0f} ns CPU per blade pixel (full); "
+                 f"≈ {per:.1f} ns CPU per trilinear environment fetch per pixel (rank 4 − rank 1, 9 fetches)")
+            by[vname, "full"]["ns_per_env_fetch_cpu"] = per
+    # fixed cost per frame: the same renderer with the blade out of the picture
     away = S.View(S.look_at(np.array([0.0, 0.0, 5.0]), np.array([0.0, 0.0, 10.0])), sc.view.yfov, 800, 600)
     st = G.ShadingState(baked, sc.refl_map)
     r = G.BakedOffscreenRenderer(st, 800, 600)
     scene = G.build_scene(sc.mesh, away)
-    tm = timeit(lambda: r.render(scene), repeats=reps, warmup=2)
-    cpu_s = _cpu_per_frame(lambda: r.render(scene), 5)
+    drawn = timeit(lambda: r.draw(scene), repeats=reps, warmup=2)
+    readback = timeit(lambda: r.render(scene), repeats=reps, warmup=1)
+    cpu_s = _cpu_per_frame(lambda: r.draw(scene), 5)
     r.delete()
-    _log(f"empty frame (vertex processing, clears, read-back): {1e3 * tm['median']:.1f} ms, cpu {1e3 * cpu_s:.1f} ms")
+    _log(f"empty frame (vertex processing, clears): drawn {1e3 * drawn['median']:.1f} ms, with read-back "
+         f"{1e3 * readback['median']:.1f} ms, cpu {1e3 * cpu_s:.1f} ms")
     rows.append(record("bench_interactive", {"view": "empty", "config": "full", "width": 800, "height": 600},
-                       time_s=tm, fps=1.0 / tm["median"], cpu_s=cpu_s, loadavg_1min=os.getloadavg()[0], gl=ctx))
+                       time_s=drawn, fps=1.0 / drawn["median"], readback_s=readback,
+                       fps_readback=1.0 / readback["median"], cpu_s=cpu_s, loadavg_1min=os.getloadavg()[0], gl=ctx))
+    # the windowed Viewer's real frame rate (Xvfb, GLX llvmpipe, flip included)
+    for vname in views:
+        res = _viewer_fps(30 if quick else 120, closeup=vname == "closeup")
+        load = os.getloadavg()[0]
+        if "skipped" in res:
+            _log(f"viewer {vname}: skipped ({res['skipped']})")
+            rows.append(record("bench_interactive", {"view": vname, "config": "viewer", "width": 800, "height": 600},
+                               skipped=res["skipped"], loadavg_1min=load))
+            continue
+        _log(f"viewer {vname}: {res['fps']:.1f} fps (median interval {1e3 * res['median_s']:.1f} ms, min "
+             f"{1e3 * res['min_s']:.1f} ms; Xvfb, flip included)  (load {load:.1f})")
+        rows.append(record("bench_interactive", {"view": vname, "config": "viewer", "width": 800, "height": 600},
+                           time_s={"median": res["median_s"], "min": res["min_s"], "max": res["median_s"],
+                                   "iqr": 0.0, "repeats": 30 if quick else 120},
+                           fps=res["fps"], loadavg_1min=load, platform="GLX on Xvfb (llvmpipe)"))
     rows.append(record("bench_interactive", {"machine": True}, **machine_facts()))
     return rows

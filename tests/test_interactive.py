@@ -304,6 +304,9 @@ def test_cli_shading_switches(glr, tmp_path):
     for i, k in enumerate(keys):
         for k2 in keys[i + 1:]:
             assert np.abs(frames[k] - frames[k2]).sum() > 0, (k, k2)
+    sc_close = C._load(p.parse_args(["--closeup", "--resolution", "160", "120"]))
+    np.testing.assert_allclose(sc_close.view.pose, S.closeup_view(sc_close.mesh, 160, 120).pose)
+    assert (sc_close.view.width, sc_close.view.height) == (160, 120)
     for bad in (["--taps", "2"], ["--rank", "5"]):
         with pytest.raises(SystemExit):
             p.parse_args(bad)

@@ -18,6 +18,8 @@ def view_add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--env", choices=("sky", "sun", "studio"), default="sky",
                    help="built-in environment when no SCENE is given (default sky)")
     p.add_argument("--offscreen", action="store_true", help="render an orbit to PNGs headless (EGL/OSMesa)")
+    p.add_argument("--closeup", action="store_true",
+                   help="start from a close-up in which the flat fills the frame (as appraisers look)")
     p.add_argument("--frames", type=int, default=8, help="offscreen: number of orbit frames (default 8)")
     p.add_argument("-o", "--output", default="out/view", help="folder for PNGs (default out/view)")
     p.add_argument("--rank", type=int, default=3, choices=(1, 2, 3, 4),
@@ -53,6 +55,8 @@ def _load(args):
     if args.resolution:
         w, h = args.resolution
         sc.view = S.View(sc.view.pose, sc.view.yfov, int(w), int(h))
+    if args.closeup:
+        sc.view = S.closeup_view(sc.mesh, sc.view.width, sc.view.height)
     if args.exposure is not None:
         sc.exposure = args.exposure
     if sc.exposure != sc.exposure:  # NaN: "auto"

@@ -91,8 +91,14 @@ def _tex_array(data: np.ndarray) -> int:
     return _tex_layered(GL.GL_TEXTURE_2D_ARRAY, data, (GL.GL_TEXTURE_WRAP_T,))
 
 
-#: GL internal format of the prefiltered environment textures (the shading's most-read tables)
+#: GL internal format of the prefiltered environment textures (the shading's most-read tables).
+#: RGBA16F was measured (bench_interactive ``env_f16``): no faster on llvmpipe, which converts
+#: half floats on every fetch; float32 stays.
 ENV_FORMAT = GL.GL_RGBA32F
+#: GL internal format of the two G-buffer targets. RGBA16F (half the bytes written and read) was
+#: measured (bench_interactive ``gbuffer_f16``): no faster on llvmpipe, where the shading's
+#: arithmetic and filtered fetches, not memory traffic, bound the frame; float32 keeps positions exact.
+GBUFFER_FORMAT = GL.GL_RGBA32F
 
 
 def _tex_3d(data: np.ndarray) -> int:
@@ -379,7 +385,7 @@ class SampleCountRenderer(Renderer):
             self._gtex = [int(x) for x in np.atleast_1d(GL.glGenTextures(2))]
             for tex in self._gtex:
                 GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
-                GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA32F, w, h, 0, GL.GL_RGBA, GL.GL_FLOAT, None)
+                GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GBUFFER_FORMAT, w, h, 0, GL.GL_RGBA, GL.GL_FLOAT, None)
                 for prm in (GL.GL_TEXTURE_MIN_FILTER, GL.GL_TEXTURE_MAG_FILTER):
                     GL.glTexParameteri(GL.GL_TEXTURE_2D, prm, GL.GL_NEAREST)
             GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
