@@ -28,22 +28,101 @@ def env_small(tmp_path_factory):
     return mc.small_envmap(src, tmp_path_factory.mktemp("env") / "env.exr", width=256)
 
 
+def _channel_ratios(a, b, mask):
+    """Per-channel ratio of the image sums over the eroded sphere (a systematic offset shows here first)."""
+    import numpy as np
+    from scipy.ndimage import binary_erosion
+
+    m = binary_erosion(mask)
+    return a[m].sum(0) / b[m].sum(0)
+
+
 def test_smooth_iron_sphere_matches_mitsuba(env_small):
     mi_img = mc.render_mitsuba(env_small, alpha=None, size=64, spp=1024)
     jk, mask, _ = mc.render_jkatana(env_small, alpha=None, size=64, supersample=3)
     err = mc.compare(mi_img, jk, mask)
-    # measured: mean 0.40, p99 4.2 (edges of sharp reflected features: pixel-footprint sampling differs)
+    ratio = _channel_ratios(mi_img, jk, mask)
+    # measured (Mitsuba 1024 spp, envmap nodes 3): mean 0.20, p95 0.69, p99 1.52; R, G, B sums 1.0017, 1.0010,
+    # 0.9998. Before the envmap was matched node by node (texel spectra at our centred rows): 0.40 / 4.2 and
+    # 1.014, 1.011, 1.006 — the ratio bar is what catches that.
     assert err["dE2000_mean"] <= 0.5, err
-    assert err["dE2000_p99"] <= 6.0, err
+    assert err["dE2000_p99"] <= 2.0, err
+    assert abs(ratio - 1).max() <= 0.005, ratio
 
 
 @pytest.mark.slow
 def test_rough_beckmann_iron_sphere_matches_mitsuba(env_small):
-    mi_img = mc.render_mitsuba(env_small, alpha=0.2, size=64, spp=4096)
-    jk, mask, _ = mc.render_jkatana(env_small, alpha=0.2, size=64, samples=256, supersample=3)
+    """The issue's bar: ΔE2000 mean ≤ 0.5, with p99 and the per-channel sums stated from the measurement.
+
+    Mitsuba at 16384 spp (its own noise: two seeds differ by ΔE mean 0.26, so
+    each is ≈ 0.18 from converged), jkatana 256 samples × 9 subpixels (vs
+    1024: ΔE 0.09). Residual bias: the mean of two 16384-spp seeds vs jkatana
+    1024 differs per pixel by an RMS that Mitsuba's noise fully accounts for
+    (≤ 0.2 % after subtracting it); sums agree to < 0.06 %.
+    """
+    mi_img = mc.render_mitsuba(env_small, alpha=0.2, size=64, spp=16384, seed=0)
+    jk, mask, _ = mc.render_jkatana(env_small, alpha=0.2, size=64, samples=256, supersample=3, seed=0)
     err = mc.compare(mi_img, jk, mask)
-    assert err["dE2000_mean"] <= 1.0, err
-    assert err["dE2000_p99"] <= 5.0, err
+    ratio = _channel_ratios(mi_img, jk, mask)
+    # measured (this test): mean 0.209, p95 0.55, p99 0.78; R, G, B sums 0.9994, 0.9996, 0.9995. The uncompensated
+    # envmap (the previous comparison) at the same settings: 0.33 / 0.88 / 1.14, sums 1.0114, 1.0093, 1.0056
+    # — it passes the mean bar, so the p99 and ratio bars are the ones that guard the conventions.
+    assert err["dE2000_mean"] <= 0.5, err
+    assert err["dE2000_p99"] <= 1.0, err
+    assert abs(ratio - 1).max() <= 0.003, ratio
+
+
+def test_jkatana_copy_of_mitsuba_envmap_is_exact_at_its_nodes(tmp_path):
+    """:func:`mc.mitsuba_env_spectra` with ``nodes=r`` equals Mitsuba's spectral ``envmap.eval`` at our texel centres.
+
+    Mitsuba 3.9.1's spectral envmap = bilinear(sigmoid) × bilinear(scale) × D65
+    with corner-aligned rows; our lookup interpolates one image with centred
+    rows. At our nodes the copy is exact (float32); between them it is our
+    bilinear of Mitsuba's function, whose error falls with r. A random,
+    high-contrast map (worst case): measured mean |relative error| at 550 nm
+    0.31 with the texels' own spectra (``nodes=None``), 0.029 at r = 3, 0.012 at r = 5.
+    """
+    import jax.numpy as jnp
+    import numpy as np
+
+    mi = pytest.importorskip("mitsuba")
+    from jkatana.io.exr import write_exr
+    from jkatana.light.envmap import uv_to_direction
+    from jkatana.render.renderer import rotation_y
+    from jkatana.render.shading import bilinear_equirect
+    from jkatana.spectral.grid import WavelengthGrid
+
+    rng = np.random.default_rng(0)
+    H, W, r = 16, 32, 3
+    img = (rng.uniform(0, 1, (H, W, 3)) ** 3 * rng.uniform(0.1, 10, (H, W, 1))).astype(np.float32)
+    path = write_exr(tmp_path / "env.exr", {"R": img[..., 0], "G": img[..., 1], "B": img[..., 2]})
+    grid = WavelengthGrid(360.0, 830.0, 5.0)
+    idx = [8, 38, 48, 58]  # 400, 550, 600, 650 nm
+    mi.set_variant("scalar_spectral")
+    em = mi.load_dict({"type": "envmap", "filename": str(path)})
+    si = mi.SurfaceInteraction3f()
+    si.wavelengths = mi.Spectrum(*np.asarray(grid.wavelengths)[idx].tolist())
+    turn = rotation_y(mc.MITSUBA_ENV_ROTATION_DEG)
+
+    def theirs(d_map):
+        out = []
+        for x in d_map @ turn:  # map → world
+            si.wi = mi.Vector3f(*(-x))
+            out.append(np.asarray(em.eval(si)))
+        return np.array(out)
+
+    def ours(nodes, d_map):
+        copy = mc.mitsuba_env_spectra(path, grid, nodes=nodes)[..., idx]
+        return np.asarray(bilinear_equirect(jnp.asarray(copy, jnp.float64), jnp.asarray(d_map)))
+
+    j, i = rng.integers(0, r * H, 200), rng.integers(0, r * W, 200)
+    at_nodes = np.asarray(uv_to_direction(jnp.asarray((i + 0.5) / (r * W)), jnp.asarray((j + 0.5) / (r * H))))
+    np.testing.assert_allclose(ours(r, at_nodes), theirs(at_nodes), rtol=1e-4, atol=1e-6)
+    d = rng.normal(size=(1500, 3))
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    t = theirs(d)
+    err = {n: np.abs(ours(n, d) - t).sum(0) / t.sum(0) for n in (None, r)}
+    assert np.all(err[r] < 0.15 * err[None]) and np.all(err[r] < 0.06), err
 
 
 def test_mitsuba_latlong_is_ours_turned_half_a_turn_with_corner_aligned_rows():

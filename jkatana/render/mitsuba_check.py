@@ -46,7 +46,7 @@ MITSUBA_Y_NORM = 106.75
 MITSUBA_ENV_ROTATION_DEG = 180.0
 #: Our texel centres per Mitsuba texel (per axis) at which :func:`mitsuba_env_spectra` evaluates
 #: Mitsuba's envmap for jkatana's copy (see there).
-ENV_NODES = 4
+ENV_NODES = 3
 
 
 @functools.lru_cache(maxsize=1)
@@ -212,21 +212,14 @@ def _mitsuba_texels(env_path, grid):
     return sig.reshape(H, W, -1), scale.reshape(H, W), d65_wl
 
 
-def _interp_matrix(pos: np.ndarray, n: int, wrap: bool) -> np.ndarray:
-    """``(len(pos), n)`` linear-interpolation weights at fractional texel positions ``pos``."""
-    if wrap:
-        p0 = np.floor(pos)
-        i0 = p0.astype(int) % n
-        i1 = (i0 + 1) % n
-    else:
-        p0 = np.clip(np.floor(pos), 0, n - 2)
-        i0 = p0.astype(int)
-        i1 = i0 + 1
-    f = pos - p0
-    A = np.zeros((len(pos), n))
-    np.add.at(A, (np.arange(len(pos)), i0), 1.0 - f)
-    np.add.at(A, (np.arange(len(pos)), i1), f)
-    return A
+def _lerp_axis(a: np.ndarray, pos: np.ndarray, axis: int, wrap: bool) -> np.ndarray:
+    """Linear interpolation of ``a`` along ``axis`` at fractional texel positions ``pos`` (wrapped or clamped)."""
+    n = a.shape[axis]
+    p0 = np.floor(pos) if wrap else np.clip(np.floor(pos), 0, n - 2)
+    i0 = p0.astype(int) % n
+    i1 = (i0 + 1) % n
+    f = (pos - p0).astype(a.dtype).reshape((-1,) + (1,) * (a.ndim - axis - 1))
+    return np.take(a, i0, axis=axis) * (1.0 - f) + np.take(a, i1, axis=axis) * f
 
 
 def mitsuba_env_spectra(env_path, grid, nodes: int | None = None) -> np.ndarray:
@@ -253,9 +246,10 @@ def mitsuba_env_spectra(env_path, grid, nodes: int | None = None) -> np.ndarray:
         return (sig * scale[..., None] * d65).astype(np.float32)
     H, W = scale.shape
     r = int(nodes)
-    Ay = _interp_matrix((np.arange(r * H) + 0.5) / (r * H) * (H - 1), H, wrap=False)
-    Ax = _interp_matrix((np.arange(r * W) + 0.5) / r - 0.5, W, wrap=True)
-    s_up = np.einsum("ah,hwl->awl", Ay, sig)
-    s_up = np.einsum("bw,awl->abl", Ax, s_up)
-    f_up = Ay @ scale @ Ax.T
-    return (s_up * f_up[..., None] * d65).astype(np.float32)
+    y = (np.arange(r * H) + 0.5) / (r * H) * (H - 1)  # Mitsuba's row coordinate at our row centres
+    x = (np.arange(r * W) + 0.5) / r - 0.5  # its column coordinate at our column centres
+    up = lambda a: _lerp_axis(_lerp_axis(a, y, 0, wrap=False), x, 1, wrap=True)  # noqa: E731
+    out = up(sig.astype(np.float32))
+    out *= up(scale.astype(np.float32))[..., None]
+    out *= d65.astype(np.float32)
+    return out
