@@ -186,6 +186,15 @@ class ShadingState:
         self._textures.clear()
 
 
+def is_srgb_table(table) -> bool:
+    """Whether a baked transfer table (:func:`jkatana.interactive.bake.transfer_table`) is the sRGB curve
+    (IEC 61966-2-1), which the shader then evaluates instead of fetching (``JK_SRGB``)."""
+    from jkatana.interactive.bake import transfer_table
+
+    table = np.asarray(table, np.float64)
+    return table.ndim == 1 and np.allclose(table, transfer_table("sRGB", len(table)), rtol=0.0, atol=1e-9)
+
+
 def shader_source(path, defines: dict) -> str:
     """GLSL text of ``path`` with ``#include "name"`` lines expanded from :data:`SHADER_DIR` and
     ``#define NAME VALUE`` lines inserted after ``#version``."""
@@ -235,6 +244,8 @@ class BakedProgram(ShaderProgram):
             optional |= {"jk_log_mu_first", "jk_log_mu_step"}
         if not (self.state.rough or self.state.blend):
             optional.add("jk_map")
+        if self.defines.get("JK_SRGB"):
+            optional |= {"jk_transfer", "jk_n_transfer"}
         need = dict.fromkeys(u for u in UNIFORMS + tuple(self._samplers()[0]) if u not in optional)
         missing = [u for u in need if GL.glGetUniformLocation(self._program_id, u) == -1]
         if missing:
@@ -302,6 +313,7 @@ class BakedProgramCache(ShaderProgramCache):
         self.state = state
         #: True while a deferred renderer draws: pyrender's request for the mesh shader gets the G-buffer one
         self.deferred = False
+        self._srgb = None       # (baked, whether its transfer table is sRGB), checked once per bake
         self._fallback = ShaderProgramCache(shader_dir=str(_PYRENDER_SHADERS))
 
     def get_program(self, vertex_shader, fragment_shader, geometry_shader=None, defines=None):
@@ -314,6 +326,10 @@ class BakedProgramCache(ShaderProgramCache):
         defines = dict(defines or {})
         if fragment_shader != "gbuffer.frag":
             defines.update(self.state.defines())
+            baked = self.state.baked
+            if self._srgb is None or self._srgb[0] is not baked:
+                self._srgb = (baked, int(is_srgb_table(baked.transfer)))
+            defines["JK_SRGB"] = self._srgb[1]
         key = (OpenGL.contextdata.getContext(), vertex_shader, fragment_shader, *sorted(defines.items()))
         if key not in self._program_cache:
             if fragment_shader == "gbuffer.frag":

@@ -15,7 +15,7 @@
 // matrix) → transfer (eq. 8, baked table indexed by sqrt).
 //
 // Static switches (#define lines that BakedProgram._load inserts after #version; each combination
-// is its own program): JK_RANK (1..4), JK_ROUGH (0: mirror-like, the narrowest μ
+// is its own program): JK_SRGB (the transfer is sRGB: evaluated, not fetched), JK_RANK (1..4), JK_ROUGH (0: mirror-like, the narrowest μ
 // level), JK_BLEND (0: hiraji everywhere), JK_TWO_TAP (the lobe's anisotropy:
 // three binomial taps along the plane of incidence, prefiltered for the
 // across-plane width, matching the lobe's in-plane mean and variance — moments
@@ -66,8 +66,15 @@ vec4 lobe(float layer, float cv, float lvl)
 
 float encode1(float x)
 {
+#if JK_SRGB
+    // the baked table is the IEC 61966-2-1 sRGB curve (BakedProgramCache checks): evaluated directly,
+    // which llvmpipe does faster than the table fetch (bench_interactive), and without its interpolation
+    float c = clamp(x, 0.0, 1.0);
+    return c <= 0.0031308 ? 12.92 * c : 1.055 * pow(c, 1.0 / 2.4) - 0.055;
+#else
     float s = sqrt(clamp(x, 0.0, 1.0));
     return textureLod(jk_transfer, vec2((s * (jk_n_transfer - 1.0) + 0.5) / jk_n_transfer, 0.5), 0.0).r;
+#endif
 }
 
 vec3 env_xyz(vec3 d, float lz, vec4 a)
