@@ -39,7 +39,9 @@ The ``empty`` view (blade behind the camera) is the fixed cost per frame (vertex
 
 ``viewer``: ``jkatana view --measure-fps N`` in a fresh process on a private Xvfb display (GLX,
 llvmpipe): the median interval between the window's draws, flip to the X server included, with the
-light turning every frame — the frame rate a user sees. Skipped (and said so) without Xvfb.
+light turning every frame — the frame rate a user sees. ``viewer_drag_half``: the same in the
+close-up at ``--drag-scale 0.5`` (what a drag costs when the user asks for half-resolution shading
+while the mouse is held; full resolution returns on release). Skipped (and said so) without Xvfb.
 
 What bounds the close-up (measured on this machine, closeup view, ~300k shaded pixels, CPU time per
 frame, shader variants A/B-timed in one process, load ~5 from other jobs, CPU time robust to it):
@@ -104,7 +106,7 @@ def _cpu_per_frame(fn, n: int) -> float:
     return (_cpu() - c) / n
 
 
-def _viewer_fps(frames: int, closeup: bool, size=(800, 600)) -> dict:
+def _viewer_fps(frames: int, closeup: bool, size=(800, 600), drag_scale: float = 1.0) -> dict:
     """``jkatana view --measure-fps`` under Xvfb: the window's median frame interval (or why not)."""
     import re
     import shutil
@@ -113,7 +115,8 @@ def _viewer_fps(frames: int, closeup: bool, size=(800, 600)) -> dict:
 
     if shutil.which("Xvfb") is None:
         return {"skipped": "Xvfb not installed (Debian package xvfb)"}
-    argv = ["--resolution", str(size[0]), str(size[1]), "--measure-fps", str(frames)] + (["--closeup"] if closeup else [])
+    argv = (["--resolution", str(size[0]), str(size[1]), "--measure-fps", str(frames), "--drag-scale", str(drag_scale)]
+            + (["--closeup"] if closeup else []))
     res = run_in_xvfb(argv, timeout=300, size=size)
     m = re.search(r"median interval ([\d.]+) ms = ([\d.]+) fps \(min ([\d.]+) ms\)", res.stderr)
     if res.returncode != 0 or not m:
@@ -213,17 +216,18 @@ def run(quick: bool = False) -> list[dict]:
                        time_s=drawn, fps=1.0 / drawn["median"], readback_s=readback,
                        fps_readback=1.0 / readback["median"], cpu_s=cpu_s, loadavg_1min=os.getloadavg()[0], gl=ctx))
     # the windowed Viewer's real frame rate (Xvfb, GLX llvmpipe, flip included)
-    for vname in views:
-        res = _viewer_fps(30 if quick else 120, closeup=vname == "closeup")
+    for vname, cname, scale in (("demo", "viewer", 1.0), ("closeup", "viewer", 1.0),
+                                ("closeup", "viewer_drag_half", 0.5)):
+        res = _viewer_fps(30 if quick else 120, closeup=vname == "closeup", drag_scale=scale)
         load = os.getloadavg()[0]
+        case = {"view": vname, "config": cname, "drag_scale": scale, "width": 800, "height": 600}
         if "skipped" in res:
-            _log(f"viewer {vname}: skipped ({res['skipped']})")
-            rows.append(record("bench_interactive", {"view": vname, "config": "viewer", "width": 800, "height": 600},
-                               skipped=res["skipped"], loadavg_1min=load))
+            _log(f"viewer {vname} {cname}: skipped ({res['skipped']})")
+            rows.append(record("bench_interactive", case, skipped=res["skipped"], loadavg_1min=load))
             continue
-        _log(f"viewer {vname}: {res['fps']:.1f} fps (median interval {1e3 * res['median_s']:.1f} ms, min "
+        _log(f"viewer {vname} {cname}: {res['fps']:.1f} fps (median interval {1e3 * res['median_s']:.1f} ms, min "
              f"{1e3 * res['min_s']:.1f} ms; Xvfb, flip included)  (load {load:.1f})")
-        rows.append(record("bench_interactive", {"view": vname, "config": "viewer", "width": 800, "height": 600},
+        rows.append(record("bench_interactive", case,
                            time_s={"median": res["median_s"], "min": res["min_s"], "max": res["median_s"],
                                    "iqr": 0.0, "repeats": 30 if quick else 120},
                            fps=res["fps"], loadavg_1min=load, platform="GLX on Xvfb (llvmpipe)"))

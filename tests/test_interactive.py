@@ -265,21 +265,33 @@ def test_windowed_viewer_under_xvfb(glr, tmp_path):
 
 
 @pytest.mark.gl
-def test_viewer_measures_its_frame_rate_under_xvfb():
+def test_viewer_measures_its_frame_rate_under_xvfb(tmp_path):
+    """--measure-fps draws N frames and reports their interval; with --drag-scale 0.5 (as during a drag)
+    the window still shows the whole blade, shaded at half resolution and scaled up."""
     import re
     import shutil
 
+    from PIL import Image
+
+    from jkatana.interactive import reference as R
     from jkatana.interactive.commands import run_in_xvfb
 
     if shutil.which("Xvfb") is None:  # pragma: no cover
         pytest.skip("Xvfb not installed (Debian package xvfb)")
-    res = run_in_xvfb(["--resolution", "160", "120", "--measure-fps", "10", "--taps", "1", "--rank", "2"],
-                      timeout=300, size=(160, 120))
+    shot = tmp_path / "drag.png"
+    res = run_in_xvfb(["--resolution", "320", "240", "--measure-fps", "10", "--taps", "1", "--rank", "2",
+                       "--drag-scale", "0.5", "--screenshot", str(shot)], timeout=300, size=(320, 240))
     assert res.returncode == 0, res.stderr[-2000:]
-    m = re.search(r"measured (\d+) frames 160×120 \(deferred\): median interval ([\d.]+) ms = ([\d.]+) fps",
-                  res.stderr)
+    m = re.search(r"measured (\d+) frames 320×240 \(deferred, shaded at 0.50× resolution\): median interval "
+                  r"([\d.]+) ms = ([\d.]+) fps", res.stderr)
     assert m, res.stderr[-2000:]
     assert int(m.group(1)) == 10 and 0 < float(m.group(2)) < 2000
+    a = np.asarray(Image.open(shot)).astype(int)
+    drawn = np.any(np.abs(a - a[0, 0]) > 3, -1)
+    sc = S.default_scene("sky", 320, 240)
+    mask = R.gbuffer(sc.mesh, sc.view)["mask"]
+    iou = (drawn & mask).sum() / max((drawn | mask).sum(), 1)
+    assert iou > 0.8, iou                                  # half-resolution edges, scaled up
 
 
 @pytest.mark.gl

@@ -35,7 +35,11 @@ def view_add_arguments(p: argparse.ArgumentParser) -> None:
                    help="shade in the forward pass instead of deferred (slower on software GL; for comparison)")
     p.add_argument("--refresh", type=float, default=60.0, help="window: redraw rate in Hz (default 60)")
     p.add_argument("--measure-fps", type=int, default=0, metavar="N",
-                   help="window: draw N frames back to back (the light turning), print the frame rate, close")
+                   help="window: draw N frames back to back (the light turning; at --drag-scale), print the frame "
+                        "rate, close")
+    p.add_argument("--drag-scale", type=float, default=1.0, metavar="S",
+                   help="window: while a mouse button is held, shade at S × the resolution (0 < S ≤ 1; 0.5 "
+                        "shades a quarter of the pixels and holds the rate in a close-up; default 1: off)")
     p.add_argument("--exposure", type=float, default=None, help="exposure (default: the scene's, or auto)")
     p.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), default=None)
     p.add_argument("--msaa", type=int, default=0, help="offscreen MSAA samples (default 0; pyrender uses 4)")
@@ -163,6 +167,10 @@ def view_run(args: argparse.Namespace) -> int:
         raise InputError(f"--measure-fps must be >= 0, got {args.measure_fps}", field="--measure-fps")
     if not args.refresh > 0:
         raise InputError(f"--refresh must be > 0 Hz, got {args.refresh}", field="--refresh")
+    if not 0 < args.drag_scale <= 1:
+        raise InputError(f"--drag-scale must be in (0, 1], got {args.drag_scale}", field="--drag-scale")
+    if args.drag_scale < 1 and args.forward:
+        raise InputError("--drag-scale < 1 needs the deferred path (drop --forward)", field="--drag-scale")
     if args.offscreen:
         return _offscreen(args)
     from jkatana.interactive.gl import GLUnavailable, missing_package
@@ -186,7 +194,7 @@ def view_run(args: argparse.Namespace) -> int:
     scene = glrender.build_scene(sc.mesh, sc.view)
     viewer.BladeViewer(scene, st, viewport_size=(sc.view.width, sc.view.height), out_dir=args.output,
                        screenshot=args.screenshot, title=f"jkatana view — {sc.name}", deferred=not args.forward,
-                       refresh_rate=args.refresh, measure_frames=args.measure_fps)
+                       refresh_rate=args.refresh, measure_frames=args.measure_fps, drag_scale=args.drag_scale)
     return 0
 
 

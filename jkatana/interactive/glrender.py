@@ -371,6 +371,9 @@ class SampleCountRenderer(Renderer):
         self.want_mask = False
         #: False: an offscreen frame is drawn and waited for (glFinish) but not read back (timing)
         self.read_back = True
+        #: on-screen deferred frames only: shade at this fraction of the window's resolution and scale up
+        #: (the Viewer sets it while a mouse button is held); offscreen frames are always full resolution
+        self.render_scale = 1.0
         self.last_mask = None
         self._gtex = None
 
@@ -456,14 +459,20 @@ class SampleCountRenderer(Renderer):
             return super()._forward_pass(scene, flags, seg_node_map=seg_node_map)
         self._configure_main_framebuffer()
         w, h = self._main_fb_dims
-        self._gbuffer_pass(scene, flags, w, h)
-        self._shading_pass(scene, w, h)
-        if not flags & RenderFlags.OFFSCREEN:      # the Viewer: copy the shaded frame to the window
+        if not flags & RenderFlags.OFFSCREEN:      # the Viewer: shade, then copy the frame to the window
+            # at render_scale < 1 both passes run in the lower-left fw × fh corner of the (full-size)
+            # targets, and the blit scales it up (bilinear): fewer pixels to shade while the user drags
+            fw, fh = (max(1, round(w * self.render_scale)), max(1, round(h * self.render_scale)))
+            self._gbuffer_pass(scene, flags, fw, fh)
+            self._shading_pass(scene, fw, fh)
             GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
             GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, 0)
-            GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_COLOR_BUFFER_BIT, GL.GL_NEAREST)
+            GL.glBlitFramebuffer(0, 0, fw, fh, 0, 0, w, h, GL.GL_COLOR_BUFFER_BIT,
+                                 GL.GL_NEAREST if (fw, fh) == (w, h) else GL.GL_LINEAR)
             GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, 0)
             return None
+        self._gbuffer_pass(scene, flags, w, h)
+        self._shading_pass(scene, w, h)
         if not self.read_back:                    # timing of the frame as drawn: wait for it, read nothing
             GL.glFinish()
             return None, None

@@ -18,9 +18,16 @@ receive the blit), and one draw per timer tick (pyrender's timer callback calls
 displayed frame was rendered twice). The timer runs at ``refresh_rate`` (60 Hz
 here; pyrender's default is 30).
 
-``measure_frames=N`` draws N frames back to back (the light turning by 1° each)
-and prints the measured frame interval — the Viewer's real frame rate, flip to
-the X server included — then closes.
+``drag_scale`` (default 1: off): while a mouse button is held (orbiting,
+panning), shade at that fraction of the window's resolution and scale the
+frame up; the full-resolution frame returns on release. At 0.5 a quarter of
+the pixels are shaded, which holds the frame rate in a close-up on a software
+rasteriser (bench_interactive, ``viewer`` rows).
+
+``measure_frames=N`` draws N frames back to back (the light turning by 1° each;
+at ``drag_scale``, as during a drag) and prints the measured frame interval — the
+Viewer's real frame rate, flip to the X server included — then closes; with a
+`screenshot` path, the last measured frame is saved there.
 
 Import this module only in a process that has not imported PyOpenGL for
 headless use: it selects the windowed (GLX) platform.
@@ -49,14 +56,19 @@ class BladeViewer(pyrender.Viewer):
     path: save the frame after `screenshot_after` draws and close — for tests and batch use),
     `deferred` (default True; False: the forward shader on every rasterised fragment),
     `refresh_rate` (Hz of the redraw timer), `measure_frames` (draw that many frames back to back,
-    print the frame rate, close).
+    print the frame rate, close), `drag_scale` (resolution fraction while a mouse button is held).
     After the window closes, :attr:`frame_times` holds the intervals between draws (seconds).
     """
 
     def __init__(self, scene, state: "glrender.ShadingState", *, viewport_size=(800, 600),
                  out_dir: str | Path = ".", screenshot: str | Path | None = None, screenshot_after: int = 3,
                  title: str = "jkatana view", deferred: bool = True, refresh_rate: float = 60.0,
-                 measure_frames: int = 0):
+                 measure_frames: int = 0, drag_scale: float = 1.0):
+        if not 0.0 < drag_scale <= 1.0:
+            raise ValueError(f"drag_scale must be in (0, 1], got {drag_scale}")
+        if drag_scale < 1.0 and not deferred:
+            raise ValueError("drag_scale < 1 needs the deferred path")
+        self._jk_drag_scale = float(drag_scale)
         self._jk_state = state
         self._jk_out = Path(out_dir)
         self._jk_shot = None if screenshot is None else Path(screenshot)
@@ -94,6 +106,8 @@ class BladeViewer(pyrender.Viewer):
                                          deferred=self._jk_deferred)
         r._program_cache = glrender.BakedProgramCache(self._jk_state)
         r._program_cache.deferred = self._jk_deferred
+        if self._jk_measure:
+            r.render_scale = self._jk_drag_scale       # measure as during a drag
         self._renderer = r
         for major, minor in ((TARGET_OPEN_GL_MAJOR, TARGET_OPEN_GL_MINOR), (MIN_OPEN_GL_MAJOR, MIN_OPEN_GL_MINOR)):
             conf = Config(depth_size=24, double_buffer=True, major_version=major, minor_version=minor)
@@ -110,7 +124,9 @@ class BladeViewer(pyrender.Viewer):
             clock.schedule_interval(BladeViewer._tick, 1.0 / self.viewer_flags["refresh_rate"], self)
         self.switch_to()
         self.set_caption(self.viewer_flags["window_title"])
-        print(f"[view] window {w}×{h}, {self.pipeline} shading", file=sys.stderr, flush=True)
+        print(f"[view] window {w}×{h}, {self.pipeline} shading"
+              + (f", {self._jk_drag_scale:.2f}× resolution while dragging" if self._jk_drag_scale < 1 else ""),
+              file=sys.stderr, flush=True)
         pyglet.app.run()
 
     @staticmethod
@@ -135,6 +151,16 @@ class BladeViewer(pyrender.Viewer):
             self._jk_state.env_rotation += np.deg2rad(1.0)
         if self._should_close:
             self.on_close()
+
+    def on_mouse_press(self, x, y, buttons, modifiers):
+        if self._renderer is not None:
+            self._renderer.render_scale = self._jk_drag_scale
+        super().on_mouse_press(x, y, buttons, modifiers)
+
+    def on_mouse_release(self, x, y, button, modifiers):
+        if self._renderer is not None:
+            self._renderer.render_scale = 1.0
+        super().on_mouse_release(x, y, button, modifiers)
 
     def _turn_light(self, degrees: float):
         self._jk_state.env_rotation += np.deg2rad(degrees)
@@ -179,15 +205,18 @@ class BladeViewer(pyrender.Viewer):
         self._jk_draws += 1
         self._jk_stamps.append(time.perf_counter())
         close = False
-        if self._jk_shot is not None and self._jk_draws == self._jk_after:
+        if self._jk_shot is not None and not self._jk_measure and self._jk_draws == self._jk_after:
             self.save_frame(self._jk_shot, back=True)
             close = True
         if self._jk_measure and self._jk_draws == self._jk_measure + 4:     # 3 warm-up draws, N intervals
             self.frame_times = list(np.diff(self._jk_stamps[3:]))
             med = float(np.median(self.frame_times))
+            scale = self._renderer.render_scale if self._renderer is not None else 1.0
             print(f"[view] measured {len(self.frame_times)} frames {self.viewport_size[0]}×{self.viewport_size[1]} "
-                  f"({self.pipeline}): median interval {1e3 * med:.2f} ms = {1 / med:.1f} fps "
-                  f"(min {1e3 * min(self.frame_times):.2f} ms)", file=sys.stderr, flush=True)
+                  f"({self.pipeline}, shaded at {scale:.2f}× resolution): median interval {1e3 * med:.2f} ms = "
+                  f"{1 / med:.1f} fps (min {1e3 * min(self.frame_times):.2f} ms)", file=sys.stderr, flush=True)
+            if self._jk_shot is not None:
+                self.save_frame(self._jk_shot, back=True)
             close = True
         if close and not self._jk_closing:
             self._jk_closing = True
