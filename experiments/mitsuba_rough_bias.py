@@ -5,7 +5,7 @@ with Mitsuba 3 at two seeds (their difference estimates Mitsuba's own noise) and
 with jkatana, caches the frames under ``experiments/output/mitsuba/cache`` and
 prints per-channel ratios over the sphere and ΔE2000 for each pairing.
 
-    python experiments/mitsuba_rough_bias.py --size 64 --spp 4096 --samples 1024
+    python experiments/mitsuba_rough_bias.py            # 64², Mitsuba 16384 spp, jkatana 256 samples
 """
 
 from __future__ import annotations
@@ -75,29 +75,123 @@ def channel_report(label, a, b, mask):
     m = binary_erosion(mask)
     r = a[m].sum(0) / b[m].sum(0)
     err = mc.compare(a, b, mask)
-    print(f"{label:40s} sum ratio R,G,B = {r[0]:.4f} {r[1]:.4f} {r[2]:.4f}   "
+    print(f"{label:44s} sums R,G,B {r[0]:.4f} {r[1]:.4f} {r[2]:.4f}   "
           f"ΔE mean {err['dE2000_mean']:.3f} p95 {err['dE2000_p95']:.2f} p99 {err['dE2000_p99']:.2f}")
     return err
+
+
+def delta_e_image(rgb_ref, rgb, mask):
+    """Per-pixel ΔE2000 with :func:`benchmarks._harness.delta_e_display`'s pipeline (reference's p99 Y → white)."""
+    import colour
+
+    from jkatana.spectral.colorimetry import colourspace, to_display, xyz_to_rgb_matrix
+
+    to_xyz = np.linalg.inv(xyz_to_rgb_matrix("ITU-R BT.709"))
+    a, b = rgb_ref @ to_xyz.T, rgb @ to_xyz.T
+    exposure = 1.0 / np.percentile(a[mask][:, 1], 99.0)
+    cs = colourspace("sRGB")
+
+    def lab(x):
+        d = to_display(x.reshape(-1, 3), "sRGB", exposure=exposure)
+        return colour.XYZ_to_Lab(colour.RGB_to_XYZ(cs.cctf_decoding(d), cs, apply_cctf_decoding=False),
+                                 cs.whitepoint)
+
+    de = colour.delta_E(lab(a), lab(b), method="CIE 2000").reshape(mask.shape)
+    return np.where(mask, de, np.nan), exposure
+
+
+def figure(rows, path, dpi=90):
+    """One row per (label, Mitsuba, jkatana, mask): both frames, ΔE2000, and Mitsuba/jkatana − 1 per channel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from scipy.ndimage import binary_erosion
+
+    from jkatana.io.atomic import atomic_path
+    from jkatana.spectral.colorimetry import encode
+
+    fig, axes = plt.subplots(len(rows), 6, figsize=(17, 3.2 * len(rows) + 0.6), squeeze=False)
+    for ax_row, (label, mi_img, jk_img, mask) in zip(axes, rows):
+        m = binary_erosion(mask)
+        de, exposure = delta_e_image(mi_img, jk_img, m)
+        err = mc.compare(mi_img, jk_img, mask)
+        for ax, img, title in ((ax_row[0], mi_img, "Mitsuba 3"), (ax_row[1], jk_img, "jkatana")):
+            ax.imshow(np.clip(encode(np.clip(img * exposure, 0, 1), "sRGB"), 0, 1), interpolation="nearest")
+            ax.set_title(title, fontsize=9)
+        im = ax_row[2].imshow(de, cmap="magma", vmin=0, vmax=2, interpolation="nearest")
+        ax_row[2].set_title(f"ΔE2000 (mean {err['dE2000_mean']:.2f}, p99 {err['dE2000_p99']:.2f})", fontsize=9)
+        fig.colorbar(im, ax=ax_row[2], fraction=0.046)
+        for c, name in enumerate("RGB"):
+            ratio = np.where(m, mi_img[..., c] / np.maximum(jk_img[..., c], 1e-12) - 1.0, np.nan)
+            tot = mi_img[m][:, c].sum() / jk_img[m][:, c].sum() - 1.0
+            im = ax_row[3 + c].imshow(100 * ratio, cmap="RdBu_r", vmin=-4, vmax=4, interpolation="nearest")
+            ax_row[3 + c].set_title(f"{name}: Mitsuba/jkatana − 1 [%] (sum {100 * tot:+.2f} %)", fontsize=9)
+            fig.colorbar(im, ax=ax_row[3 + c], fraction=0.046)
+        ax_row[0].set_ylabel(label, fontsize=9)
+        for ax in ax_row:
+            ax.set_xticks([])
+            ax.set_yticks([])
+    fig.suptitle("Iron sphere under the courtyard map (256×128), 64², jkatana vs Mitsuba 3.9.1", fontsize=11)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
+    plt.close(fig)
+    print(f"wrote {path}")
 
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--size", type=int, default=64)
-    ap.add_argument("--spp", type=int, default=4096)
-    ap.add_argument("--samples", type=int, default=1024)
-    ap.add_argument("--alpha", type=float, default=0.2)
-    ap.add_argument("--nodes", type=int, default=0, help="0: Mitsuba's texel spectra at our centres (uncompensated)")
-    ap.add_argument("--supersample", type=int, default=3)
+    ap.add_argument("--spp", type=int, default=16384, help="Mitsuba spp of the rough frames")
+    ap.add_argument("--samples", type=int, default=256, help="jkatana samples of the rough frame")
+    ap.add_argument("--nodes", type=int, default=mc.ENV_NODES)
+    ap.add_argument("--gallery", action="store_true", help="also write experiments/gallery/mitsuba_rough_sphere.png")
+    ap.add_argument("--gallery-dpi", type=int, default=55)
     a = ap.parse_args()
-    alpha = None if a.alpha <= 0 else a.alpha
-    m0 = mitsuba(alpha, a.size, a.spp, 0)
-    m1 = mitsuba(alpha, a.size, a.spp, 1)
-    jk, mask = jkatana(alpha, a.size, a.samples, a.supersample, nodes=a.nodes or None)
-    print(f"load {os.getloadavg()}")
-    channel_report("mitsuba s0 vs s1 (noise)", m0, m1, mask)
-    channel_report("mitsuba s0 vs jkatana", m0, jk, mask)
-    channel_report("mitsuba s1 vs jkatana", m1, jk, mask)
-    channel_report("mitsuba mean(s0,s1) vs jkatana", 0.5 * (m0 + m1), jk, mask)
+    print(f"load average before: {os.getloadavg()}")
+    rough = 0.2
+    m0, m1 = mitsuba(rough, a.size, a.spp, 0), mitsuba(rough, a.size, a.spp, 1)
+    jk, mask = jkatana(rough, a.size, a.samples, nodes=a.nodes)
+    jk_s1, _ = jkatana(rough, a.size, a.samples, nodes=a.nodes, seed=1)
+    jk_hi, _ = jkatana(rough, a.size, 4 * a.samples, nodes=a.nodes)
+    jk_old, _ = jkatana(rough, a.size, a.samples, nodes=None)
+    print(f"-- rough Beckmann α = {rough}, Mitsuba {a.spp} spp, jkatana {a.samples} samples × 9 subpixels")
+    channel_report("Mitsuba seed 0 vs seed 1 (its noise)", m0, m1, mask)
+    channel_report("jkatana seed 0 vs seed 1 (its noise)", jk, jk_s1, mask)
+    channel_report(f"jkatana {4 * a.samples} vs {a.samples} samples", jk_hi, jk, mask)
+    channel_report("Mitsuba s0 vs jkatana (the test)", m0, jk, mask)
+    channel_report("Mitsuba mean(s0, s1) vs jkatana", 0.5 * (m0 + m1), jk, mask)
+    channel_report(f"Mitsuba mean(s0, s1) vs jkatana {4 * a.samples}", 0.5 * (m0 + m1), jk_hi, mask)
+    channel_report("Mitsuba s0 vs jkatana, uncompensated map", m0, jk_old, mask)
+    # noise-corrected per-pixel bias: E[(m̄ − jk)²] − var(m̄), var(m̄) = E[(m0 − m1)²]/4 (jkatana's own noise kept)
+    from scipy.ndimage import binary_erosion
+
+    e = binary_erosion(mask)
+    mbar = 0.5 * (m0 + m1)
+    norm = mbar[e].mean(0)
+    for label, j in (("matched map", jk_hi), ("uncompensated map", jk_old)):
+        d2 = (((mbar - j)[e] / norm) ** 2).mean(0)
+        nv = (((m0 - m1)[e] / norm) ** 2).mean(0) / 4
+        print(f"per-pixel RMS (m̄ − jkatana)/mean, {label}: {np.sqrt(d2).round(4)}; "
+              f"after Mitsuba's noise: {np.sqrt(np.maximum(d2 - nv, 0)).round(4)}")
+    print("-- smooth")
+    s0, s1, s1k = mitsuba(None, a.size, 4096, 0), mitsuba(None, a.size, 4096, 1), mitsuba(None, a.size, 1024, 0)
+    sj, smask = jkatana(None, a.size, a.samples, nodes=a.nodes)
+    sj_old, _ = jkatana(None, a.size, a.samples, nodes=None)
+    channel_report("Mitsuba 4096 seed 0 vs seed 1", s0, s1, smask)
+    channel_report("Mitsuba 1024 vs jkatana (the test)", s1k, sj, smask)
+    channel_report("Mitsuba 4096 vs jkatana", s0, sj, smask)
+    channel_report("Mitsuba 4096 vs jkatana, uncompensated map", s0, sj_old, smask)
+    print(f"load average after: {os.getloadavg()}")
+    rows = [(f"rough α 0.2, matched map ({a.nodes} nodes/texel)", m0, jk, mask),
+            ("rough α 0.2, uncompensated map", m0, jk_old, mask),
+            ("smooth, matched map (Mitsuba 4096 spp)", s0, sj, smask),
+            ("smooth, uncompensated map", s0, sj_old, smask)]
+    figure(rows, OUT / "rough_sphere.png")
+    if a.gallery:
+        figure(rows, Path(__file__).resolve().parent / "gallery" / "mitsuba_rough_sphere.png", dpi=a.gallery_dpi)
 
 
 if __name__ == "__main__":

@@ -11,14 +11,38 @@ Conventions matched (measured with Mitsuba 3.9.1):
   divides by 106.75 (≈ ∫ȳ dλ), then converts to linear Rec. 709 without white
   adaptation; jkatana renders on a 360–830 nm / 5 nm grid, XYZ with
   k = 1/Σȳ Δλ, rescaled by Σȳ Δλ / 106.75, and the same matrix;
-- envmap: RGB upsampled with Jakob & Hanika (2019) × normalised D65: jkatana's
-  ``load_envmap(..., upsampling="Jakob 2019")`` (see :mod:`jkatana.light.upsampling`);
+- envmap: RGB upsampled with Jakob & Hanika (2019) × normalised D65 (jkatana's
+  own ``load_envmap(..., upsampling="Jakob 2019")`` does the same per texel,
+  see :mod:`jkatana.light.upsampling`; the comparison uses Mitsuba's LUT itself,
+  :func:`mitsuba_env_spectra`, so that it tests renderers, not two LUTs).
   Mitsuba's latitude–longitude mapping has u = atan2(x, −z)/2π, half a turn
   from :mod:`jkatana.light.envmap`'s (the image centre looks along +Z, not −Z):
-  the comparison turns jkatana's copy by 180° about +Y. Its rows are
-  corner-aligned (row j at v = j/(H − 1), ours at (j + ½)/H; columns agree):
-  not compensated here — a shift below half a row, zero at the horizon
-  (``tests/test_render_mitsuba.py`` pins both facts);
+  the comparison turns jkatana's copy by 180° about +Y. Two more differences
+  of its *lookup* (``eval_spectrum`` in Mitsuba's ``src/emitters/envmap.cpp``,
+  pinned by ``tests/test_render_mitsuba.py``):
+
+  1. rows are corner-aligned (row j at v = j/(H − 1), ours at (j + ½)/H;
+     columns agree, (i + ½)/W): a shift of up to half a row, towards the poles;
+  2. the spectral variants interpolate each texel's sigmoid spectrum and its
+     scale (2·max rgb) *separately* and multiply the two interpolants, where
+     interpolating radiance gives bilinear(sigmoid·scale): they differ by
+     −t(1 − t)·Δsigmoid·Δscale per axis.
+
+  Left uncompensated (texel spectra under our lookup) both made jkatana's
+  sphere darker than Mitsuba's by a colour-dependent 1.3 % / 1.1 % / 0.7 %
+  (R, G, B sums over the smooth sphere; 1.2 / 1.0 / 0.6 % rough) — the "red
+  offset" — about half each (over random directions at 650 nm: −0.62 % from
+  the rows alone, −0.53 % from the interpolation alone, −1.14 % both).
+  Compensated: jkatana gets an image with ``ENV_NODES`` = 3 nodes per texel
+  and axis whose values are Mitsuba's lookup at our texel centres
+  (:func:`mitsuba_env_spectra` with ``nodes``: exact there to 8e-5, float32;
+  between nodes the residual is our bilinear's interpolation error on the
+  finer grid: over random directions of the 256×128 test map, median
+  relative error 1.4e-4 (texel spectra: 1.5e-2) and sums within 0.1 % at
+  400–650 nm; 3 = odd puts a node on each of Mitsuba's column kinks).
+  Cost: 9× the texels (384 × 768 × 95 bands, 112 MB float32); warm shading
+  about 2× slower from memory traffic (48², 64 samples: 2.3 s vs 1.05 s,
+  load average 7), so time jkatana with ``env_nodes=None`` when comparing speed;
 - Beckmann α = √2 × per-axis RMS slope (Mitsuba's parameter) is the α of
   :func:`jkatana.models.beckmann`; masking is separable Smith with Walter's
   rational G1 on both sides (``Plan(rough_model="beckmann")``);
@@ -26,6 +50,32 @@ Conventions matched (measured with Mitsuba 3.9.1):
   on the whole 360–830 nm range;
 - pixels: Mitsuba integrates each pixel with a box filter; jkatana renders at
   ``supersample``× resolution and box-averages.
+
+Agreement (64² sphere, 256-wide courtyard map, mask eroded by one pixel,
+ΔE2000 mean / p95 / p99; sums = Mitsuba/jkatana over the sphere, R, G, B):
+
+| sphere | Mitsuba spp | jkatana | mean | p95 | p99 | sums |
+| --- | --- | --- | --- | --- | --- | --- |
+| smooth | 1024 | mirror, 3×3 subpixels | 0.20 | 0.69 | 1.52 | 1.0017 1.0010 0.9998 |
+| smooth | 4096 | mirror, 3×3 subpixels | 0.13 | 0.45 | 1.30 | 1.0009 1.0006 1.0007 |
+| rough α = 0.2 | 16384 | 256 samples, 3×3 subpixels | 0.21 | 0.55 | 0.78 | 0.9994 0.9996 0.9995 |
+| (uncompensated map) smooth | 4096 | mirror | 0.36 | 1.56 | 4.05 | 1.0132 1.0106 1.0070 |
+| (uncompensated map) rough | 16384 | 256 samples | 0.33 | 0.88 | 1.14 | 1.0114 1.0093 1.0056 |
+
+What remains is noise, mostly Mitsuba's: two Mitsuba seeds differ by ΔE
+mean 0.51 at 4096 spp and 0.26 at 16384 (rough); jkatana at 256 vs 1024
+samples by 0.09. Against the mean of two 16384-spp seeds, jkatana at 1024
+samples differs per pixel by an RMS of 1.0 / 1.0 / 1.4 % (R, G, B), of
+which Mitsuba's own noise explains all but 0 / 0 / 0.3 % (jkatana's own
+noise not subtracted); the sums agree to < 0.05 %, and the blurred ratio
+maps stay within ±1 % with no structure that the seed-to-seed difference
+does not also show (the band of larger per-pixel differences round the
+upper half of the rough sphere is where the sun sits in the lobe's tail:
+it is as strong between two Mitsuba seeds). Before the map was matched,
+the uncompensated rows put a +1–4 % band on the upper (sky) half.
+``experiments/mitsuba_rough_bias.py`` reproduces these numbers and draws
+``experiments/output/mitsuba/rough_sphere.png`` (a copy:
+``experiments/gallery/mitsuba_rough_sphere.png``).
 
 The variant: ``llvm_ad_spectral`` when it runs (needs Debian's ``libllvm19``;
 with LLVM 15 it aborts the process, so it is probed in a subprocess), else
