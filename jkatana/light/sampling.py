@@ -154,6 +154,47 @@ class EnvSampler(eqx.Module):
         d = jnp.stack([sin_t * jnp.sin(phi), cos_t, -sin_t * jnp.cos(phi)], axis=-1)
         return d.reshape(shape + (3,)), self.texel_pdf[j, i].reshape(shape)
 
+    def sample_uniform2(self, u: Float[Array, "*b 2"]):
+        """Directions, densities and map ``(u, v)`` from *two* uniforms per sample.
+
+        The same density as :meth:`sample_uniform`, but the position inside the
+        chosen texel comes from where each uniform fell inside its CDF interval
+        (the remainder, rescaled to [0, 1)): the inverse-CDF warp of the
+        continuous piecewise-constant density, PBRT 4th ed. §A.5.3. It maps a
+        well-stratified 2D point set (a Sobol net) to a well-stratified set of
+        directions, which four independent dimensions do not. Also returns the
+        equirectangular coordinates of each direction, so that a lookup needs
+        no ``atan2``.
+
+        **Returns:** ``(d (*b, 3), pdf (*b,), u (*b,), v (*b,))``.
+        """
+        H, W = self.shape
+        u = jnp.asarray(u, self.texel_pdf.dtype)
+        shape = u.shape[:-1]
+        u = u.reshape(-1, 2)
+        j = jnp.clip(jnp.searchsorted(self.marginal, u[:, 0], side="right") - 1, 0, H - 1)
+        m0, m1 = self.marginal[j], self.marginal[j + 1]
+        r0 = jnp.clip((u[:, 0] - m0) / jnp.maximum(m1 - m0, 1e-30), 0.0, 1.0)
+        i = _row_search(self.conditional, j, u[:, 1])
+        c0, c1 = self.conditional[j, i], self.conditional[j, i + 1]
+        r1 = jnp.clip((u[:, 1] - c0) / jnp.maximum(c1 - c0, 1e-30), 0.0, 1.0)
+        uu = (i + r1) / W
+        phi = (uu - 0.5) * 2 * jnp.pi
+        e0, e1 = self.cos_edges[j], self.cos_edges[j + 1]
+        cos_t = e0 + (e1 - e0) * r0
+        sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
+        v = jnp.clip(jnp.arctan2(sin_t, cos_t) / jnp.pi, (j + 0.0) / H, (j + 1.0) / H)
+        d = jnp.stack([sin_t * jnp.sin(phi), cos_t, -sin_t * jnp.cos(phi)], axis=-1)
+        return (d.reshape(shape + (3,)), self.texel_pdf[j, i].reshape(shape), uu.reshape(shape),
+                v.reshape(shape))
+
+    def pdf_uv(self, u: Float[Array, "*b"], v: Float[Array, "*b"]) -> Float[Array, "*b"]:
+        """Density (per steradian) at equirectangular ``(u, v)`` (as :meth:`pdf`, without the ``atan2``)."""
+        H, W = self.shape
+        i = jnp.mod(jnp.floor(u * W).astype(jnp.int32), W)
+        j = jnp.clip(jnp.floor(v * H).astype(jnp.int32), 0, H - 1)
+        return self.texel_pdf[j, i]
+
     def pdf(self, d: Float[Array, "*b 3"]) -> Float[Array, "*b"]:
         """Density (per steradian) of :meth:`sample` at world directions ``d``."""
         H, W = self.shape

@@ -45,6 +45,7 @@ optionally as spectra.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import NamedTuple
 
@@ -72,11 +73,33 @@ def _kronecker_alpha(d: int) -> tuple[float, ...]:
 
 
 _R7 = _kronecker_alpha(7)
+
+
+@functools.lru_cache(maxsize=64)
+def _sobol_table(n: int) -> np.ndarray:
+    """First ``n`` points of the 3D Sobol sequence (Joe & Kuo 2008 directions, scipy.stats.qmc) as uint32.
+
+    Dimensions 0 and 1 form a (0, 2)-sequence: every power-of-two prefix is a
+    (0, m, 2)-net, i.e. one point in every elementary interval of the unit
+    square. The renderer XORs each pixel's points with random bits (a random
+    digital shift, which keeps the net property; Owen 2003, "Quasi-Monte Carlo
+    sampling", SIGGRAPH course notes) — independently for the lobe and the
+    environment strategies, so each gets its own well-stratified 2D set.
+    """
+    from scipy.stats import qmc
+
+    pts = qmc.Sobol(d=3, scramble=False).random(max(n, 1))[:n]
+    return np.asarray(np.round(pts * 2.0**32), np.uint64).astype(np.uint32)
 #: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
 MIRROR_MU = 1e-4
 #: Cosine samples of the Fresnel table (linear interpolation error < 1e-6 for iron).
 FRESNEL_TABLE = 1024
 MODES = ("reference", "paper", "prefiltered", "lowrank")
+#: Per-pixel sample sequence of the ``"reference"``/``"lowrank"`` modes: ``"sobol"`` (3D Sobol points with a
+#: per-pixel random digital shift per strategy; the environment warp takes 2 of them) or ``"r7"``
+#: (Roberts' R7 Kronecker sequence with one Cranley–Patterson rotation per pixel, the environment
+#: warp taking 4 dimensions — the previous sampler, kept for the benchmark's comparison).
+SEQUENCE = "sobol"
 #: Texel weight of the environment density (:meth:`jkatana.light.sampling.EnvSampler.build`'s
 #: ``bilinear``): ``"max"`` (3×3 neighbourhood maximum) or ``True`` (exact bilinear integral).
 ENV_DENSITY = "max"
@@ -201,6 +224,11 @@ def bilinear_equirect(image: Float[Array, "H W C"], d: Float[Array, "*b 3"]) -> 
     basis coefficients).
     """
     u, v = direction_to_uv(d)
+    return bilinear_equirect_uv(image, u, v)
+
+
+def bilinear_equirect_uv(image: Float[Array, "H W C"], u, v) -> Float[Array, "*b C"]:
+    """:func:`bilinear_equirect` at given equirectangular coordinates ``(u, v)`` (no ``atan2``)."""
     H, W = image.shape[0], image.shape[1]
     x = u * W - 0.5
     y = jnp.clip(v * H - 0.5, 0.0, H - 1.0)
@@ -300,6 +328,11 @@ def env_pdf_map(env: Environment, d_map):
 def env_lookup(env: Environment, d_world):
     """Environment channels in world direction ``d_world`` (rotation applied)."""
     return bilinear_equirect(env.channels, d_world @ env.rotation.T)
+
+
+def env_uv(env: Environment, d_world):
+    """Map coordinates ``(u, v)`` of world direction ``d_world`` (one ``direction_to_uv`` for lookup and pdf)."""
+    return direction_to_uv(d_world @ env.rotation.T)
 
 
 def _lookup_prefiltered(env: Environment, mu, R_world):
@@ -511,25 +544,53 @@ def _paper_ray(plan: Plan, px: Pixels, Vl, fr, key, k):
 
 
 def _mis_offset(key, P, dtype):
-    """Randomised QMC: Roberts' R7 sequence with a per-pixel Cranley–Patterson rotation (one draw per pixel)."""
-    return jax.random.uniform(key, (P, 7), dtype)
+    """Per-pixel randomisation of the sample sequence (:data:`SEQUENCE`): Cranley–Patterson
+    offsets ``(P, 7)`` for R7, random digital shifts ``(P, 5)`` (uint32) for Sobol."""
+    if SEQUENCE == "r7":
+        return jax.random.uniform(key, (P, 7), dtype)
+    return jax.random.bits(key, (P, 5), jnp.uint32)
+
+
+def _uniforms(plan: Plan, offset, k, dtype):
+    """The k-th point per pixel: ``(mix, lobe u1, lobe u2, env (P, 2) or (P, 4))``."""
+    if SEQUENCE == "r7":
+        r = jnp.mod(offset + (k + 1).astype(dtype) * jnp.asarray(_R7, dtype), 1.0)
+        return r[:, 0], r[:, 1], r[:, 2], r[:, 3:7]
+    t = jnp.asarray(_sobol_table(plan.samples))[k]  # (3,) uint32, the same point for every pixel
+
+    def unit(x):  # top 24 bits → [0, 1) exactly representable in float32
+        return (x >> 8).astype(dtype) * jnp.asarray(2.0**-24, dtype)
+
+    return (unit(t[2] ^ offset[:, 4]), unit(t[0] ^ offset[:, 0]), unit(t[1] ^ offset[:, 1]),
+            jnp.stack([unit(t[0] ^ offset[:, 2]), unit(t[1] ^ offset[:, 3])], -1))
 
 
 def _mis_rays(plan: Plan, env: Environment, px: Pixels, Vl, fr, offset, k):
-    """The k-th MIS pair: ``(Ll, Lw)`` from the lobe mixture, ``(Ll2, Lw2, pe2)`` from the environment (or None)."""
+    """The k-th MIS pair: ``(Ll, Lw)`` from the lobe mixture, ``(Ll2, Lw2, pe2, uv2)`` from the environment
+    (``None`` without environment sampling; ``uv2`` the map coordinates of ``Lw2``, or ``None``)."""
     dtype = Vl.dtype
-    r = jnp.mod(offset + (k + 1).astype(dtype) * jnp.asarray(_R7, dtype), 1.0)
-    use0 = r[:, 0] < _mix_w(plan, px)
-    mu = jnp.where(use0, px.mu0, px.mu1)
-    h, _ = _rayleigh_sample(mu, r[:, 1], r[:, 2])
-    if plan.hamon and plan.rough_model == "beckmann":
-        h = jnp.where(use0[:, None], h, _beckmann_sample(px.mu1, r[:, 1], r[:, 2]))
+    r0, r1, r2, re = _uniforms(plan, offset, k, dtype)
+    gauss = plan.hiraji and not plan.mirror  # the Gaussian (Rayleigh-warped) facet sampler is needed
+    beck = plan.hamon and plan.rough_model == "beckmann"
+    if gauss or (plan.hamon and not beck):
+        use0 = r0 < _mix_w(plan, px)
+        mu = jnp.where(use0, px.mu0, px.mu1)
+        h, _ = _rayleigh_sample(mu, r1, r2)
+        if beck:
+            h = jnp.where(use0[:, None], h, _beckmann_sample(px.mu1, r1, r2))
+    else:  # Beckmann hamon only: no Rayleigh sample computed and thrown away
+        h = _beckmann_sample(px.mu1, r1, r2)
     Ll = _reflect(Vl, h)
     Lw = _to_world(Ll, *fr)
     if not plan.env_sampling:
-        return Ll, Lw, None, None, None
-    Lw2, pe2 = sample_environment(env, r[:, 3:7])
-    return Ll, Lw, _to_local(Lw2, *fr), Lw2, pe2
+        return Ll, Lw, None, None, None, None
+    if re.shape[-1] == 4:
+        Lw2, pe2 = sample_environment(env, re)
+        uv2 = None
+    else:
+        d_map, pe2, u2, v2 = env.sampler.sample_uniform2(re)
+        Lw2, uv2 = d_map @ env.rotation, (u2, v2)
+    return Ll, Lw, _to_local(Lw2, *fr), Lw2, pe2, uv2
 
 
 def _light_ray(lights: Light, j: int, px: Pixels):
@@ -568,7 +629,7 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
         offset = _mis_offset(key, P, dtype)
 
         def one(k):
-            _, Lw, _, Lw2, _ = _mis_rays(plan, env, px, Vl, fr, offset, k)
+            _, Lw, _, Lw2, _, _ = _mis_rays(plan, env, px, Vl, fr, offset, k)
             return Lw, (Lw2 if Lw2 is not None else jnp.zeros((P, 3), dtype))
 
         lobe, envd = jax.vmap(one, out_axes=1)(ks)
@@ -612,10 +673,10 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     else:
         acc = jnp.zeros((P, env.channels.shape[-1]), dtype)
 
-    def radiance_terms(Ll, Lw, weight):
-        """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space."""
+    def radiance_terms(Ll, Lw, weight, uv=None):
+        """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space (``uv``: map coordinates of Lw)."""
         terms = _fcos_scalar(plan, mat, px, Ll, Vl, norms)
-        E = env_lookup(env, Lw)  # (P, J)
+        E = env_lookup(env, Lw) if uv is None else bilinear_equirect_uv(env.channels, *uv)  # (P, J)
         total = 0.0
         for a, c in terms:
             if factored:
@@ -667,21 +728,22 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
 
         def body(acc_, xs):
             k, v1, v2 = xs
-            Ll, Lw, Ll2, Lw2, pe2 = _mis_rays(plan, env, px, Vl, fr, offset, k)
+            Ll, Lw, Ll2, Lw2, pe2, uv2 = _mis_rays(plan, env, px, Vl, fr, offset, k)
             pb = _lobe_pdf(plan, px, Ll, Vl)
-            pe = env_pdf_map(env, Lw @ env.rotation.T) if plan.env_sampling else 0.0
+            uv = env_uv(env, Lw)  # one atan2 pair serves the density and the lookup
+            pe = env.sampler.pdf_uv(*uv) if plan.env_sampling else 0.0
             ok = (Ll[:, 2] > 0) & (pb > 0)
             wgt = jnp.where(ok, 1.0 / jnp.where(ok, pb + pe, 1.0), 0.0)
             if v1 is not None:
                 wgt = wgt * v1
-            acc_ = acc_ + radiance_terms(Ll, Lw, wgt)
+            acc_ = acc_ + radiance_terms(Ll, Lw, wgt, uv)
             if plan.env_sampling:
                 pb2 = _lobe_pdf(plan, px, Ll2, Vl)
                 ok2 = (Ll2[:, 2] > 0) & (pe2 > 0)
                 wgt2 = jnp.where(ok2, 1.0 / jnp.where(ok2, pb2 + pe2, 1.0), 0.0)
                 if v2 is not None:
                     wgt2 = wgt2 * v2
-                acc_ = acc_ + radiance_terms(Ll2, Lw2, wgt2)
+                acc_ = acc_ + radiance_terms(Ll2, Lw2, wgt2, uv2)
             return acc_, None
 
         xs = (ks, None, None) if vis is None else (ks, vis.lobe.T, vis.env.T if plan.env_sampling else None)
