@@ -41,8 +41,11 @@ Conventions matched (measured with Mitsuba 3.9.1):
   relative error 1.4e-4 (texel spectra: 1.5e-2) and sums within 0.1 % at
   400–650 nm; 3 = odd puts a node on each of Mitsuba's column kinks).
   Cost: 9× the texels (384 × 768 × 95 bands, 112 MB float32); warm shading
-  about 2× slower from memory traffic (48², 64 samples: 2.3 s vs 1.05 s,
-  load average 7), so time jkatana with ``env_nodes=None`` when comparing speed;
+  1.5–2× slower from memory traffic (48², 2×2 subpixels, 64 samples: median
+  of 3 warm runs 1.44 s vs 0.87 s, load average 6), peak RSS 1.85 GB vs
+  0.85 GB, +4 s to build: time jkatana with ``env_nodes=None`` (the texels
+  Mitsuba has) when comparing speed, and measure its error with the matched
+  copy at the same samples;
 - Beckmann α = √2 × per-axis RMS slope (Mitsuba's parameter) is the α of
   :func:`jkatana.models.beckmann`; masking is separable Smith with Walter's
   rational G1 on both sides (``Plan(rough_model="beckmann")``);
