@@ -24,9 +24,9 @@ def view_add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", default="out/view", help="folder for PNGs (default out/view)")
     p.add_argument("--rank", type=int, default=3, choices=(1, 2, 3, 4),
                    help="rank of the spectral basis of the Fresnel term: one 3-D environment fetch per rank and "
-                        "tap; 2 is within 0.01 ΔE00 of 3 on iron, 1 costs ~0.7 ΔE00 (default 3)")
+                        "tap; 2 is within ~0.01 ΔE00 of 3 on iron, 1 adds ~0.7 ΔE00 (default 3)")
     p.add_argument("--taps", type=int, default=3, choices=(1, 3, 5),
-                   help="environment taps per pixel for the rough lobe: 1 isotropic (fastest, ΔE00 ~2× larger), "
+                   help="environment taps per pixel for the rough lobe: 1 isotropic (fastest, ΔE00 1.5–2× larger), "
                         "3 binomial taps along the plane of incidence (default), 5 (sharper glints of small bright "
                         "sources; slowest)")
     p.add_argument("--no-rough", action="store_true", help="mirror-like lobes (skip the roughness blur)")
@@ -43,7 +43,8 @@ def view_add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--exposure", type=float, default=None, help="exposure (default: the scene's, or auto)")
     p.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), default=None)
     p.add_argument("--msaa", type=int, default=0, help="offscreen MSAA samples (default 0; pyrender uses 4)")
-    p.add_argument("--screenshot", default=None, help="window: save the 3rd frame to this PNG and close")
+    p.add_argument("--screenshot", default=None,
+                   help="window: save the 3rd frame (with --measure-fps: the last measured one) to this PNG and close")
 
 
 def _load(args):
