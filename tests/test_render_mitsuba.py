@@ -38,16 +38,17 @@ def _channel_ratios(a, b, mask):
 
 
 def test_smooth_iron_sphere_matches_mitsuba(env_small):
-    mi_img = mc.render_mitsuba(env_small, alpha=None, size=64, spp=1024)
-    jk, mask, _ = mc.render_jkatana(env_small, alpha=None, size=64, supersample=3)
+    mi_img = mc.render_mitsuba(env_small, alpha=None, size=64, spp=4096)
+    jk, mask, _ = mc.render_jkatana(env_small, alpha=None, size=64, supersample=6)
     err = mc.compare(mi_img, jk, mask)
     ratio = _channel_ratios(mi_img, jk, mask)
-    # measured (Mitsuba 1024 spp, envmap nodes 3): mean 0.20, p95 0.69, p99 1.52; R, G, B sums 1.0017, 1.0010,
-    # 0.9998. Before the envmap was matched node by node (texel spectra at our centred rows): 0.40 / 4.2 and
-    # 1.014, 1.011, 1.006 — the ratio bar is what catches that.
+    # measured (Mitsuba 4096 spp, jkatana 6×6 subpixels, envmap nodes 3): mean 0.087, p95 0.30, p99 0.54;
+    # R, G, B sums 1.0002, 1.0001, 1.0003. With 3×3 subpixels p99 is 1.3 (edges of sharp reflections: the
+    # pixel's box integral, not the renderers). The uncompensated envmap (texel spectra under our centred
+    # rows): 0.33 / 1.43 / 4.0 and sums 1.012, 1.010, 1.007 — the p99 and ratio bars catch that.
     assert err["dE2000_mean"] <= 0.5, err
-    assert err["dE2000_p99"] <= 2.0, err
-    assert abs(ratio - 1).max() <= 0.005, ratio
+    assert err["dE2000_p99"] <= 0.8, err
+    assert abs(ratio - 1).max() <= 0.003, ratio
 
 
 @pytest.mark.slow
