@@ -178,17 +178,20 @@ def main():
               f"after Mitsuba's noise: {np.sqrt(np.maximum(d2 - nv, 0)).round(4)}")
     print("-- smooth")
     s0, s1, s1k = mitsuba(None, a.size, 4096, 0), mitsuba(None, a.size, 4096, 1), mitsuba(None, a.size, 1024, 0)
-    sj, smask = jkatana(None, a.size, a.samples, nodes=a.nodes)
-    sj_old, _ = jkatana(None, a.size, a.samples, nodes=None)
+    sj3, smask = jkatana(None, a.size, 1, 3, nodes=a.nodes)
+    sj, _ = jkatana(None, a.size, 1, 6, nodes=a.nodes)
+    sj_old, _ = jkatana(None, a.size, 1, 6, nodes=None)
     channel_report("Mitsuba 4096 seed 0 vs seed 1", s0, s1, smask)
-    channel_report("Mitsuba 1024 vs jkatana (the test)", s1k, sj, smask)
-    channel_report("Mitsuba 4096 vs jkatana", s0, sj, smask)
-    channel_report("Mitsuba 4096 vs jkatana, uncompensated map", s0, sj_old, smask)
+    channel_report("Mitsuba 1024 vs jkatana 3×3 subpixels", s1k, sj3, smask)
+    channel_report("Mitsuba 4096 vs jkatana 3×3 subpixels", s0, sj3, smask)
+    channel_report("Mitsuba 4096 vs jkatana 6×6 (the test)", s0, sj, smask)
+    channel_report("Mitsuba mean(s0, s1) vs jkatana 6×6", 0.5 * (s0 + s1), sj, smask)
+    channel_report("Mitsuba 4096 vs jkatana 6×6, uncompensated map", s0, sj_old, smask)
     print(f"load average after: {os.getloadavg()}")
     rows = [(f"rough α 0.2, matched map ({a.nodes} nodes/texel)", m0, jk, mask),
             ("rough α 0.2, uncompensated map", m0, jk_old, mask),
-            ("smooth, matched map (Mitsuba 4096 spp)", s0, sj, smask),
-            ("smooth, uncompensated map", s0, sj_old, smask)]
+            ("smooth, matched map (Mitsuba 4096 spp, 6×6)", s0, sj, smask),
+            ("smooth, uncompensated map (6×6)", s0, sj_old, smask)]
     figure(rows, OUT / "rough_sphere.png")
     if a.gallery:
         figure(rows, Path(__file__).resolve().parent / "gallery" / "mitsuba_rough_sphere.png", dpi=a.gallery_dpi)
