@@ -14,6 +14,7 @@ then the shader once per covered pixel, see :mod:`jkatana.interactive.glrender`)
   the path before deferred shading);
 - ``rank1`` / ``rank2`` / ``rank4``: spectral basis rank;
 - ``one_tap``: one isotropic prefiltered tap instead of the three-tap anisotropic lobe;
+  ``rank2_one_tap``: both cheaper switches (``view --rank 2 --taps 1``);
 - ``five_tap``: five binomial taps along the plane of incidence instead of three;
 - ``no_rough``: mirror-like (narrowest μ level); ``no_blend``: hiraji everywhere;
 - ``msaa4``: ``full`` with pyrender's 4× MSAA framebuffer (what pyrender does by default).
@@ -47,8 +48,9 @@ What bounds the close-up (measured on this machine, closeup view, ~300k shaded p
 frame, shader variants A/B-timed in one process, load ~5 from other jobs, CPU time robust to it):
 full 42.5 ms; without the 9 trilinear environment fetches (3 taps × rank 3) 26–34 ms (≈ 5.5 ns
 CPU per fetch per pixel); without the equirectangular atan/acos (3 taps) 37.4 ms; analytic sRGB
-instead of the transfer table 40.4 ms; lobe-LUT fetches skipped where w is 0 or 1 (branch) no gain
-(the LUT is small and cached; llvmpipe's branch costs what it saves); sin/cos of the side taps by
+instead of the transfer table 40.4 ms (kept: ``JK_SRGB``); lobe-LUT fetches skipped where w is 0
+or 1 (branch) no gain (llvmpipe's branch costs what it saves), and all four LUT fetches replaced by
+constants saves only ~5 ms of 48, so packing the LUT layers cannot win more; sin/cos of the side taps by
 angle addition no gain; G-buffer pass and fixed cost alone 10 ms. The shading is ~140 ns CPU per
 pixel; at 2 cores a full 800×600 close-up therefore needs ~21 ms wall: 60 fps needs ``--rank 2``
 (ΔE within 0.01 of rank 3 on iron) and/or ``--taps 1``; the rows below give each one's fps and ΔE.
@@ -77,6 +79,7 @@ CONFIGS = {
     "rank2": dict(rank=2, rough=True, blend=True, two_tap=True, samples=0),
     "rank4": dict(rank=4, rough=True, blend=True, two_tap=True, samples=0),
     "one_tap": dict(rank=3, rough=True, blend=True, two_tap=False, samples=0),
+    "rank2_one_tap": dict(rank=2, rough=True, blend=True, two_tap=False, samples=0),
     "five_tap": dict(rank=3, rough=True, blend=True, two_tap=True, taps=5, samples=0),
     "no_rough": dict(rank=3, rough=False, blend=True, two_tap=True, samples=0),
     "no_blend": dict(rank=3, rough=True, blend=False, two_tap=True, samples=0),

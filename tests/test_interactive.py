@@ -199,6 +199,26 @@ def test_env_rotation_and_exposure_change_the_frame(glr, sky_scene):
 
 
 @pytest.mark.gl
+def test_renderers_outlive_each_other(glr, sky_scene):
+    """Two headless renderers at once; deleting one leaves the other working (pyrender's EGL platform
+    terminated the display every context shares), and the draw-only frame costs no read-back."""
+    sc = sky_scene
+    st = glr.ShadingState(B.cached_bake(sc.radiance, sc.grid, rank=3), sc.refl_map)
+    a = glr.BakedOffscreenRenderer(st, 64, 48)
+    b = glr.BakedOffscreenRenderer(st, 64, 48)
+    scene = glr.build_scene(sc.mesh, sc.view)
+    first = a.render(scene)
+    assert np.any(first != first[0, 0])
+    a.delete()
+    assert b.draw(scene) is None
+    np.testing.assert_array_equal(b.render(scene), first)
+    b.delete()
+    c = glr.BakedOffscreenRenderer(st, 64, 48)                  # and a new one after the last was deleted
+    np.testing.assert_array_equal(c.render(scene), first)
+    c.delete()
+
+
+@pytest.mark.gl
 def test_cli_offscreen_orbit(tmp_path):
     out = tmp_path / "orbit"
     res = subprocess.run([sys.executable, "-m", "jkatana.cli", "view", "--offscreen", "--frames", "2",

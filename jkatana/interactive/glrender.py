@@ -591,6 +591,38 @@ def build_scene(mesh, view, bg=(0.08, 0.08, 0.09)):
     return scene
 
 
+_EGL_LIVE: set[int] = set()
+
+
+def _share_egl_display(platform) -> None:
+    """Let several EGL renderers live in one process: pyrender's ``EGLPlatform.delete_context`` calls
+    ``eglTerminate`` on the display, which every EGL context of the process shares (one per device),
+    so deleting one renderer broke every other one (``eglMakeCurrent`` then fails with
+    EGL_BAD_DISPLAY). Here a renderer's deletion destroys its own context, and the display is
+    terminated with the last one."""
+    from pyrender.platforms.egl import EGLPlatform
+
+    if not isinstance(platform, EGLPlatform):
+        return
+    _EGL_LIVE.add(id(platform))
+
+    def delete_context():
+        from OpenGL.EGL import EGL_NO_CONTEXT, EGL_NO_SURFACE, eglDestroyContext, eglMakeCurrent, eglTerminate
+
+        _EGL_LIVE.discard(id(platform))
+        if platform._egl_display is None:
+            return
+        if platform._egl_context is not None:
+            eglMakeCurrent(platform._egl_display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT)
+            eglDestroyContext(platform._egl_display, platform._egl_context)
+            platform._egl_context = None
+        if not _EGL_LIVE:
+            eglTerminate(platform._egl_display)
+        platform._egl_display = None
+
+    platform.delete_context = delete_context
+
+
 class BakedOffscreenRenderer:
     """Headless renderer: pyrender's OffscreenRenderer with jkatana's program cache and no MSAA.
 
@@ -609,6 +641,7 @@ class BakedOffscreenRenderer:
 
             plat = os.environ.get("PYOPENGL_PLATFORM", "egl")
             raise GLUnavailable(f"no OpenGL context on {plat} ({type(err).__name__}: {err}); {diagnose(plat)}") from err
+        _share_egl_display(self._r._platform)
         deferred = samples == 0 if deferred is None else bool(deferred)
         r = SampleCountRenderer(width, height, samples=samples, deferred=deferred)
         r._program_cache = BakedProgramCache(state)
