@@ -51,7 +51,9 @@ CPU per fetch per pixel); without the equirectangular atan/acos (3 taps) 37.4 ms
 instead of the transfer table 40.4 ms (kept: ``JK_SRGB``); lobe-LUT fetches skipped where w is 0
 or 1 (branch) no gain (llvmpipe's branch costs what it saves), and all four LUT fetches replaced by
 constants saves only ~5 ms of 48, so packing the LUT layers cannot win more; sin/cos of the side taps by
-angle addition no gain; G-buffer pass and fixed cost alone 10 ms. The shading is ~140 ns CPU per
+angle addition no gain; G-buffer pass and fixed cost alone 10 ms. In the close-up the forward pass
+costs the same CPU time as deferred (39.8 vs 40.1 ms A/B: its triangles are large, so llvmpipe's
+4×4-block overshading costs what the G-buffer round trip does); in the demo view deferred saves 31 %. The shading is ~140 ns CPU per
 pixel; at 2 cores a full 800×600 close-up therefore needs ~21 ms wall: 60 fps needs ``--rank 2``
 (ΔE within 0.01 of rank 3 on iron) and/or ``--taps 1``; the rows below give each one's fps and ΔE.
 

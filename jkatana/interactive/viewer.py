@@ -128,6 +128,10 @@ class BladeViewer(pyrender.Viewer):
         print(f"[view] window {w}×{h}, {self.pipeline} shading"
               + (f", {self._jk_drag_scale:.2f}× resolution while dragging" if self._jk_drag_scale < 1 else ""),
               file=sys.stderr, flush=True)
+        if not self._jk_measure and self._jk_shot is None:
+            print("[view] drag: orbit; j/k: turn the light; e/d: exposure; p: save a frame; q: quit. Slow on a "
+                  "software rasteriser? --drag-scale 0.5, --taps 1, --rank 2 (jkatana view --help)",
+                  file=sys.stderr, flush=True)
         pyglet.app.run()
 
     @staticmethod
