@@ -65,7 +65,8 @@ def test_rough_beckmann_iron_sphere_matches_mitsuba(env_small):
     jk, mask, _ = mc.render_jkatana(env_small, alpha=0.2, size=64, samples=256, supersample=3, seed=0)
     err = mc.compare(mi_img, jk, mask)
     ratio = _channel_ratios(mi_img, jk, mask)
-    # measured (this test): mean 0.209, p95 0.55, p99 0.78; R, G, B sums 0.9994, 0.9996, 0.9995. The uncompensated
+    # measured (this test): mean 0.209, p95 0.55, p99 0.78; R, G, B sums 0.9994, 0.9996, 0.9995 (seeds 0/1 of
+    # each renderer, 4 pairs: mean 0.205–0.211, p99 0.78–0.81, sums within 0.06 %). The uncompensated
     # envmap (the previous comparison) at the same settings: 0.33 / 0.88 / 1.14, sums 1.0114, 1.0093, 1.0056
     # — it passes the mean bar, so the p99 and ratio bars are the ones that guard the conventions.
     assert err["dE2000_mean"] <= 0.5, err
