@@ -23,7 +23,7 @@ from jax.sharding import NamedSharding, PartitionSpec as PS
 from jkatana.render.camera import Camera
 from jkatana.render.gbuffer import GBuffer, gbuffer_mesh, gbuffer_sphere
 from jkatana.render.shading import (Environment, Light, Material, Pixels, Plan, Visibility, background,
-                                    ray_directions, shade)
+                                    fold_fresnel, fresnel_rank_for, ray_directions, shade)
 
 DEFAULT_CHUNK = 16384
 
@@ -116,6 +116,21 @@ def visibility(occluders, rays, position, normal) -> Visibility:
 
 
 @functools.lru_cache(maxsize=8)
+def _compiled_fold(rank: int):
+    return jax.jit(lambda mat, env, cmf: fold_fresnel(rank, mat, env, cmf))
+
+
+def resolve_plan(plan: Plan, mat: Material) -> Plan:
+    """``plan`` with ``fresnel_rank=None`` decided on the host: the smallest rank of the material's
+    Fresnel table within :data:`~jkatana.render.shading.FRESNEL_RANK_TOL` where the plan allows folding
+    (no spectral output, no lights, not ``factored``, a lobe or mirror to shade), else 0 (full spectra)."""
+    if plan.fresnel_rank is not None:
+        return plan
+    ok = not (plan.spectral or plan.lights or plan.factored)
+    return dataclasses.replace(plan, fresnel_rank=fresnel_rank_for(mat.ftable) if ok else 0)
+
+
+@functools.lru_cache(maxsize=8)
 def _compiled_background(spectral: bool):
     return jax.jit(lambda env, d, cmf: background(env, d, cmf, spectral))
 
@@ -132,6 +147,9 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     """
     if plan.visibility and occluders is None:
         raise ValueError("plan.visibility needs occluders")
+    plan = resolve_plan(plan, mat)
+    if plan.fresnel_rank and not plan.factored:  # once per frame: F·E·CMF folded into a 3R-channel map
+        mat, env = _compiled_fold(plan.fresnel_rank)(mat, env, jnp.asarray(cmf, px.normal.dtype))
     n_dev = n_devices or len(jax.local_devices())
     P = px.normal.shape[0]
     # call shapes from a fixed ladder (1024 · 4^k, capped at `chunk`), so that views with
@@ -205,6 +223,7 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
     **Returns:** a :class:`Frame`.
     """
     t0 = time.perf_counter()
+    plan = resolve_plan(plan, mat)
     gb = gb if gb is not None else gbuffer(geometry, camera)
     rays0, cast0 = (occluders.rays_cast, occluders.cast_s) if occluders is not None else (0, 0.0)
     H, W = gb.mask.shape
@@ -248,6 +267,6 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
         timing["visibility_rays"] = occluders.rays_cast - rays0
         timing["visibility_cast_s"] = occluders.cast_s - cast0
     stats = {"pixels_shaded": int(len(sel)), "coverage": float(len(sel) / (H * W)),
-             "occluded_pixels": int(blocked.sum())}
+             "occluded_pixels": int(blocked.sum()), "fresnel_rank": int(plan.fresnel_rank)}
     return Frame(xyz.reshape(H, W, 3), m.reshape(H, W), None if spectra is None else spectra.reshape(H, W, -1),
                  timing, stats)

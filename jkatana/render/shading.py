@@ -100,6 +100,8 @@ MODES = ("reference", "paper", "prefiltered", "lowrank")
 #: (Roberts' R7 Kronecker sequence with one Cranley–Patterson rotation per pixel, the environment
 #: warp taking 4 dimensions — the previous sampler, kept for the benchmark's comparison).
 SEQUENCE = "sobol"
+#: Largest |F − F_R| (absolute reflectance) accepted for a rank-R Fresnel table (:func:`fresnel_rank_for`).
+FRESNEL_RANK_TOL = 1e-5
 #: Texel weight of the environment density (:meth:`jkatana.light.sampling.EnvSampler.build`'s
 #: ``bilinear``): ``"max"`` (3×3 neighbourhood maximum) or ``True`` (exact bilinear integral).
 ENV_DENSITY = "max"
@@ -118,6 +120,14 @@ class Plan:
     - `mirror`: hiraji treated as a perfect mirror (μ0 < MIRROR_MU everywhere).
     - `env_sampling`: importance-sample the environment too (MIS).
     - `factored`: shade in the environment's spectral basis (rank = its channels).
+    - `fresnel_rank`: ``R > 0``: shade with the Fresnel factor folded into the
+      environment (:func:`fold_fresnel`: per sample a ``3R``-channel lookup and
+      ``R`` Fresnel coefficients instead of ``wl`` bands; the caller passes the
+      folded material and environment). ``0``: full spectra. ``None`` (default):
+      :func:`jkatana.render.frame.shade_pixels` picks the smallest ``R`` whose
+      Fresnel table residual is below :data:`FRESNEL_RANK_TOL` when the plan
+      allows it (no spectral output, no lights, not ``factored``), else 0;
+      :func:`shade` called directly treats ``None`` as 0.
     - `lights`: number of point/directional lights (0: none evaluated).
     - `calibration`: ``None`` for the normalised convention, else K (see models).
     - `rough_model`: ``"paper"`` (hamon = eq. 2, Gaussian D, V-cavity G) or
@@ -137,6 +147,7 @@ class Plan:
     mirror: bool = False
     env_sampling: bool = True
     factored: bool = False
+    fresnel_rank: int | None = None
     lights: int = 0
     rough_model: str = "paper"
     calibration: float | None = None
@@ -504,6 +515,56 @@ def _mix_w(plan: Plan, px: Pixels):
     return px.w
 
 
+# ---------------------------------------------------------------- Fresnel folded into the environment
+
+
+def fresnel_rank_for(ftable, tol: float = FRESNEL_RANK_TOL, max_rank: int = 8) -> int:
+    """Smallest R with max |F − F_R| ≤ ``tol`` over the table (truncated SVD in λ), 0 if none ≤ ``max_rank``.
+
+    F(cos θ, λ) of a conductor is smooth in both arguments: for iron (Johnson &
+    Christy 1974) rank 3 reproduces it to ~1e-6 (see DESIGN.md). Host-side
+    (NumPy float64) on a concrete table.
+    """
+    F = np.asarray(ftable, np.float64)
+    u, s, vt = np.linalg.svd(F, full_matrices=False)
+    for r in range(1, min(max_rank, len(s)) + 1):
+        if np.max(np.abs(F - (u[:, :r] * s[:r]) @ vt[:r])) <= tol:
+            return r
+    return 0
+
+
+def fold_fresnel(rank: int, mat: Material, env: Environment, cmf) -> tuple[Material, Environment]:
+    """Fold a rank-``R`` Fresnel factorisation and the CMFs into the environment (exact up to that rank).
+
+    With ``F(c, λ) ≈ Σ_r a_r(c) b_r(λ)`` (``b`` the leading right singular
+    vectors of the table, held fixed — no gradient through the SVD; ``a = F bᵀ``
+    is differentiable in the table) the XYZ radiance of one sample is
+    ``Σ_r a_r(cos θ) G_r(L)`` with ``G_r = Σ_λ b_r(λ) E(L, λ) x̄ȳz̄(λ)``: a
+    ``3R``-channel map. Bilinear lookups commute with this per-texel linear map,
+    so the only approximation is the Fresnel rank. Per sample a ``3R``-channel
+    lookup replaces a ``wl``-band one — the issue's "9-channel bilinear lookup"
+    for R = 3. **Returns:** ``(material with ftable (T, R), environment with
+    channels (H, W, 3R) and folded prefiltered levels)``; pass both to
+    :func:`shade` with ``Plan(fresnel_rank=R)``.
+    """
+    F = mat.ftable
+    _, _, vt = jnp.linalg.svd(jax.lax.stop_gradient(F), full_matrices=False)
+    b = vt[:rank]  # (R, wl)
+    a = F @ b.T  # (T, R)
+    M = jnp.einsum("jl,rl,lc->jrc", env.basis, b, cmf.astype(F.dtype))  # (J, R, 3)
+
+    def fold(img):
+        return jnp.einsum("hwj,jrc->hwrc", img, M).reshape(img.shape[:2] + (3 * rank,))
+
+    env2 = eqx.tree_at(lambda e: (e.channels, e.prefiltered), env,
+                       (fold(env.channels), tuple(fold(lvl) for lvl in env.prefiltered)))
+    return Material(a, mat.chi, mat.beta), env2
+
+
+def _folded(plan: Plan) -> bool:
+    return bool(plan.fresnel_rank) and not plan.factored
+
+
 # ---------------------------------------------------------------- the shader
 
 
@@ -665,13 +726,28 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     P = px.normal.shape[0]
     fr, Vl = _frame(px)
     factored = plan.factored
+    folded = _folded(plan)
     norms = _norms(plan, mat, px)
-    if factored:
+    if folded:
+        R = plan.fresnel_rank
+        if plan.lights or plan.spectral or mat.ftable.shape[-1] != R or env.channels.shape[-1] != 3 * R:
+            raise ValueError("Plan(fresnel_rank=R) needs fold_fresnel's material and environment, "
+                             "and no lights or spectral output")
+        acc = jnp.zeros((P, 3), dtype)
+    elif factored:
         # (T, J, 3): Fresnel folded with the basis spectra and the CMFs
         xtable = jnp.einsum("tl,jl,lc->tjc", mat.ftable, env.basis, cmf)
         acc = jnp.zeros((P, 3), dtype)
     else:
         acc = jnp.zeros((P, env.channels.shape[-1]), dtype)
+
+    def combine(cos, E):
+        """F(cos)·E in the accumulator's space."""
+        if folded:
+            return jnp.einsum("pr,prc->pc", _table_lookup(mat.ftable, cos), E.reshape(E.shape[0], -1, 3))
+        if factored:
+            return jnp.einsum("pjc,pj->pc", _table_lookup(xtable, cos), E)
+        return _table_lookup(mat.ftable, cos) * E
 
     def radiance_terms(Ll, Lw, weight, uv=None):
         """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space (``uv``: map coordinates of Lw)."""
@@ -679,19 +755,14 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         E = env_lookup(env, Lw) if uv is None else bilinear_equirect_uv(env.channels, *uv)  # (P, J)
         total = 0.0
         for a, c in terms:
-            if factored:
-                total = total + (a * weight)[:, None] * jnp.einsum("pjc,pj->pc", _table_lookup(xtable, c), E)
-            else:
-                total = total + (a * weight)[:, None] * _table_lookup(mat.ftable, c) * E
+            total = total + (a * weight)[:, None] * combine(c, E)
         return total
 
     def add_mirror_like(acc, weight, E, cos):
         wv = jnp.where(Vl[:, 2] > 0, weight, 0.0)
         if vis is not None:
             wv = wv * vis.mirror
-        if factored:
-            return acc + wv[:, None] * jnp.einsum("pjc,pj->pc", _table_lookup(xtable, cos), E)
-        return acc + wv[:, None] * _table_lookup(mat.ftable, cos) * E
+        return acc + wv[:, None] * combine(cos, E)
 
     # --- mirror hiraji: one deterministic lookup
     if plan.hiraji and plan.mirror:
@@ -764,7 +835,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
                     acc = acc + (a * falloff)[:, None] * (Fs @ cmf)
                 else:
                     acc = acc + (a * falloff)[:, None] * Fs @ _unbasis(env)
-    if factored:
+    if factored or folded:
         return acc, None
     spectra = acc @ env.basis  # identity when not factored
     return spectra @ cmf, (spectra if plan.spectral else None)
