@@ -36,7 +36,9 @@ llvmpipe's threads included) — unlike the wall time it hardly depends on what 
 machine; ``cores / cpu_s`` is the frame rate the frame's work allows on an idle machine with
 perfect parallelism (an upper bound). ``ns_per_pixel_cpu``: cpu_s over the blade's pixels.
 The ``empty`` view (blade behind the camera) is the fixed cost per frame (vertex processing of the
-51k-triangle mesh, depth clear, colour clear, read-back).
+51k-triangle mesh, depth clear, colour clear, read-back). ``stages_s`` (``full`` and ``empty``): the
+wall time of each pass, glFinish after each — G-buffer pass, shading pass, read-back, and ``other``
+(pyrender's scene update, context switch, Python).
 
 ``viewer``: ``jkatana view --measure-fps N`` in a fresh process on a private Xvfb display (GLX,
 llvmpipe): the median interval between the window's draws, flip to the X server included, with the
@@ -111,6 +113,24 @@ def _cpu_per_frame(fn, n: int) -> float:
     return (_cpu() - c) / n
 
 
+def _stages(r, scene, n: int) -> dict:
+    """Median wall time of each pass of a deferred frame (G-buffer, shading, read-back), glFinish-timed,
+    and the rest of the frame (pyrender's scene update, context switch, Python)."""
+    rr = r._r._renderer
+    rr.time_stages = True
+    try:
+        runs = []
+        for _ in range(n):
+            t = time.perf_counter()
+            r.render(scene)
+            runs.append({**rr.last_stages, "total_s": time.perf_counter() - t})
+    finally:
+        rr.time_stages = False
+    med = {k: float(np.median([x[k] for x in runs])) for k in runs[0]}
+    med["other_s"] = med["total_s"] - med["gbuffer_s"] - med["shading_s"] - med["readback_s"]
+    return med
+
+
 def _viewer_fps(frames: int, closeup: bool, size=(800, 600), drag_scale: float = 1.0) -> dict:
     """``jkatana view --measure-fps`` under Xvfb: the window's median frame interval (or why not)."""
     import re
@@ -172,6 +192,7 @@ def run(quick: bool = False) -> list[dict]:
                 drawn = timeit(lambda: r.draw(scene), repeats=reps, warmup=2)
                 readback = timeit(lambda: r.render(scene), repeats=max(reps // 2, 3), warmup=1)
                 cpu_s = _cpu_per_frame(lambda: r.draw(scene), 5)
+                stages = _stages(r, scene, reps) if cname == "full" else None
                 frame = r.render(scene)
                 covered = int(np.any(frame != frame[0, 0], -1).sum())
                 r.delete()
@@ -198,7 +219,11 @@ def run(quick: bool = False) -> list[dict]:
                                blade_pixels=covered, blade_coverage=covered / (view.width * view.height),
                                ns_per_pixel_cpu=1e9 * cpu_s / max(covered, 1), loadavg_1min=load,
                                gl=ctx, bake_s=bake_s, reference_s=ref_s,
-                               lp_num_threads=os.environ.get("LP_NUM_THREADS", "default")))
+                               lp_num_threads=os.environ.get("LP_NUM_THREADS", "default"),
+                               **({"stages_s": stages} if stages else {})))
+            if stages:
+                _log(f"{vname:8s} {cname:11s} stages (glFinish after each): "
+                     + ", ".join(f"{k[:-2]} {1e3 * v:.2f} ms" for k, v in stages.items()))
     # what the CPU time per blade pixel says about the texture fetches: rank 4 − rank 1 is 9 more
     # trilinear environment fetches per pixel (3 taps × 3 ranks)
     by = {(r_["case"]["view"], r_["case"]["config"]): r_ for r_ in rows}
@@ -216,12 +241,15 @@ def run(quick: bool = False) -> list[dict]:
     drawn = timeit(lambda: r.draw(scene), repeats=reps, warmup=2)
     readback = timeit(lambda: r.render(scene), repeats=reps, warmup=1)
     cpu_s = _cpu_per_frame(lambda: r.draw(scene), 5)
+    stages = _stages(r, scene, reps)
     r.delete()
+    _log("empty    stages (glFinish after each): " + ", ".join(f"{k[:-2]} {1e3 * v:.2f} ms" for k, v in stages.items()))
     _log(f"empty frame (vertex processing, clears): drawn {1e3 * drawn['median']:.1f} ms, with read-back "
          f"{1e3 * readback['median']:.1f} ms, cpu {1e3 * cpu_s:.1f} ms")
     rows.append(record("bench_interactive", {"view": "empty", "config": "full", "width": 800, "height": 600},
                        time_s=drawn, fps=1.0 / drawn["median"], readback_s=readback,
-                       fps_readback=1.0 / readback["median"], cpu_s=cpu_s, loadavg_1min=os.getloadavg()[0], gl=ctx))
+                       fps_readback=1.0 / readback["median"], cpu_s=cpu_s, stages_s=stages,
+                       loadavg_1min=os.getloadavg()[0], gl=ctx))
     # the windowed Viewer's real frame rate (Xvfb, GLX llvmpipe, flip included)
     for vname, cname, scale in (("demo", "viewer", 1.0), ("closeup", "viewer", 1.0),
                                 ("closeup", "viewer_drag_half", 0.5)):

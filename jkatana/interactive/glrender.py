@@ -382,6 +382,10 @@ class SampleCountRenderer(Renderer):
         self.want_mask = False
         #: False: an offscreen frame is drawn and waited for (glFinish) but not read back (timing)
         self.read_back = True
+        #: offscreen deferred frames: glFinish after each pass and keep their wall times in
+        #: :attr:`last_stages` (``gbuffer_s``, ``shading_s``, ``readback_s``); for profiling only
+        self.time_stages = False
+        self.last_stages: dict | None = None
         #: on-screen deferred frames only: shade at this fraction of the window's resolution and scale up
         #: (the Viewer sets it while a mouse button is held); offscreen frames are always full resolution
         self.render_scale = 1.0
@@ -482,12 +486,23 @@ class SampleCountRenderer(Renderer):
                                  GL.GL_NEAREST if (fw, fh) == (w, h) else GL.GL_LINEAR)
             GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, 0)
             return None
-        self._gbuffer_pass(scene, flags, w, h)
-        self._shading_pass(scene, w, h)
-        if not self.read_back:                    # timing of the frame as drawn: wait for it, read nothing
+        if not self.time_stages:
+            self._gbuffer_pass(scene, flags, w, h)
+            self._shading_pass(scene, w, h)
+            if not self.read_back:                # timing of the frame as drawn: wait for it, read nothing
+                GL.glFinish()
+                return None, None
+            return self._read_colour(w, h)
+        import time
+
+        t = [time.perf_counter()]
+        for stage in (lambda: self._gbuffer_pass(scene, flags, w, h), lambda: self._shading_pass(scene, w, h),
+                      lambda: self._read_colour(w, h) if self.read_back else (None, None)):
+            out = stage()
             GL.glFinish()
-            return None, None
-        return self._read_colour(w, h)
+            t.append(time.perf_counter())
+        self.last_stages = {"gbuffer_s": t[1] - t[0], "shading_s": t[2] - t[1], "readback_s": t[3] - t[2]}
+        return out
 
     def _gbuffer_pass(self, scene, flags, w, h):
         """Pass 1: the meshes with ``gbuffer.frag`` into the G-buffer. Only depth is cleared: the shading
