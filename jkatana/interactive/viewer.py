@@ -214,7 +214,8 @@ class BladeViewer(pyrender.Viewer):
             GL.glFinish()
             self._jk_draw_s.append(time.perf_counter() - t0)
         self._jk_draws += 1
-        self._jk_stamps.append(time.perf_counter())
+        if self._jk_measure:
+            self._jk_stamps.append(time.perf_counter())
         close = False
         if self._jk_shot is not None and not self._jk_measure and self._jk_draws == self._jk_after:
             self.save_frame(self._jk_shot, back=True)
