@@ -57,7 +57,7 @@ class BladeViewer(pyrender.Viewer):
     `deferred` (default True; False: the forward shader on every rasterised fragment),
     `refresh_rate` (Hz of the redraw timer), `measure_frames` (draw that many frames back to back,
     print the frame rate, close), `drag_scale` (resolution fraction while a mouse button is held).
-    After the window closes, :attr:`frame_times` holds the intervals between draws (seconds).
+    After a measuring run (`measure_frames`), :attr:`frame_times` holds the intervals between draws (seconds).
     """
 
     def __init__(self, scene, state: "glrender.ShadingState", *, viewport_size=(800, 600),
