@@ -57,7 +57,10 @@ constants saves only ~5 ms of 48, so packing the LUT layers cannot win more; the
 trilinear; bit-identical frame) 39.4 vs 35.6 ms — the 3-D texture stays; sin/cos of the side taps by
 angle addition no gain; G-buffer pass and fixed cost alone 10 ms. In the close-up the forward pass
 costs the same CPU time as deferred (39.8 vs 40.1 ms A/B: its triangles are large, so llvmpipe's
-4×4-block overshading costs what the G-buffer round trip does); in the demo view deferred saves 31 %. The shading is ~140 ns CPU per
+4×4-block overshading costs what the G-buffer round trip does); in the demo view deferred saves 31 %.
+Mesa's knobs (22.3.6 llvmpipe, LLVM 15, 256-bit): ``LP_NUM_THREADS`` 1 or 4, ``LP_NATIVE_VECTOR_WIDTH
+=128``, ``GALLIVM_PERF=brilinear,rho_approx`` or ``no_filter_hacks`` leave the close-up's CPU time
+per frame unchanged within noise (35–37 ms): no mipmaps and explicit LOD leave them nothing to cut. The shading is ~140 ns CPU per
 pixel; at 2 cores a full 800×600 close-up therefore needs ~21 ms wall: 60 fps needs ``--rank 2``
 (ΔE within 0.01 of rank 3 on iron) and/or ``--taps 1``; the rows below give each one's fps and ΔE.
 
