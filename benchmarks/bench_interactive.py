@@ -44,7 +44,9 @@ wall time of each pass, glFinish after each — G-buffer pass, shading pass, rea
 llvmpipe): the median interval between the window's draws, flip to the X server included, with the
 light turning every frame — the frame rate a user sees. ``viewer_drag_half``: the same in the
 close-up at ``--drag-scale 0.5`` (what a drag costs when the user asks for half-resolution shading
-while the mouse is held; full resolution returns on release). Skipped (and said so) without Xvfb.
+while the mouse is held; full resolution returns on release); ``viewer_drag_auto``: at
+``--drag-scale auto`` (the fraction that fits 60 Hz, chosen from the measured full-resolution draw;
+``shaded_scale`` records it). Skipped (and said so) without Xvfb.
 
 What bounds the close-up (measured on this machine, closeup view, ~300k shaded pixels, CPU time per
 frame, shader variants A/B-timed in one process, load ~5 from other jobs, CPU time robust to it):
@@ -148,12 +150,12 @@ def _viewer_fps(frames: int, closeup: bool, size=(800, 600), drag_scale: float =
     argv = (["--resolution", str(size[0]), str(size[1]), "--measure-fps", str(frames), "--drag-scale", str(drag_scale)]
             + (["--closeup"] if closeup else []))
     res = run_in_xvfb(argv, timeout=300, size=size)
-    m = re.search(r"median interval ([\d.]+) ms = ([\d.]+) fps \(min ([\d.]+) ms\); the draw alone \(glFinish, "
-                  r"no flip\) ([\d.]+) ms", res.stderr)
+    m = re.search(r"shaded at ([\d.]+)× resolution\): median interval ([\d.]+) ms = ([\d.]+) fps \(min ([\d.]+) ms\); "
+                  r"the draw alone \(glFinish, no flip\) ([\d.]+) ms", res.stderr)
     if res.returncode != 0 or not m:
         return {"skipped": f"viewer failed (rc {res.returncode}): {res.stderr.strip().splitlines()[-1:]}"}
-    return {"median_s": float(m.group(1)) * 1e-3, "min_s": float(m.group(3)) * 1e-3, "fps": float(m.group(2)),
-            "draw_s": float(m.group(4)) * 1e-3}
+    return {"scale": float(m.group(1)), "median_s": float(m.group(2)) * 1e-3, "min_s": float(m.group(4)) * 1e-3,
+            "fps": float(m.group(3)), "draw_s": float(m.group(5)) * 1e-3}
 
 
 def run(quick: bool = False) -> list[dict]:
@@ -257,7 +259,7 @@ def run(quick: bool = False) -> list[dict]:
                        loadavg_1min=os.getloadavg()[0], gl=ctx))
     # the windowed Viewer's real frame rate (Xvfb, GLX llvmpipe, flip included)
     for vname, cname, scale in (("demo", "viewer", 1.0), ("closeup", "viewer", 1.0),
-                                ("closeup", "viewer_drag_half", 0.5)):
+                                ("closeup", "viewer_drag_half", 0.5), ("closeup", "viewer_drag_auto", "auto")):
         n_frames = 20 if quick else 120
         res = _viewer_fps(n_frames, closeup=vname == "closeup", drag_scale=scale)
         load = os.getloadavg()[0]
@@ -266,13 +268,13 @@ def run(quick: bool = False) -> list[dict]:
             _log(f"viewer {vname} {cname}: skipped ({res['skipped']})")
             rows.append(record("bench_interactive", case, skipped=res["skipped"], loadavg_1min=load))
             continue
-        _log(f"viewer {vname} {cname}: {res['fps']:.1f} fps (median interval {1e3 * res['median_s']:.1f} ms, min "
+        _log(f"viewer {vname} {cname}: {res['fps']:.1f} fps at {res['scale']:.2f}× resolution (median interval {1e3 * res['median_s']:.1f} ms, min "
              f"{1e3 * res['min_s']:.1f} ms; Xvfb, flip included; the draw alone {1e3 * res['draw_s']:.1f} ms)  "
              f"(load {load:.1f})")
         rows.append(record("bench_interactive", case,
                            time_s={"median": res["median_s"], "min": res["min_s"], "max": res["median_s"],
                                    "iqr": 0.0, "repeats": n_frames},
-                           fps=res["fps"], draw_s=res["draw_s"], loadavg_1min=load,
+                           fps=res["fps"], draw_s=res["draw_s"], shaded_scale=res["scale"], loadavg_1min=load,
                            platform="GLX on Xvfb (llvmpipe)"))
     rows.append(record("bench_interactive", {"machine": True}, **machine_facts()))
     return rows

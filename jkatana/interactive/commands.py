@@ -37,9 +37,10 @@ def view_add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--measure-fps", type=int, default=0, metavar="N",
                    help="window: draw N frames back to back (the light turning; at --drag-scale), print the frame "
                         "rate, close")
-    p.add_argument("--drag-scale", type=float, default=1.0, metavar="S",
+    p.add_argument("--drag-scale", default="1", metavar="S",
                    help="window: while a mouse button is held, shade at S × the resolution (0 < S ≤ 1; 0.5 "
-                        "shades a quarter of the pixels and holds the rate in a close-up; default 1: off)")
+                        "shades a quarter of the pixels and holds the rate in a close-up; 'auto': the fraction "
+                        "that fits the --refresh interval, from the measured full-resolution frame; default 1: off)")
     p.add_argument("--exposure", type=float, default=None, help="exposure (default: the scene's, or auto)")
     p.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), default=None)
     p.add_argument("--msaa", type=int, default=0, help="offscreen MSAA samples (default 0; pyrender uses 4)")
@@ -168,10 +169,15 @@ def view_run(args: argparse.Namespace) -> int:
         raise InputError(f"--measure-fps must be >= 0, got {args.measure_fps}", field="--measure-fps")
     if not args.refresh > 0:
         raise InputError(f"--refresh must be > 0 Hz, got {args.refresh}", field="--refresh")
-    if not 0 < args.drag_scale <= 1:
-        raise InputError(f"--drag-scale must be in (0, 1], got {args.drag_scale}", field="--drag-scale")
-    if args.drag_scale < 1 and args.forward:
-        raise InputError("--drag-scale < 1 needs the deferred path (drop --forward)", field="--drag-scale")
+    if args.drag_scale != "auto":
+        try:
+            args.drag_scale = float(args.drag_scale)
+        except ValueError:
+            args.drag_scale = float("nan")
+        if not 0 < args.drag_scale <= 1:
+            raise InputError(f"--drag-scale must be in (0, 1] or 'auto', got {args.drag_scale}", field="--drag-scale")
+    if args.drag_scale != 1 and args.forward:
+        raise InputError("--drag-scale needs the deferred path (drop --forward)", field="--drag-scale")
     if args.offscreen:
         return _offscreen(args)
     from jkatana.interactive.gl import GLUnavailable, missing_package

@@ -22,10 +22,14 @@ here; pyrender's default is 30).
 panning), shade at that fraction of the window's resolution and scale the
 frame up; the full-resolution frame returns on release. At 0.5 a quarter of
 the pixels are shaded, which holds the frame rate in a close-up on a software
-rasteriser (bench_interactive, ``viewer`` rows).
+rasteriser (bench_interactive, ``viewer`` rows). ``"auto"``: the fraction that
+fits one frame in the refresh interval, from the measured time of the last
+full-resolution draws (shading time ∝ pixels: s = 0.9 √(interval / t_full),
+clamped to [0.25, 1]; 1 when full resolution already fits).
 
 ``measure_frames=N`` draws N frames back to back (the light turning by 1° each;
-at ``drag_scale``, as during a drag) and prints the measured frame interval — the
+at ``drag_scale``, as during a drag; ``"auto"`` chooses it from the three full-resolution
+warm-up draws) and prints the measured frame interval — the
 Viewer's real frame rate, flip to the X server included — then closes; with a
 `screenshot` path, the last measured frame is saved there.
 
@@ -63,12 +67,16 @@ class BladeViewer(pyrender.Viewer):
     def __init__(self, scene, state: "glrender.ShadingState", *, viewport_size=(800, 600),
                  out_dir: str | Path = ".", screenshot: str | Path | None = None, screenshot_after: int = 3,
                  title: str = "jkatana view", deferred: bool = True, refresh_rate: float = 60.0,
-                 measure_frames: int = 0, drag_scale: float = 1.0):
-        if not 0.0 < drag_scale <= 1.0:
-            raise ValueError(f"drag_scale must be in (0, 1], got {drag_scale}")
-        if drag_scale < 1.0 and not deferred:
-            raise ValueError("drag_scale < 1 needs the deferred path")
-        self._jk_drag_scale = float(drag_scale)
+                 measure_frames: int = 0, drag_scale: float | str = 1.0):
+        self._jk_auto = drag_scale == "auto"
+        if not self._jk_auto:
+            drag_scale = float(drag_scale)
+            if not 0.0 < drag_scale <= 1.0:
+                raise ValueError(f"drag_scale must be in (0, 1] or 'auto', got {drag_scale}")
+        if (self._jk_auto or drag_scale < 1.0) and not deferred:
+            raise ValueError("drag_scale other than 1 needs the deferred path")
+        self._jk_drag_scale = 1.0 if self._jk_auto else drag_scale
+        self._jk_full_s: float | None = None     # recent draw time at full resolution (for "auto")
         self._jk_state = state
         self._jk_out = Path(out_dir)
         self._jk_shot = None if screenshot is None else Path(screenshot)
@@ -107,8 +115,8 @@ class BladeViewer(pyrender.Viewer):
                                          deferred=self._jk_deferred)
         r._program_cache = glrender.BakedProgramCache(self._jk_state)
         r._program_cache.deferred = self._jk_deferred
-        if self._jk_measure:
-            r.render_scale = self._jk_drag_scale       # measure as during a drag
+        if self._jk_measure and not self._jk_auto:
+            r.render_scale = self._jk_drag_scale       # measure as during a drag ("auto": after the warm-up)
         self._renderer = r
         for major, minor in ((TARGET_OPEN_GL_MAJOR, TARGET_OPEN_GL_MINOR), (MIN_OPEN_GL_MAJOR, MIN_OPEN_GL_MINOR)):
             conf = Config(depth_size=24, double_buffer=True, major_version=major, minor_version=minor)
@@ -126,7 +134,8 @@ class BladeViewer(pyrender.Viewer):
         self.switch_to()
         self.set_caption(self.viewer_flags["window_title"])
         print(f"[view] window {w}×{h}, {self.pipeline} shading"
-              + (f", {self._jk_drag_scale:.2f}× resolution while dragging" if self._jk_drag_scale < 1 else ""),
+              + (", automatic resolution while dragging" if self._jk_auto else
+                 f", {self._jk_drag_scale:.2f}× resolution while dragging" if self._jk_drag_scale < 1 else ""),
               file=sys.stderr, flush=True)
         if not self._jk_measure and self._jk_shot is None:
             print("[view] drag: orbit; j/k: turn the light; e/d: exposure; p: save a frame; q: quit. Slow on a "
@@ -157,9 +166,16 @@ class BladeViewer(pyrender.Viewer):
         if self._should_close:
             self.on_close()
 
+    def auto_scale(self) -> float:
+        """The drag resolution fraction that fits a frame in the refresh interval (``drag_scale="auto"``)."""
+        if not self._jk_full_s:
+            return 1.0
+        budget = 1.0 / self.viewer_flags["refresh_rate"]
+        return float(np.clip(0.9 * np.sqrt(budget / self._jk_full_s), 0.25, 1.0))
+
     def on_mouse_press(self, x, y, buttons, modifiers):
         if self._renderer is not None:
-            self._renderer.render_scale = self._jk_drag_scale
+            self._renderer.render_scale = self.auto_scale() if self._jk_auto else self._jk_drag_scale
         super().on_mouse_press(x, y, buttons, modifiers)
 
     def on_mouse_release(self, x, y, button, modifiers):
@@ -207,27 +223,34 @@ class BladeViewer(pyrender.Viewer):
 
     def on_draw(self):
         t0 = time.perf_counter()
+        full = self._renderer is not None and self._renderer.render_scale == 1.0
         super().on_draw()
-        if self._jk_measure:                     # the draw itself, without the flip that follows
+        if self._jk_measure or self._jk_auto:    # the draw itself, without the flip that follows
             from OpenGL import GL
 
             GL.glFinish()
-            self._jk_draw_s.append(time.perf_counter() - t0)
+            dt = time.perf_counter() - t0
+            self._jk_draw_s.append(dt)
+            if full:
+                self._jk_full_s = dt if self._jk_full_s is None else 0.7 * self._jk_full_s + 0.3 * dt
+            del self._jk_draw_s[:-1000]
         self._jk_draws += 1
+        if self._jk_measure and self._jk_auto and self._jk_draws == 3 and self._renderer is not None:
+            self._renderer.render_scale = self.auto_scale()
         if self._jk_measure:
             self._jk_stamps.append(time.perf_counter())
         close = False
         if self._jk_shot is not None and not self._jk_measure and self._jk_draws == self._jk_after:
             self.save_frame(self._jk_shot, back=True)
             close = True
-        if self._jk_measure and self._jk_draws == self._jk_measure + 4:     # 3 warm-up draws, N intervals
-            self.frame_times = list(np.diff(self._jk_stamps[3:]))
+        if self._jk_measure and self._jk_draws == self._jk_measure + 5:     # 4 warm-up draws, N intervals
+            self.frame_times = list(np.diff(self._jk_stamps[4:]))
             med = float(np.median(self.frame_times))
             scale = self._renderer.render_scale if self._renderer is not None else 1.0
             print(f"[view] measured {len(self.frame_times)} frames {self.viewport_size[0]}×{self.viewport_size[1]} "
                   f"({self.pipeline}, shaded at {scale:.2f}× resolution): median interval {1e3 * med:.2f} ms = "
                   f"{1 / med:.1f} fps (min {1e3 * min(self.frame_times):.2f} ms); the draw alone (glFinish, no "
-                  f"flip) {1e3 * float(np.median(self._jk_draw_s[3:])):.2f} ms", file=sys.stderr, flush=True)
+                  f"flip) {1e3 * float(np.median(self._jk_draw_s[-len(self.frame_times):])):.2f} ms", file=sys.stderr, flush=True)
             if self._jk_shot is not None:
                 self.save_frame(self._jk_shot, back=True)
             close = True
