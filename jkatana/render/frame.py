@@ -117,7 +117,7 @@ def visibility(occluders, rays, position, normal) -> Visibility:
 
 @functools.lru_cache(maxsize=8)
 def _compiled_fold(rank: int):
-    return jax.jit(lambda mat, env, cmf: fold_fresnel(rank, mat, env, cmf))
+    return jax.jit(lambda mat, env, cmf, basis: fold_fresnel(rank, mat, env, cmf, basis))
 
 
 def resolve_plan(plan: Plan, mat: Material) -> Plan:
@@ -149,7 +149,9 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
         raise ValueError("plan.visibility needs occluders")
     plan = resolve_plan(plan, mat)
     if plan.fresnel_rank and not plan.factored:  # once per frame: F·E·CMF folded into a 3R-channel map
-        mat, env = _compiled_fold(plan.fresnel_rank)(mat, env, jnp.asarray(cmf, px.normal.dtype))
+        _, vt = fresnel_rank_for(mat.ftable, _basis_too=True)  # cached host SVD
+        mat, env = _compiled_fold(plan.fresnel_rank)(mat, env, jnp.asarray(cmf, px.normal.dtype),
+                                                     jnp.asarray(vt[:plan.fresnel_rank], px.normal.dtype))
     n_dev = n_devices or len(jax.local_devices())
     P = px.normal.shape[0]
     # call shapes from a fixed ladder (1024 · 4^k, capped at `chunk`), so that views with

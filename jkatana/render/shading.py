@@ -518,22 +518,32 @@ def _mix_w(plan: Plan, px: Pixels):
 # ---------------------------------------------------------------- Fresnel folded into the environment
 
 
-def fresnel_rank_for(ftable, tol: float = FRESNEL_RANK_TOL, max_rank: int = 8) -> int:
+def fresnel_rank_for(ftable, tol: float = FRESNEL_RANK_TOL, max_rank: int = 8, *, _basis_too: bool = False) -> int:
     """Smallest R with max |F − F_R| ≤ ``tol`` over the table (truncated SVD in λ), 0 if none ≤ ``max_rank``.
 
     F(cos θ, λ) of a conductor is smooth in both arguments: for iron (Johnson &
     Christy 1974) rank 3 reproduces it to ~1e-6 (see DESIGN.md). Host-side
     (NumPy float64) on a concrete table.
     """
-    F = np.asarray(ftable, np.float64)
-    u, s, vt = np.linalg.svd(F, full_matrices=False)
-    for r in range(1, min(max_rank, len(s)) + 1):
-        if np.max(np.abs(F - (u[:, :r] * s[:r]) @ vt[:r])) <= tol:
-            return r
-    return 0
+    import hashlib
+
+    F = np.ascontiguousarray(np.asarray(ftable))
+    key = (hashlib.blake2b(F.tobytes(), digest_size=16).hexdigest(), F.shape, str(F.dtype), tol, max_rank)
+    if key not in _RANK_CACHE:  # a per-frame host SVD costs ~1 s on a loaded machine: once per table
+        F = F.astype(np.float64)
+        u, s, vt = np.linalg.svd(F, full_matrices=False)
+        _RANK_CACHE[key] = (0, vt)
+        for r in range(1, min(max_rank, len(s)) + 1):
+            if np.max(np.abs(F - (u[:, :r] * s[:r]) @ vt[:r])) <= tol:
+                _RANK_CACHE[key] = (r, vt)
+                break
+    return _RANK_CACHE[key][0] if not _basis_too else _RANK_CACHE[key]
 
 
-def fold_fresnel(rank: int, mat: Material, env: Environment, cmf) -> tuple[Material, Environment]:
+_RANK_CACHE: dict = {}
+
+
+def fold_fresnel(rank: int, mat: Material, env: Environment, cmf, basis=None) -> tuple[Material, Environment]:
     """Fold a rank-``R`` Fresnel factorisation and the CMFs into the environment (exact up to that rank).
 
     With ``F(c, λ) ≈ Σ_r a_r(c) b_r(λ)`` (``b`` the leading right singular
@@ -545,11 +555,15 @@ def fold_fresnel(rank: int, mat: Material, env: Environment, cmf) -> tuple[Mater
     lookup replaces a ``wl``-band one — the issue's "9-channel bilinear lookup"
     for R = 3. **Returns:** ``(material with ftable (T, R), environment with
     channels (H, W, 3R) and folded prefiltered levels)``; pass both to
-    :func:`shade` with ``Plan(fresnel_rank=R)``.
+    :func:`shade` with ``Plan(fresnel_rank=R)``. ``basis``: the ``(R, wl)`` spectra
+    if already known (the frame passes the host SVD of :func:`fresnel_rank_for`),
+    else the SVD runs here.
     """
     F = mat.ftable
-    _, _, vt = jnp.linalg.svd(jax.lax.stop_gradient(F), full_matrices=False)
-    b = vt[:rank]  # (R, wl)
+    if basis is None:
+        _, _, vt = jnp.linalg.svd(jax.lax.stop_gradient(F), full_matrices=False)
+        basis = vt[:rank]
+    b = jnp.asarray(basis, F.dtype)  # (R, wl)
     a = F @ b.T  # (T, R)
     M = jnp.einsum("jl,rl,lc->jrc", env.basis, b, cmf.astype(F.dtype))  # (J, R, 3)
 
