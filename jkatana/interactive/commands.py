@@ -37,10 +37,11 @@ def view_add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--measure-fps", type=int, default=0, metavar="N",
                    help="window: draw N frames back to back (the light turning; at --drag-scale), print the frame "
                         "rate, close")
-    p.add_argument("--drag-scale", default="1", metavar="S",
-                   help="window: while a mouse button is held, shade at S × the resolution (0 < S ≤ 1; 0.5 "
-                        "shades a quarter of the pixels and holds the rate in a close-up; 'auto': the fraction "
-                        "that fits the --refresh interval, from the measured full-resolution frame; default 1: off)")
+    p.add_argument("--drag-scale", default="auto", metavar="S",
+                   help="window: while a mouse button is held, shade at S × the resolution and scale up (0 < S ≤ 1; "
+                        "0.5 shades a quarter of the pixels); 'auto' (default): the fraction that fits the --refresh "
+                        "interval, from the measured full-resolution frame (1 when that fits); 1: always full "
+                        "resolution. Still frames are always full resolution")
     p.add_argument("--exposure", type=float, default=None, help="exposure (default: the scene's, or auto)")
     p.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), default=None)
     p.add_argument("--msaa", type=int, default=0, help="offscreen MSAA samples (default 0; pyrender uses 4)")
@@ -212,21 +213,26 @@ def run_in_xvfb(argv: list[str], timeout: float = 120.0, size=(800, 600)) -> sub
 
     if shutil.which("Xvfb") is None:
         raise FileNotFoundError("Xvfb not found; install the Debian package xvfb")
-    for disp in range(90, 140):
-        if not Path(f"/tmp/.X11-unix/X{disp}").exists() and not Path(f"/tmp/.X{disp}-lock").exists():
-            break
-    xvfb = subprocess.Popen(["Xvfb", f":{disp}", "-screen", "0", f"{size[0] + 64}x{size[1] + 64}x24", "-nolisten",
-                             "tcp"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # -displayfd: Xvfb picks a free display itself and writes its number once it accepts connections
+    # (no race with other Xvfb servers started at the same moment, no polling for the socket)
+    import select
+
+    rfd, wfd = os.pipe()
+    xvfb = subprocess.Popen(["Xvfb", "-displayfd", str(wfd), "-screen", "0", f"{size[0] + 64}x{size[1] + 64}x24",
+                             "-nolisten", "tcp"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            pass_fds=(wfd,))
+    os.close(wfd)
     try:
-        for _ in range(100):
-            if Path(f"/tmp/.X11-unix/X{disp}").exists():
-                break
-            time.sleep(0.05)
+        ready, _, _ = select.select([rfd], [], [], 60.0)
+        disp = os.read(rfd, 64).decode().strip() if ready else ""
+        if not disp.isdigit():
+            raise RuntimeError(f"Xvfb did not start (exit status {xvfb.poll()})")
         env = dict(os.environ, DISPLAY=f":{disp}")
         env.pop("PYOPENGL_PLATFORM", None)
         with tempfile.TemporaryDirectory():
             return subprocess.run([sys.executable, "-m", "jkatana.cli", "view", *argv], env=env,
                                   capture_output=True, text=True, timeout=timeout)
     finally:
+        os.close(rfd)
         xvfb.terminate()
         xvfb.wait(timeout=10)

@@ -18,7 +18,7 @@ receive the blit), and one draw per timer tick (pyrender's timer callback calls
 displayed frame was rendered twice). The timer runs at ``refresh_rate`` (60 Hz
 here; pyrender's default is 30).
 
-``drag_scale`` (default 1: off): while a mouse button is held (orbiting,
+``drag_scale`` (the CLI's default ``"auto"``; the class's default 1: off): while a mouse button is held (orbiting,
 panning), shade at that fraction of the window's resolution and scale the
 frame up; the full-resolution frame returns on release. At 0.5 a quarter of
 the pixels are shaded, which holds the frame rate in a close-up on a software
@@ -139,7 +139,7 @@ class BladeViewer(pyrender.Viewer):
               file=sys.stderr, flush=True)
         if not self._jk_measure and self._jk_shot is None:
             print("[view] drag: orbit; j/k: turn the light; e/d: exposure; p: save a frame; q: quit. Slow on a "
-                  "software rasteriser? --drag-scale 0.5, --taps 1, --rank 2 (jkatana view --help)",
+                  "software rasteriser? --taps 1, --rank 2, --drag-scale 0.5 (jkatana view --help)",
                   file=sys.stderr, flush=True)
         pyglet.app.run()
 
