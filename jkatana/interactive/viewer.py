@@ -231,7 +231,7 @@ class BladeViewer(pyrender.Viewer):
             GL.glFinish()
             dt = time.perf_counter() - t0
             self._jk_draw_s.append(dt)
-            if full:
+            if full and self._jk_draws > 0:    # not the first draw: it compiles shaders, uploads tables
                 self._jk_full_s = dt if self._jk_full_s is None else 0.7 * self._jk_full_s + 0.3 * dt
             del self._jk_draw_s[:-1000]
         self._jk_draws += 1
