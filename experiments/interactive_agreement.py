@@ -114,19 +114,23 @@ def main(argv=None) -> int:
             # Monte-Carlo noise of the 2-seed mean: ΔE between the two halves / 2 (independent, equal variance)
             half, _ = A.compare(A.display255(fa.xyz, exposure), A.display255(fb.xyz, exposure), fa.mask)
             row["reference_noise_est"] = {k: (v / 2 if k != "pixels" else v) for k, v in half.items()}
-            for tag, rank, two in (("rank3", 3, True), ("rank4", 4, True), ("one_tap", 3, False)):
-                st = G.ShadingState(baked, refl, exposure=exposure, rank=rank, two_tap=two)
+            for tag, rank, two, fit in (("rank3", 3, True, True), ("moments", 3, True, False), ("rank4", 4, True, True),
+                                        ("one_tap", 3, False, False)):
+                st = G.ShadingState(baked, refl, exposure=exposure, rank=rank, two_tap=two, fit=fit)
                 img, gl_mask = A.gl_frame(st, view, mesh, return_mask=True)
                 m = fa.mask & gl_mask
                 row[tag], de = A.compare(img, ref, m)
                 row[tag]["silhouette_disagreement_px"] = int((fa.mask ^ gl_mask).sum())
-                if tag == "rank3":
+                if tag in ("rank3", "moments"):
                     diff = np.clip(de * 25, 0, 255).astype(np.uint8)[..., None].repeat(3, -1)
                     diff[~m] = 40
-                    Image.fromarray(np.concatenate([img, A.display8(xyz, exposure), diff], 1)).save(out / f"{env_name}_{vname}.png")
+                    suffix = "" if tag == "rank3" else "_moments"
+                    Image.fromarray(np.concatenate([img, A.display8(xyz, exposure), diff], 1)).save(
+                        out / f"{env_name}_{vname}{suffix}.png")
             summary.append(row)
             print(f"{env_name:7s} {vname:6s} px={row['rank3']['pixels']:6d}  rank3 ΔE mean "
-                  f"{row['rank3']['mean']:.2f} p95 {row['rank3']['p95']:.2f} max {row['rank3']['max']:.1f} | rank4 "
+                  f"{row['rank3']['mean']:.2f} p95 {row['rank3']['p95']:.2f} max {row['rank3']['max']:.1f} | moments "
+                  f"mean {row['moments']['mean']:.2f} p95 {row['moments']['p95']:.2f} | rank4 "
                   f"mean {row['rank4']['mean']:.2f} | one-tap mean {row['one_tap']['mean']:.2f} p95 "
                   f"{row['one_tap']['p95']:.2f} | ref noise mean {row['reference_noise_est']['mean']:.2f} "
                   f"p95 {row['reference_noise_est']['p95']:.2f}  (ref {ref_s:.0f} s)", flush=True)

@@ -141,11 +141,15 @@ class ShadingState:
     - `baked`: :class:`jkatana.interactive.bake.Baked`; `refl_map`: ``(H, W, 3)`` w, μ0, μ1.
     - per frame: `exposure`, `env_rotation` (radians about +Y, turns the light around the blade),
       and the static switches `rank` (≤ baked rank), `rough`, `blend`, `two_tap` (anisotropic lobe:
-      three (or, with `taps=5`, five) binomial prefiltered taps along the plane of incidence; off: one tap).
+      three (or, with `taps=5`, five) binomial prefiltered taps along the plane of incidence; off: one tap),
+      `fit` (with three taps: their offsets, weights and filter width fitted to the lobe by
+      :func:`jkatana.interactive.bake.tap_fit` — the default; off: moment-matched binomial taps, which
+      miss the lobe's skew: ~10 % too dark on a sun inside the oblique hamon lobe; `taps=5` is always
+      moment-matched).
     """
 
     def __init__(self, baked: Baked, refl_map: np.ndarray, *, exposure: float = 1.0, rank: int | None = None,
-                 rough: bool = True, blend: bool = True, two_tap: bool = True, taps: int = 3):
+                 rough: bool = True, blend: bool = True, two_tap: bool = True, taps: int = 3, fit: bool = True):
         self.baked = baked
         self.refl_map = np.asarray(refl_map, np.float64)
         self.exposure = float(exposure)
@@ -159,11 +163,13 @@ class ShadingState:
         if taps not in (3, 5):
             raise ValueError(f"taps must be 3 or 5, got {taps}")
         self.taps = int(taps)
+        self.fit = bool(fit)
         self._textures: dict[object, tuple[int, ...]] = {}
 
     def defines(self) -> dict:
         return {"JK_RANK": self.rank, "JK_ROUGH": int(self.rough), "JK_BLEND": int(self.blend),
-                "JK_TWO_TAP": int(self.two_tap and self.rough), "JK_TAPS": self.taps}
+                "JK_TWO_TAP": int(self.two_tap and self.rough), "JK_TAPS": self.taps,
+                "JK_TAP_FIT": int(self.fit and self.two_tap and self.rough and self.taps == 3)}
 
     def env_rot_matrix(self) -> np.ndarray:
         """World → environment-map rotation about +Y, as :func:`jkatana.render.renderer.rotation_y`
@@ -179,10 +185,13 @@ class ShadingState:
         if key not in self._textures:
             b = self.baked
             n_mu, rank, H, W, _ = b.env.shape
-            lut = np.zeros((4,) + b.lut.shape[1:-1] + (MAX_RANK,))
+            lut = np.zeros((8,) + b.lut.shape[1:-1] + (MAX_RANK,))
             lut[:2, ..., :rank] = b.lut
             lut[2, ..., :3] = b.spread[0]                                # layer 2: hiraji lobe shape
             lut[3, ..., :3] = b.spread[1]                                # layer 3: hamon lobe shape
+            T = (b.taps.shape[-1] - 1) // 2                              # fitted taps (bake.tap_fit):
+            lut[4:6, ..., :1 + T] = b.taps[:, ..., :1 + T]               # layers 4, 5: log(μ_e/μ), offsets
+            lut[6:8, ..., :T] = b.taps[:, ..., 1 + T:]                   # layers 6, 7: weights
             self._textures[key] = (
                 _tex_array(lut),                                         # (2, n_mu, n_cos, 4)
                 _tex_2d(_rgba(self.refl_map)),

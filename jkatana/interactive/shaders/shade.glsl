@@ -20,7 +20,10 @@
 // three binomial taps along the plane of incidence, prefiltered for the
 // across-plane width, matching the lobe's in-plane mean and variance — moments
 // baked from the models by jkatana.interactive.bake.lobe_lut; the name is
-// historical: two extra taps; JK_TAPS = 5: four extra taps).
+// historical: two extra taps; JK_TAPS = 5: four extra taps), JK_TAP_FIT (default: instead of the
+// moment-matched binomial taps, three taps whose offsets, weights and filter width are fitted by least
+// squares to the lobe's own kernel per (cos θv, μ) — filtered importance sampling (Křivánek & Colbert
+// 2008) with a baked pattern; jkatana.interactive.bake.tap_fit; LUT layers 4–7).
 
 uniform vec3 cam_pos;
 uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
@@ -116,14 +119,27 @@ vec4 jk_shade(vec3 N, vec3 P, vec2 uv)
         float lt = 0.0;
 #endif
         vec4 a = w * lobe(0.0, cv, lf) + (1.0 - w) * lobe(1.0, cv, lt);
-#if JK_ROUGH
+#if JK_ROUGH && JK_TAP_FIT
+        // fitted taps (jkatana.interactive.bake.tap_fit): x = log(μ_e/μ), yzw = offsets o_j along the
+        // plane of incidence (rad, towards N); layers 6, 7: weights w_j
+        vec4 tp = w * lobe(4.0, cv, lf) + (1.0 - w) * lobe(5.0, cv, lt);
+        vec3 tw = w * lobe(6.0, cv, lf).rgb + (1.0 - w) * lobe(7.0, cv, lt).rgb;
+        float le = clamp(mix(lt, lf, w) + tp.x / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
+#elif JK_ROUGH
         vec3 shape = w * lobe(2.0, cv, lf).rgb + (1.0 - w) * lobe(3.0, cv, lt).rgb;
         float le = clamp(mix(lt, lf, w) + shape.r / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
 #else
         float le = 0.0;
 #endif
         float lz = (le + 0.5) / jk_n_levels;
-#if JK_TWO_TAP
+#if JK_TWO_TAP && JK_TAP_FIT
+        // three taps fitted to the lobe (offsets, weights, filter width): the lobe's skew too
+        vec3 tn = N - dot(N, R0) * R0;
+        tn = jk_env_rot * (tn / max(length(tn), 1e-6));
+        xyz = tw.x * env_xyz(cos(tp.y) * R + sin(tp.y) * tn, lz, a)
+            + tw.y * env_xyz(cos(tp.z) * R + sin(tp.z) * tn, lz, a)
+            + tw.z * env_xyz(cos(tp.w) * R + sin(tp.w) * tn, lz, a);
+#elif JK_TWO_TAP
         // three binomial taps (1/4, 1/2, 1/4) along the plane of incidence at mean, mean ± √2·spread:
         // the in-plane variance of the sum is var_perp + spread² = var_par (the lobe's)
         vec3 tn = N - dot(N, R0) * R0;
