@@ -22,7 +22,7 @@ from jax.sharding import NamedSharding, PartitionSpec as PS
 
 from jkatana.render.camera import Camera
 from jkatana.render.gbuffer import GBuffer, gbuffer_mesh, gbuffer_sphere
-from jkatana.render.shading import (Environment, Light, Material, Pixels, Plan, Visibility, background,
+from jkatana.render.shading import (Environment, Light, Material, PixelIds, Pixels, Plan, Visibility, background,
                                     fold_fresnel, fresnel_rank_for, ray_directions, shade)
 
 DEFAULT_CHUNK = 16384
@@ -67,12 +67,13 @@ def devices():
 def _compiled(plan: Plan, n_dev: int, chunk: int):
     mesh = jax.make_mesh((n_dev,), ("d",), devices=jax.local_devices()[:n_dev])
 
-    def per_device(mat, env, lights, px, vis, cmf, key):
-        key = jax.random.fold_in(key, jax.lax.axis_index("d"))
-        return shade(plan, mat, env, lights, px, cmf, key, vis)
+    def per_device(mat, env, lights, px, vis, cmf, key, ids):
+        if ids is None:  # with pixel ids the scramble comes from the frame key and the pixel index
+            key = jax.random.fold_in(key, jax.lax.axis_index("d"))
+        return shade(plan, mat, env, lights, px, cmf, key, vis, ids)
 
     f = jax.shard_map(per_device, mesh=mesh,
-                      in_specs=(PS(), PS(), PS(), PS("d"), PS("d"), PS(), PS()),
+                      in_specs=(PS(), PS(), PS(), PS("d"), PS("d"), PS(), PS(), PS("d")),
                       out_specs=(PS("d"), PS("d") if plan.spectral and not plan.factored else PS()),
                       check_vma=False)
     return jax.jit(f), mesh
@@ -83,11 +84,12 @@ def _compiled_rays(plan: Plan, n_dev: int, chunk: int):
     """The directions :func:`shade` will trace, with the same per-device key (visibility pass)."""
     mesh = jax.make_mesh((n_dev,), ("d",), devices=jax.local_devices()[:n_dev])
 
-    def per_device(env, lights, px, key):
-        key = jax.random.fold_in(key, jax.lax.axis_index("d"))
-        return ray_directions(plan, env, lights, px, key)
+    def per_device(env, lights, px, key, ids):
+        if ids is None:
+            key = jax.random.fold_in(key, jax.lax.axis_index("d"))
+        return ray_directions(plan, env, lights, px, key, ids)
 
-    f = jax.shard_map(per_device, mesh=mesh, in_specs=(PS(), PS(), PS("d"), PS()), out_specs=PS("d"),
+    f = jax.shard_map(per_device, mesh=mesh, in_specs=(PS(), PS(), PS("d"), PS(), PS("d")), out_specs=PS("d"),
                       check_vma=False)
     return jax.jit(f)
 
@@ -136,8 +138,13 @@ def _compiled_background(spectral: bool):
 
 
 def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels,
-                 cmf, key, *, n_devices: int | None = None, chunk: int = DEFAULT_CHUNK, occluders=None):
+                 cmf, key, *, n_devices: int | None = None, chunk: int = DEFAULT_CHUNK, occluders=None,
+                 ids: PixelIds | None = None):
     """Shade ``P`` pixels in fixed-size sharded calls; returns ``(xyz (P, 3), spectra or None)`` as NumPy.
+
+    ``ids`` (:class:`~jkatana.render.shading.PixelIds`, with ``plan.subpixels > 1``): the output pixel and
+    subpixel of each G-buffer sample; their points then come from one per-pixel sequence whose scramble
+    depends on ``key`` and the pixel index only (not on the chunk or device).
 
     With ``plan.visibility`` each call first computes the directions it will
     trace (:func:`~jkatana.render.shading.ray_directions`, jitted), ray-casts
@@ -174,6 +181,10 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
 
     px = Pixels(padded(px.position, 0.0), padded(px.normal, [0.0, 0.0, 1.0]), padded(px.view, [0.0, 0.0, 1.0]),
                 padded(px.w, 1.0), padded(px.mu0, 0.05), padded(px.mu1, 0.05))
+    if ids is not None and plan.subpixels > 1:
+        ids = PixelIds(padded(jnp.asarray(ids.pixel, jnp.uint32), 0), padded(jnp.asarray(ids.subpixel, jnp.int32), 0))
+    else:
+        ids = None
     f, mesh = _compiled(plan, n_dev, chunk)
     rep = NamedSharding(mesh, PS())
     split = NamedSharding(mesh, PS("d"))
@@ -183,14 +194,15 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     for i in range(n_calls):
         sl = slice(i * call, (i + 1) * call)
         chunk_px = jax.device_put(jax.tree.map(lambda a: a[sl], px), split)
-        ckey = jax.device_put(jax.random.fold_in(key, i), rep)
+        chunk_ids = None if ids is None else jax.device_put(jax.tree.map(lambda a: a[sl], ids), split)
+        ckey = jax.device_put(key if ids is not None else jax.random.fold_in(key, i), rep)
         vis = None
         if rays_f is not None:
-            rays = jax.tree.map(np.asarray, rays_f(env, lights, chunk_px, ckey))
+            rays = jax.tree.map(np.asarray, rays_f(env, lights, chunk_px, ckey, chunk_ids))
             vis = jax.device_put(jax.tree.map(lambda a: jnp.asarray(a, dtype),
                                               visibility(occluders, rays, np.asarray(chunk_px.position),
                                                          np.asarray(chunk_px.normal))), split)
-        outs.append(f(mat, env, lights, chunk_px, vis, cmf, ckey))
+        outs.append(f(mat, env, lights, chunk_px, vis, cmf, ckey, chunk_ids))
     xyz = np.concatenate([np.asarray(o[0]) for o in outs])[:P]
     spec = None
     if outs[0][1] is not None:
@@ -208,7 +220,7 @@ def gbuffer(geometry, camera: Camera) -> GBuffer:
 def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | None, geometry,
                  camera: Camera, maps, cmf, *, seed: int = 0, dtype=jnp.float32,
                  n_devices: int | None = None, chunk: int = DEFAULT_CHUNK, gb: GBuffer | None = None,
-                 occluders=None) -> Frame:
+                 occluders=None, supersample: int = 1) -> Frame:
     """Render one frame.
 
     **Arguments:**
@@ -221,14 +233,25 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
     - `occluders`: :class:`~jkatana.render.gbuffer.Occluders` when ``plan.visibility``:
       they hide what lies behind them from the camera (black pixels) and shadow
       the traced directions.
+    - `supersample`: ``s > 1``: the camera's image is ``s × s`` subpixels per output
+      pixel (its size divisible by ``s``); the caller box-averages the returned
+      frame. Each pixel's ``s²`` subpixels share one sample sequence of
+      ``s² × plan.samples`` points (``Plan.subpixels``, :class:`~jkatana.render.shading.PixelIds`),
+      so the pixel's samples are stratified as a whole, not per subpixel.
 
-    **Returns:** a :class:`Frame`.
+    **Returns:** a :class:`Frame` at the camera's (subpixel) resolution.
     """
     t0 = time.perf_counter()
     plan = resolve_plan(plan, mat)
+    ss = int(supersample)
+    if ss < 1:
+        raise ValueError(f"supersample must be ≥ 1, got {supersample}")
+    plan = dataclasses.replace(plan, subpixels=ss * ss)
     gb = gb if gb is not None else gbuffer(geometry, camera)
     rays0, cast0 = (occluders.rays_cast, occluders.cast_s) if occluders is not None else (0, 0.0)
     H, W = gb.mask.shape
+    if H % ss or W % ss:
+        raise ValueError(f"supersample {ss}: the camera's {W}×{H} image is not a whole number of pixels")
     m = gb.mask.reshape(-1)
     blocked = np.zeros(H * W, bool)
     if plan.visibility and occluders is not None:
@@ -250,8 +273,13 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
                     jnp.asarray(gb.normal.reshape(-1, 3)[sel], dtype),
                     jnp.asarray(gb.view.reshape(-1, 3)[sel], dtype),
                     mp[:, 0], mp[:, 1], mp[:, 2])
+        ids = None
+        if ss > 1:
+            row, col = np.divmod(sel, W)
+            ids = PixelIds(((row // ss) * (W // ss) + col // ss).astype(np.uint32),
+                           ((row % ss) * ss + col % ss).astype(np.int32))
         x, s = shade_pixels(plan, mat, env, lights, px, cmf, key, n_devices=n_devices, chunk=chunk,
-                            occluders=occluders)
+                            occluders=occluders, ids=ids)
         xyz[sel] = x
         if spectra is not None and s is not None:
             spectra[sel] = s

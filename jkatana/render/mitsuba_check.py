@@ -215,7 +215,8 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
         plan, maps = Plan(samples=samples, hiraji=False, hamon=True, rough_model="beckmann"), [0.0, 0.05, alpha]
     cmf = film_weights(grid)
     f = render_frame(plan, mat, E, None, ("sphere", (0.0, 0.0, 0.0), 1.0), cam,
-                     np.array([[maps]], np.float32).repeat(2, 0).repeat(2, 1), cmf, seed=seed)
+                     np.array([[maps]], np.float32).repeat(2, 0).repeat(2, 1), cmf, seed=seed,
+                     supersample=supersample)  # one sample set per pixel across its subpixels
     scale = float(xyz_weights(grid)[:, 1].sum()) / MITSUBA_Y_NORM
     rgb = xyz_to_linear_rgb(f.xyz.astype(np.float64) * scale, "ITU-R BT.709")
     rgb = rgb.reshape(size, supersample, size, supersample, 3).mean((1, 3))

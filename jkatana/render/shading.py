@@ -119,6 +119,12 @@ MODES = ("reference", "paper", "prefiltered", "lowrank")
 #: (Roberts' R7 Kronecker sequence with one Cranley–Patterson rotation per pixel, the environment
 #: warp taking 4 dimensions — the previous sampler, kept for the benchmark's comparison).
 SEQUENCE = "sobol"
+#: Which points of a pixel's ``S·N``-point sequence subpixel ``s`` takes (``Plan.subpixels = S > 1``, ``N``
+#: samples): ``"block"`` — indices ``s·N … s·N + N − 1`` (for Sobol and ``N`` a power of two each block is
+#: itself a (0, m, 2)-net and the union the full prefix, a (0, m + log2 S, 2)-net) or ``"interleave"`` —
+#: indices ``s, s + S, s + 2S, …`` (the union is the same prefix; each subpixel's own set is confined to
+#: one stratum of the first dimension).
+SUBPIXEL_ORDER = "block"
 #: Largest |F − F_R| (absolute reflectance) accepted for a rank-R Fresnel table (:func:`fresnel_rank_for`).
 FRESNEL_RANK_TOL = 1e-5
 #: Texel weight of the environment density (:meth:`jkatana.light.sampling.EnvSampler.build`'s
@@ -157,6 +163,12 @@ class Plan:
     - `visibility`: the scene has occluders: every traced light direction is
       weighted by a host-computed visibility (:class:`Visibility`). ``False``
       (no occluders) compiles no visibility input at all.
+    - `subpixels`: ``S`` G-buffer samples (subpixels) per output pixel. With
+      ``S > 1`` and :class:`PixelIds` passed to :func:`shade`, the MIS modes draw
+      ONE per-pixel point set of ``S × samples`` points and give each subpixel
+      its share (:data:`SUBPIXEL_ORDER`), so that the union over a pixel's
+      subpixels is one well-stratified set instead of ``S`` independently
+      shifted ones. Without ids (or ``S = 1``) every G-buffer sample is its own pixel.
     """
 
     mode: str = "reference"
@@ -172,6 +184,7 @@ class Plan:
     calibration: float | None = None
     spectral: bool = False
     visibility: bool = False
+    subpixels: int = 1
 
 
 class Environment(eqx.Module):
@@ -215,6 +228,18 @@ class Pixels(NamedTuple):
     w: Float[Array, "P"]
     mu0: Float[Array, "P"]
     mu1: Float[Array, "P"]
+
+
+class PixelIds(NamedTuple):
+    """Which output pixel and which of its subpixels each G-buffer sample is (see ``Plan.subpixels``).
+
+    ``pixel (P,)`` uint32: a frame-wide pixel index (the scramble of the pixel's
+    point set is ``jax.random.bits(fold_in(key, pixel))``, so it does not depend on
+    the chunk or device that shades it); ``subpixel (P,)`` int32 in ``[0, S)``.
+    """
+
+    pixel: Array
+    subpixel: Array
 
 
 class Rays(NamedTuple):
@@ -637,33 +662,77 @@ def _paper_ray(plan: Plan, px: Pixels, Vl, fr, key, k):
     return Ll, _to_world(Ll, *fr), phi, mu
 
 
-def _mis_offset(key, P, dtype):
+def _per_pixel(plan: Plan, ids: PixelIds | None) -> bool:
+    return ids is not None and plan.subpixels > 1
+
+
+def _mis_offset(key, P, dtype, plan: Plan | None = None, ids: PixelIds | None = None):
     """Per-pixel randomisation of the sample sequence (:data:`SEQUENCE`): Cranley–Patterson
-    offsets ``(P, 7)`` for R7, random digital shifts ``(P, 5)`` (uint32) for Sobol."""
+    offsets ``(P, 7)`` for R7, random digital shifts ``(P, 5)`` (uint32) for Sobol.
+
+    With :class:`PixelIds` (and ``plan.subpixels > 1``) the randomisation is drawn per output
+    pixel from ``fold_in(key, pixel)``, so all subpixels of a pixel share it wherever they are shaded."""
+    if plan is not None and _per_pixel(plan, ids):
+        def one(p):
+            kp = jax.random.fold_in(key, p)
+            return jax.random.uniform(kp, (7,), dtype) if SEQUENCE == "r7" else jax.random.bits(kp, (5,), jnp.uint32)
+
+        return jax.vmap(one)(ids.pixel)
     if SEQUENCE == "r7":
         return jax.random.uniform(key, (P, 7), dtype)
     return jax.random.bits(key, (P, 5), jnp.uint32)
 
 
-def _uniforms(plan: Plan, offset, k, dtype):
+def _sample_index(plan: Plan, ids: PixelIds | None, k):
+    """Index of the k-th sample of each G-buffer sample in its pixel's sequence: ``k`` (scalar), or
+    ``(P,)`` per subpixel (:data:`SUBPIXEL_ORDER`)."""
+    if not _per_pixel(plan, ids):
+        return k
+    sub = ids.subpixel.astype(jnp.int32)
+    if SUBPIXEL_ORDER == "interleave":
+        return sub + plan.subpixels * k
+    return sub * plan.samples + k
+
+
+def _uniforms(plan: Plan, offset, k, dtype, ids: PixelIds | None = None):
     """The k-th point per pixel: ``(mix, lobe u1, lobe u2, env (P, 2) or (P, 4))``."""
+    idx = _sample_index(plan, ids, k)
     if SEQUENCE == "r7":
-        r = jnp.mod(offset + (k + 1).astype(dtype) * jnp.asarray(_R7, dtype), 1.0)
+        kk = jnp.asarray(idx + 1).astype(dtype)
+        kk = kk[..., None] if kk.ndim else kk
+        r = jnp.mod(offset + kk * jnp.asarray(_R7, dtype), 1.0)
         return r[:, 0], r[:, 1], r[:, 2], r[:, 3:7]
-    t = jnp.asarray(_sobol_table(plan.samples))[k]  # (3,) uint32, the same point for every pixel
+    n = plan.samples * (plan.subpixels if _per_pixel(plan, ids) else 1)
+    t = jnp.asarray(_sobol_table(n))[idx]  # (3,) the same point for every pixel, or (P, 3) per subpixel
+    t = jnp.broadcast_to(t, offset.shape[:1] + (3,))
 
     def unit(x):  # top 24 bits → [0, 1) exactly representable in float32
         return (x >> 8).astype(dtype) * jnp.asarray(2.0**-24, dtype)
 
-    return (unit(t[2] ^ offset[:, 4]), unit(t[0] ^ offset[:, 0]), unit(t[1] ^ offset[:, 1]),
-            jnp.stack([unit(t[0] ^ offset[:, 2]), unit(t[1] ^ offset[:, 3])], -1))
+    return (unit(t[:, 2] ^ offset[:, 4]), unit(t[:, 0] ^ offset[:, 0]), unit(t[:, 1] ^ offset[:, 1]),
+            jnp.stack([unit(t[:, 0] ^ offset[:, 2]), unit(t[:, 1] ^ offset[:, 3])], -1))
 
 
-def _mis_rays(plan: Plan, env: Environment, px: Pixels, Vl, fr, offset, k):
+def sample_points(plan: Plan, key, n: int, ids: PixelIds | None = None, dtype=jnp.float32):
+    """The unit-cube points the MIS modes use: ``(n, plan.samples, 5)`` = (mixture choice, lobe u1, lobe u2,
+    environment u1, u2) per G-buffer sample (Sobol; ``"r7"`` gives 7 columns), for inspection and tests.
+
+    Same construction as :func:`shade` with the same ``key`` and ``ids``.
+    """
+    offset = _mis_offset(key, n, dtype, plan, ids)
+
+    def one(k):
+        r0, r1, r2, re = _uniforms(plan, offset, k, dtype, ids)
+        return jnp.concatenate([jnp.stack([r0, r1, r2], -1), re], -1)
+
+    return jax.vmap(one, out_axes=1)(jnp.arange(plan.samples))
+
+
+def _mis_rays(plan: Plan, env: Environment, px: Pixels, Vl, fr, offset, k, ids: PixelIds | None = None):
     """The k-th MIS pair: ``(Ll, Lw)`` from the lobe mixture, ``(Ll2, Lw2, pe2, uv2)`` from the environment
     (``None`` without environment sampling; ``uv2`` the map coordinates of ``Lw2``, or ``None``)."""
     dtype = Vl.dtype
-    r0, r1, r2, re = _uniforms(plan, offset, k, dtype)
+    r0, r1, r2, re = _uniforms(plan, offset, k, dtype, ids)
     gauss = plan.hiraji and not plan.mirror  # the Gaussian (Rayleigh-warped) facet sampler is needed
     beck = plan.hamon and plan.rough_model == "beckmann"
     if gauss or (plan.hamon and not beck):
@@ -704,7 +773,8 @@ def _has_lobe(plan: Plan) -> bool:
     return (plan.hiraji and not plan.mirror) or plan.hamon
 
 
-def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixels, key) -> Rays:
+def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixels, key,
+                   ids: PixelIds | None = None) -> Rays:
     """Every direction :func:`shade` will look up for these pixels and this key, as :class:`Rays`.
 
     Built from the same sampling helpers as :func:`shade` (same key → same
@@ -720,10 +790,10 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
     if plan.mode == "paper" and _has_lobe(plan):
         lobe = jax.vmap(lambda k: _paper_ray(plan, px, Vl, fr, key, k)[1], out_axes=1)(ks)
     elif plan.mode in ("reference", "lowrank") and _has_lobe(plan):
-        offset = _mis_offset(key, P, dtype)
+        offset = _mis_offset(key, P, dtype, plan, ids)
 
         def one(k):
-            _, Lw, _, Lw2, _, _ = _mis_rays(plan, env, px, Vl, fr, offset, k)
+            _, Lw, _, Lw2, _, _ = _mis_rays(plan, env, px, Vl, fr, offset, k, ids)
             return Lw, (Lw2 if Lw2 is not None else jnp.zeros((P, 3), dtype))
 
         lobe, envd = jax.vmap(one, out_axes=1)(ks)
@@ -740,7 +810,8 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
 
 
 def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels,
-          cmf: Float[Array, "wl 3"], key, vis: Visibility | None = None) -> tuple[Array, Array | None]:
+          cmf: Float[Array, "wl 3"], key, vis: Visibility | None = None,
+          ids: PixelIds | None = None) -> tuple[Array, Array | None]:
     """Radiance of G-buffer pixels → ``(XYZ (P, 3), spectra (P, wl) or None)``.
 
     ``cmf`` are the XYZ weights (x̄ȳz̄ Δλ / ∫ȳ). Pure JAX; jit with ``plan``
@@ -751,6 +822,10 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     that direction is multiplied by it (occluders are black: they block light
     and neither emit nor reflect). In ``"prefiltered"`` mode the lobe's
     visibility is approximated by that of the mirror direction.
+    With ``plan.subpixels > 1`` and ``ids`` (:class:`PixelIds`), the MIS modes
+    draw each G-buffer sample's points from its pixel's shared sequence
+    (``key`` is then the frame's key: the scramble comes from the pixel index);
+    the ``"paper"`` mode ignores ``ids``.
     """
     if plan.visibility and vis is None:
         raise ValueError("plan.visibility needs a Visibility (see ray_directions)")
@@ -828,11 +903,11 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         (lob, wsum), _ = jax.lax.scan(body, (jnp.zeros_like(acc), jnp.zeros((P,), dtype)), xs)
         acc = acc + lob / jnp.maximum(wsum, 1e-30)[:, None]
     elif _has_lobe(plan):  # reference / lowrank: MIS of lobe and environment sampling
-        offset = _mis_offset(key, P, dtype)
+        offset = _mis_offset(key, P, dtype, plan, ids)
 
         def body(acc_, xs):
             k, v1, v2 = xs
-            Ll, Lw, Ll2, Lw2, pe2, uv2 = _mis_rays(plan, env, px, Vl, fr, offset, k)
+            Ll, Lw, Ll2, Lw2, pe2, uv2 = _mis_rays(plan, env, px, Vl, fr, offset, k, ids)
             pb = _lobe_pdf(plan, px, Ll, Vl)
             uv = env_uv(env, Lw)  # one atan2 pair serves the density and the lookup
             pe = env.sampler.pdf_uv(*uv) if plan.env_sampling else 0.0
