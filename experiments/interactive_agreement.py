@@ -20,7 +20,7 @@ once and used by both displays. ΔE2000 over the pixels both call blade, the GL
 frame as it is displayed (8 bits) against the reference's unrounded display values.
 
 Saves, per case, ``GL | reference | ΔE×25`` (PNG; background grey in the ΔE
-panel) and ``summary.json``.
+panel; ``*_moments.png`` the same with the moment-matched taps) and ``summary.json``.
 
 Run: ``python experiments/interactive_agreement.py [-o experiments/output/interactive] [--res 240 180]``
 

@@ -23,7 +23,8 @@
 // historical: two extra taps; JK_TAPS = 5: four extra taps), JK_TAP_FIT (default: instead of the
 // moment-matched binomial taps, three taps whose offsets, weights and filter width are fitted by least
 // squares to the lobe's own kernel per (cos θv, μ) — filtered importance sampling (Křivánek & Colbert
-// 2008) with a baked pattern; jkatana.interactive.bake.tap_fit; LUT layers 4–7).
+// 2008) with a baked pattern; jkatana.interactive.bake.tap_fit; LUT layers 4–7; entries whose
+// filter width the map does not resolve hold the moment pattern, bake.resolved_taps).
 
 uniform vec3 cam_pos;
 uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
