@@ -124,7 +124,8 @@ def _sobol_table(n: int) -> np.ndarray:
     """
     from scipy.stats import qmc
 
-    pts = qmc.Sobol(d=3, scramble=False).random(max(n, 1))[:n]
+    m = 1 << max(n - 1, 0).bit_length()  # a power-of-two prefix (scipy warns otherwise), then the first n
+    pts = qmc.Sobol(d=3, scramble=False).random(m)[:n]
     return np.asarray(np.round(pts * 2.0**32), np.uint64).astype(np.uint32)
 #: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
 MIRROR_MU = 1e-4
