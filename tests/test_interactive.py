@@ -179,6 +179,30 @@ def test_gl_frame_agrees_with_jkatana_render(glr):
     assert turned > 2 * stats["mean"] and upside_down > 2 * stats["mean"], (stats, turned, upside_down)
 
 
+def test_shipped_tap_table_is_current(iron):
+    """The tap table shipped for iron (so a first ``jkatana view`` and CI skip the 1–5 min fit) carries the
+    key of the current fitting code and is what cached_bake uses: fails when the fitting code changed
+    and ``write_shipped_tap_table`` was not re-run."""
+    key = B.tap_fit_key(iron, B.MU_LEVELS, 64)
+    path = B.SHIPPED_TAPS / f"taps-{key}.npz"
+    assert path.is_file(), f"stale shipped tap table: regenerate {B.SHIPPED_TAPS} (see its README.md)"
+    with np.load(path) as z:
+        taps, ok = z["taps"], z["ok"]
+    assert taps.shape == (2, len(B.MU_LEVELS), 64, 1 + 2 * B.N_TAPS) and np.all(np.isfinite(taps))
+    np.testing.assert_allclose(taps[..., 1 + B.N_TAPS:].sum(-1), 1.0, atol=1e-9)
+    assert ok.mean() > 0.5
+    got = B._cached_tap_fit(iron, B.MU_LEVELS, 64, cache_dir="/nonexistent-jkatana-cache")
+    np.testing.assert_array_equal(got[0], taps)
+
+
+@pytest.mark.slow          # the full fit: 1–5 min on 2 cores
+def test_shipped_tap_table_equals_a_fresh_fit(iron):
+    with np.load(B.SHIPPED_TAPS / f"taps-{B.tap_fit_key(iron, B.MU_LEVELS, 64)}.npz") as z:
+        shipped = z["taps"]
+    _, taps, _, _ = B.tap_fit(iron, B.MU_LEVELS, n_cos=64)
+    np.testing.assert_allclose(taps, shipped, atol=2e-3)
+
+
 def test_fitted_taps_match_the_oblique_lobe_better_than_its_moments(iron):
     """bake.tap_fit: three taps fitted to the hamon lobe (μ = 0.2 at θv ≈ 55°) reproduce it better than the
     moment-matched binomial taps — in L1, and in the weight a small source at the lobe's peak receives

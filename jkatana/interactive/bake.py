@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -440,31 +441,64 @@ def _cache_root(cache_dir=None):
     return Path(cache_dir or os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana") / "interactive"
 
 
-def _cached_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None):
-    """:func:`tap_fit` (≈ 1–3 min on 2 CPU cores) cached on disk beside :func:`cached_bake`'s tables: it
-    depends on the conductor and the μ levels, not on the environment. Key: n, k, μ levels, n_cos and
-    the source of the fitting code."""
+#: Folder of tap tables shipped with the package (see :func:`_cached_tap_fit`).
+SHIPPED_TAPS = Path(__file__).resolve().parent.parent / "data" / "interactive"
+
+
+def tap_fit_key(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64) -> str:
+    """Cache key of :func:`tap_fit`: n, k (rounded to float32, so float32 and float64 runs share it), μ
+    levels, n_cos, the tap count and the source of the fitting code (a code change invalidates it)."""
     import hashlib
     import inspect
 
-    from jkatana.io.atomic import atomic_path
-
     h = hashlib.sha256()
-    for part in (np.asarray(conductor.n, np.float64).tobytes(), np.asarray(conductor.k, np.float64).tobytes(),
+    for part in (np.asarray(conductor.n, np.float32).astype(np.float64).tobytes(),
+                 np.asarray(conductor.k, np.float32).astype(np.float64).tobytes(),
                  np.asarray(mus, np.float64).round(12).tobytes(), repr((n_cos, N_TAPS)).encode(),
                  *(inspect.getsource(f).encode() for f in (_prefilter_kernel_normalised, lobe_kernel, tap_kernel,
                                                            _lobe_kernels, _fit_scan, tap_fit))):
         h.update(part)
-    path = _cache_root(cache_dir) / f"taps-{h.hexdigest()[:24]}.npz"
-    if path.exists():
-        with np.load(path) as z:
-            return z["taps"], z["l1"], z["ok"]
+    return h.hexdigest()[:24]
+
+
+def _cached_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None):
+    """:func:`tap_fit` (≈ 1–5 min on 2 CPU cores) cached: it depends on the conductor and the μ levels,
+    not on the environment. Looked up first among the tables shipped in ``jkatana/data/interactive``
+    (iron, Johnson & Christy 1974, at the default levels: computed by this code with
+    :func:`write_shipped_tap_table`; a test checks the shipped key is current), then in the user cache
+    beside :func:`cached_bake`'s tables; else fitted and cached. Key: :func:`tap_fit_key`."""
+    from jkatana.io.atomic import atomic_path
+
+    key = tap_fit_key(conductor, mus, n_cos)
+    for path in (SHIPPED_TAPS / f"taps-{key}.npz", _cache_root(cache_dir) / f"taps-{key}.npz"):
+        if path.exists():
+            with np.load(path) as z:
+                return z["taps"], z["l1"], z["ok"]
     _, taps, l1, ok = tap_fit(conductor, mus, n_cos=n_cos)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez(f, taps=taps, l1=l1, ok=ok)
     return taps, l1, ok
+
+
+def write_shipped_tap_table(source: str = "Fe-Johnson", grid: WavelengthGrid = DEFAULT_GRID) -> Path:
+    """Fit the taps for ``source`` at the default μ levels and write them to the package's data folder
+    (run after changing the fitting code: ``python -c "from jkatana.interactive.bake import
+    write_shipped_tap_table as w; print(w())"``); stale tables of older keys are removed."""
+    from jkatana.io.atomic import atomic_path
+
+    conductor = Conductor.from_table(source, grid, dtype=jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)
+    key = tap_fit_key(conductor, MU_LEVELS, 64)
+    _, taps, l1, ok = tap_fit(conductor, MU_LEVELS, n_cos=64)
+    SHIPPED_TAPS.mkdir(parents=True, exist_ok=True)
+    for old in SHIPPED_TAPS.glob("taps-*.npz"):
+        old.unlink()
+    path = SHIPPED_TAPS / f"taps-{key}.npz"
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, taps=taps, l1=l1, ok=ok)
+    return path
 
 
 def transfer_table(transfer="sRGB", n: int = 2048) -> np.ndarray:
