@@ -249,8 +249,14 @@ def camera_for(scene: Scene, view: int = 0, views: int = 1) -> Camera:
 
 
 def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, lights: int = 1,
-                *, seed: int | None = None) -> Frame:
-    """Render one view (camera azimuth step) under one lighting (environment rotation step)."""
+                *, seed: int | None = None, supersample: int | None = None) -> Frame:
+    """Render one view (camera azimuth step) under one lighting (environment rotation step).
+
+    ``supersample = s > 1`` (default: the scene's ``render.supersample`` if it has one, else 1) renders
+    ``s × s`` subpixels per pixel, each pixel's subpixels sharing one stratified sample set
+    (:func:`~jkatana.render.frame.render_frame`), and box-averages them: the returned frame has the
+    camera's resolution; its mask is the pixels whose subpixels all hit the object.
+    """
     scene = prep.scene
     env = prep.env
     if lights > 1 or light:
@@ -258,9 +264,22 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
         env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rot, prep.dtype))
     cam = camera_for(scene, view, views)
     s = scene.render["seed"] if seed is None else seed
-    return render_frame(prep.plan, prep.material, env, prep.lights, prep.geometry, cam, prep.maps, prep.cmf,
-                        seed=s + 7919 * view + 104729 * light, dtype=prep.dtype, chunk=scene.render["chunk"],
-                        occluders=prep.occluders)
+    ss = int(supersample if supersample is not None else scene.render.get("supersample", 1))
+    if ss > 1:
+        cam = dataclasses.replace(cam, width=cam.width * ss, height=cam.height * ss)
+    f = render_frame(prep.plan, prep.material, env, prep.lights, prep.geometry, cam, prep.maps, prep.cmf,
+                     seed=s + 7919 * view + 104729 * light, dtype=prep.dtype, chunk=scene.render["chunk"],
+                     occluders=prep.occluders, supersample=ss)
+    if ss == 1:
+        return f
+    H, W = f.mask.shape[0] // ss, f.mask.shape[1] // ss
+
+    def box(a):
+        return a.reshape(H, ss, W, ss, *a.shape[2:]).mean((1, 3)).astype(a.dtype)
+
+    return dataclasses.replace(f, xyz=box(f.xyz), mask=f.mask.reshape(H, ss, W, ss).all((1, 3)),
+                               spectra=None if f.spectra is None else box(f.spectra),
+                               stats={**f.stats, "supersample": ss})
 
 
 def exposure_for(prep: Prepared, frame: Frame) -> float:
