@@ -485,10 +485,14 @@ def _cached_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None):
 def write_shipped_tap_table(source: str = "Fe-Johnson", grid: WavelengthGrid = DEFAULT_GRID) -> Path:
     """Fit the taps for ``source`` at the default μ levels and write them to the package's data folder
     (run after changing the fitting code: ``python -c "from jkatana.interactive.bake import
-    write_shipped_tap_table as w; print(w())"``); stale tables of older keys are removed."""
+    write_shipped_tap_table as w; print(w())"``); stale tables of older keys are removed. Turns on
+    ``jax_enable_x64`` for the process: the shipped fit is the float64 one."""
     from jkatana.io.atomic import atomic_path
 
-    conductor = Conductor.from_table(source, grid, dtype=jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)
+    # the shipped table is the float64 fit (float32 runs share its key and use it: the LM fit in float32
+    # converges on fewer entries)
+    jax.config.update("jax_enable_x64", True)
+    conductor = Conductor.from_table(source, grid, dtype=jnp.float64)
     key = tap_fit_key(conductor, MU_LEVELS, 64)
     _, taps, l1, ok = tap_fit(conductor, MU_LEVELS, n_cos=64)
     SHIPPED_TAPS.mkdir(parents=True, exist_ok=True)
