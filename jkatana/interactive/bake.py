@@ -434,11 +434,21 @@ def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int) -> np.
     return np.where(use[..., None], taps, moment_taps(spread))
 
 
-def _cache_root(cache_dir=None):
+def _cache_root(cache_dir=None) -> Path:
+    """``cache_dir``, else ``$JKATANA_CACHE``, else ``~/.cache/jkatana``; its ``interactive`` folder."""
     import os
-    from pathlib import Path
 
     return Path(cache_dir or os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana") / "interactive"
+
+
+def _save_npz(path: Path, **arrays) -> None:
+    """``np.savez`` written atomically (temporary file beside ``path``, then rename)."""
+    from jkatana.io.atomic import atomic_path
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
 
 
 #: Folder of tap tables shipped with the package (see :func:`_cached_tap_fit`).
@@ -467,18 +477,13 @@ def _cached_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None):
     (iron, Johnson & Christy 1974, at the default levels: computed by this code with
     :func:`write_shipped_tap_table`; a test checks the shipped key is current), then in the user cache
     beside :func:`cached_bake`'s tables; else fitted and cached. Key: :func:`tap_fit_key`."""
-    from jkatana.io.atomic import atomic_path
-
     key = tap_fit_key(conductor, mus, n_cos)
     for path in (SHIPPED_TAPS / f"taps-{key}.npz", _cache_root(cache_dir) / f"taps-{key}.npz"):
         if path.exists():
             with np.load(path) as z:
                 return z["taps"], z["l1"], z["ok"]
     _, taps, l1, ok = tap_fit(conductor, mus, n_cos=n_cos)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez(f, taps=taps, l1=l1, ok=ok)
+    _save_npz(path, taps=taps, l1=l1, ok=ok)
     return taps, l1, ok
 
 
@@ -487,21 +492,16 @@ def write_shipped_tap_table(source: str = "Fe-Johnson", grid: WavelengthGrid = D
     (run after changing the fitting code: ``python -c "from jkatana.interactive.bake import
     write_shipped_tap_table as w; print(w())"``); stale tables of older keys are removed. Turns on
     ``jax_enable_x64`` for the process: the shipped fit is the float64 one."""
-    from jkatana.io.atomic import atomic_path
-
     # the shipped table is the float64 fit (float32 runs share its key and use it: the LM fit in float32
     # converges on fewer entries)
     jax.config.update("jax_enable_x64", True)
     conductor = Conductor.from_table(source, grid, dtype=jnp.float64)
     key = tap_fit_key(conductor, MU_LEVELS, 64)
     _, taps, l1, ok = tap_fit(conductor, MU_LEVELS, n_cos=64)
-    SHIPPED_TAPS.mkdir(parents=True, exist_ok=True)
     for old in SHIPPED_TAPS.glob("taps-*.npz"):
         old.unlink()
     path = SHIPPED_TAPS / f"taps-{key}.npz"
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez(f, taps=taps, l1=l1, ok=ok)
+    _save_npz(path, taps=taps, l1=l1, ok=ok)
     return path
 
 
@@ -520,30 +520,22 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
     to the baking code invalidates it.
     """
     import hashlib
-    import os
-    from pathlib import Path
-
-    from jkatana.io.atomic import atomic_path
 
     h = hashlib.sha256()
     for part in (np.ascontiguousarray(radiance, np.float64).tobytes(), repr((grid.start, grid.stop, grid.step,
                  rank, list(np.round(mus, 12)), colourspace, transfer, source, radiance.shape)).encode(),
                  Path(__file__).read_bytes()):
         h.update(part)
-    root = Path(cache_dir or os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana") / "interactive"
-    path = root / f"baked-{h.hexdigest()[:24]}.npz"
+    path = _cache_root(cache_dir) / f"baked-{h.hexdigest()[:24]}.npz"
     if path.exists():
         with np.load(path) as z:
-            return Baked(env=z["env"], lut=z["lut"], spread=z["spread"], taps=z["taps"], tap_l1=z["tap_l1"],
-                         tap_ok=z["tap_ok"], mus=z["mus"], b=z["b"], fresnel_err=float(z["fresnel_err"]),
-                         xyz_to_rgb=z["xyz_to_rgb"], transfer=z["transfer"], colourspace=str(z["colourspace"]))
+            fields = {f.name: z[f.name] for f in dataclasses.fields(Baked)}
+        return Baked(**{**fields, "fresnel_err": float(fields["fresnel_err"]),
+                        "colourspace": str(fields["colourspace"])})
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     baked = bake(radiance, grid, conductor=Conductor.from_table(source, grid, dtype=dt), rank=rank, mus=mus,
                  colourspace=colourspace, transfer=transfer, cache_dir=cache_dir)
-    root.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez(f, **{k: np.asarray(v) for k, v in dataclasses.asdict(baked).items()})
+    _save_npz(path, **{k: np.asarray(v) for k, v in dataclasses.asdict(baked).items()})
     return baked
 
 
