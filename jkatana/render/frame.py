@@ -217,6 +217,12 @@ def gbuffer(geometry, camera: Camera) -> GBuffer:
     return gbuffer_mesh(geometry, camera)
 
 
+def pixel_blocks(a: np.ndarray, s: int) -> np.ndarray:
+    """``(H·s, W·s, …)`` subpixels viewed as ``(H, s, W, s, …)``: reduce axes (1, 3) to get pixels
+    (``.mean`` for radiance, ``.all`` for the mask) of a frame rendered with ``supersample=s``."""
+    return a.reshape(a.shape[0] // s, s, a.shape[1] // s, s, *a.shape[2:])
+
+
 def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | None, geometry,
                  camera: Camera, maps, cmf, *, seed: int = 0, dtype=jnp.float32,
                  n_devices: int | None = None, chunk: int = DEFAULT_CHUNK, gb: GBuffer | None = None,

@@ -193,7 +193,7 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
     from jkatana.models import Conductor
     from jkatana.render.camera import Camera
     from jkatana.render.film import film_weights
-    from jkatana.render.frame import render_frame
+    from jkatana.render.frame import pixel_blocks, render_frame
     from jkatana.render.shading import Material, Plan, build_environment, fresnel_table
     from jkatana.spectral.colorimetry import xyz_to_linear_rgb, xyz_weights
     from jkatana.spectral.grid import WavelengthGrid
@@ -219,8 +219,8 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
                      supersample=supersample)  # one sample set per pixel across its subpixels
     scale = float(xyz_weights(grid)[:, 1].sum()) / MITSUBA_Y_NORM
     rgb = xyz_to_linear_rgb(f.xyz.astype(np.float64) * scale, "ITU-R BT.709")
-    rgb = rgb.reshape(size, supersample, size, supersample, 3).mean((1, 3))
-    mask = f.mask.reshape(size, supersample, size, supersample).all((1, 3))
+    rgb = pixel_blocks(rgb, supersample).mean((1, 3))
+    mask = pixel_blocks(f.mask, supersample).all((1, 3))
     return rgb, mask, f.timing["shade_s"]
 
 

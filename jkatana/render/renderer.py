@@ -25,7 +25,7 @@ import numpy as np
 from jkatana.errors import InputError
 from jkatana.render.camera import Camera
 from jkatana.render.film import auto_exposure, display, film_weights, write_png, write_spectral_exr, write_xyz_exr
-from jkatana.render.frame import Frame, render_frame
+from jkatana.render.frame import Frame, pixel_blocks, render_frame
 from jkatana.render.scene import Scene
 from jkatana.render.shading import MIRROR_MU, Environment, Light, Material, Plan, build_environment, fresnel_table
 from jkatana.spectral.grid import WavelengthGrid
@@ -252,7 +252,7 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
                 *, seed: int | None = None, supersample: int | None = None) -> Frame:
     """Render one view (camera azimuth step) under one lighting (environment rotation step).
 
-    ``supersample = s > 1`` (default: the scene's ``render.supersample`` if it has one, else 1) renders
+    ``supersample = s > 1`` (default 1) renders
     ``s × s`` subpixels per pixel, each pixel's subpixels sharing one stratified sample set
     (:func:`~jkatana.render.frame.render_frame`), and box-averages them: the returned frame has the
     camera's resolution; its mask is the pixels whose subpixels all hit the object.
@@ -264,7 +264,7 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
         env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rot, prep.dtype))
     cam = camera_for(scene, view, views)
     s = scene.render["seed"] if seed is None else seed
-    ss = int(supersample if supersample is not None else scene.render.get("supersample", 1))
+    ss = int(supersample or 1)
     if ss > 1:
         cam = dataclasses.replace(cam, width=cam.width * ss, height=cam.height * ss)
     f = render_frame(prep.plan, prep.material, env, prep.lights, prep.geometry, cam, prep.maps, prep.cmf,
@@ -272,12 +272,11 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
                      occluders=prep.occluders, supersample=ss)
     if ss == 1:
         return f
-    H, W = f.mask.shape[0] // ss, f.mask.shape[1] // ss
 
     def box(a):
-        return a.reshape(H, ss, W, ss, *a.shape[2:]).mean((1, 3)).astype(a.dtype)
+        return pixel_blocks(a, ss).mean((1, 3)).astype(a.dtype)
 
-    return dataclasses.replace(f, xyz=box(f.xyz), mask=f.mask.reshape(H, ss, W, ss).all((1, 3)),
+    return dataclasses.replace(f, xyz=box(f.xyz), mask=pixel_blocks(f.mask, ss).all((1, 3)),
                                spectra=None if f.spectra is None else box(f.spectra),
                                stats={**f.stats, "supersample": ss})
 
