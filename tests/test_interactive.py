@@ -286,10 +286,14 @@ def test_renderers_outlive_each_other(glr, sky_scene):
     scene = glr.build_scene(sc.mesh, sc.view)
     first = a.render(scene)
     assert np.any(first != first[0, 0])
+    b.render(glr.build_scene(sc.mesh, sc.view))                 # (a pyrender mesh binds to one context)
+    assert len(st._textures) == 2                                # one set of textures per context
     a.delete()
+    assert len(st._textures) == 1    # a's are gone: a later context with a's handle must not get its ids
     assert b.draw(scene) is None
     np.testing.assert_array_equal(b.render(scene), first)
     b.delete()
+    assert not st._textures
     c = glr.BakedOffscreenRenderer(st, 64, 48)                  # and a new one after the last was deleted
     np.testing.assert_array_equal(c.render(scene), first)
     c.delete()

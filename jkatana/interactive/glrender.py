@@ -200,6 +200,15 @@ class ShadingState:
             )
         return self._textures[key]
 
+    def forget_current_context(self):
+        """Delete this context's textures and forget them; call while the context is current, before it is
+        destroyed: a context made later may get the same handle and would be handed these stale ids."""
+        import OpenGL.contextdata
+
+        ids = self._textures.pop(OpenGL.contextdata.getContext(), None)
+        if ids is not None:
+            GL.glDeleteTextures(list(ids))
+
     def delete_textures(self):
         for ids in self._textures.values():
             GL.glDeleteTextures(list(ids))
@@ -698,4 +707,6 @@ class BakedOffscreenRenderer:
             r.read_back = True
 
     def delete(self):
+        self._r._platform.make_current()
+        self.state.forget_current_context()
         self._r.delete()
