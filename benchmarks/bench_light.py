@@ -28,9 +28,10 @@ import tracemalloc
 import numpy as np
 
 from benchmarks._harness import record, timeit
+from jkatana.shared import shared_data
 
 B = "bench_light"
-ENVMAPS = "/work/shared/data/envmaps"
+ENVMAPS = str(shared_data("envmaps"))
 
 
 def _log(msg):

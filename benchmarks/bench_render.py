@@ -50,6 +50,7 @@ os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
 import numpy as np  # noqa: E402
 
 from benchmarks._harness import delta_e_display, record, timeit  # noqa: E402
+from jkatana.shared import shared_data
 
 BENCH = "render"
 
@@ -229,7 +230,7 @@ def _mitsuba(quick: bool, budget: float = float("inf")) -> list[dict]:
 
     t_start = time.perf_counter()
     variant = mc.mitsuba_variant()
-    src = Path("/work/shared/data/envmaps/courtyard.exr")
+    src = shared_data("envmaps", "courtyard.exr")
     if variant is None or not src.is_file():
         _log("[render] Mitsuba comparison skipped (mitsuba not installed / no variant / no envmap)")
         return []

@@ -6,7 +6,7 @@ light of one environment texel reflected by iron at one angle,
     XYZ = Σλ F(n(λ), k(λ), θ) · E(λ) · x̄ȳz̄(λ) Δλ       (paper eqs. 1 and 6),
 
 for a batch of pixel evaluations with random angles θ ∈ [0°, 89°] and random
-texels of real environment maps (Poly Haven, CC0; ``/work/shared/data/envmaps``).
+texels of real environment maps (Poly Haven, CC0; ``shared_data("envmaps")``).
 The maps are RGB, so each texel is upsampled to a spectrum on each grid with
 the renderer's default method, :func:`jkatana.light.upsampling.rgb_to_spectrum`
 ``"Jakob 2019"`` (Jakob & Hanika, "A Low-Dimensional Function Space for
@@ -52,9 +52,10 @@ import sys
 import time
 
 import numpy as np
+from jkatana.shared import shared_data
 
 ENVMAPS = ("city", "sunset", "forest", "interior")
-ENV_DIR = "/work/shared/data/envmaps"
+ENV_DIR = str(shared_data("envmaps"))
 N_COS_TABLE = 256
 
 

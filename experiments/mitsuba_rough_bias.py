@@ -26,10 +26,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from jkatana.render import mitsuba_check as mc  # noqa: E402
+from jkatana.shared import shared_data
 
 OUT = Path(__file__).resolve().parent / "output" / "mitsuba"
 CACHE = OUT / "cache"
-ENV = Path("/work/shared/data/envmaps/courtyard.exr")
+ENV = shared_data("envmaps", "courtyard.exr")
 
 
 def cached(name, fn):

@@ -16,7 +16,7 @@ Environments (``--env``; names or paths):
 
 - ``sky``: the Hosek–Wilkie (2012, 2013) spectral sky, low afternoon sun (the demo's);
 - ``forest``, ``studio``, ``city``, … : Poly Haven RGB EXR maps (CC0, Greg Zaal) in
-  ``/work/shared/data/envmaps``, upsampled to spectra by the scene's default method;
+  ``shared_data("envmaps")``, upsampled to spectra by the scene's default method;
 - any other ``.exr``/``.hdr`` path.
 """
 
@@ -28,8 +28,9 @@ import json
 import sys
 import time
 from pathlib import Path
+from jkatana.shared import shared_data
 
-ENV_DIR = Path("/work/shared/data/envmaps")
+ENV_DIR = shared_data("envmaps")
 
 
 def environment(name: str) -> dict:

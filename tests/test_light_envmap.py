@@ -14,8 +14,9 @@ from jkatana.io.exr import write_exr
 from jkatana.light import EnvMap, direction_to_uv, load_envmap, uv_to_direction, write_spectral_exr
 from jkatana.light.spectral_exr import is_spectral_exr, read_spectral_exr
 from jkatana.spectral import WavelengthGrid
+from jkatana.shared import shared_data
 
-ENVMAPS = Path("/work/shared/data/envmaps")
+ENVMAPS = shared_data("envmaps")
 G7 = WavelengthGrid(400, 700, 50)
 
 

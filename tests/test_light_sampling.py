@@ -15,9 +15,10 @@ from jkatana.light.sampling import (
 )
 from jkatana.models import Conductor, Hiraji
 from jkatana.spectral import WavelengthGrid
+from jkatana.shared import shared_data
 
 G7 = WavelengthGrid(400, 700, 50)
-ENVMAPS = Path("/work/shared/data/envmaps")
+ENVMAPS = shared_data("envmaps")
 
 
 def _sky():

@@ -7,6 +7,7 @@ from jkatana.errors import InputError
 from jkatana.light.envmap import read_rgb_image
 from jkatana.light.upsampling import UPSAMPLING_METHODS, rgb_to_spectrum, round_trip_error, spectrum_to_rgb
 from jkatana.spectral import DEFAULT_GRID, illuminant
+from jkatana.shared import shared_data
 
 RNG = np.random.default_rng(0)
 IN_GAMUT = RNG.uniform(0.02, 1.0, (400, 3))
@@ -14,7 +15,7 @@ IN_GAMUT = RNG.uniform(0.02, 1.0, (400, 3))
 
 @pytest.fixture(scope="module")
 def sunrise_rgb():
-    return read_rgb_image("/work/shared/data/envmaps/sunrise.exr")[::16, ::16]
+    return read_rgb_image(shared_data("envmaps", "sunrise.exr"))[::16, ::16]
 
 
 @pytest.mark.parametrize("method,tol_p99,tol_max", [("Jakob 2019", 1e-6, 0.06), ("Mallett 2019", 5e-3, 5e-3),

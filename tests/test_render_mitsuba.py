@@ -10,8 +10,9 @@ from __future__ import annotations
 import pytest
 
 from jkatana.render import mitsuba_check as mc
+from jkatana.shared import shared_data
 
-ENV = "/work/shared/data/envmaps/courtyard.exr"
+ENV = str(shared_data("envmaps", "courtyard.exr"))
 
 pytestmark = pytest.mark.mitsuba
 
