@@ -148,40 +148,25 @@ def budget_s(default: float = math.inf) -> float:
 
 def delta_e_display(xyz_ref, xyz, *, exposure: float | None = None, colourspace: str = "sRGB",
                     percentile: float = 95.0) -> dict[str, float]:
-    """CIE ΔE 2000 between two images/colour sets after the same display transform.
+    """Statistics of :func:`jkatana.spectral.delta_e_2000` (display-referred CIEDE2000) between two
+    images/colour sets, the benchmarks' error metric.
 
-    Both ``(..., 3)`` XYZ arrays go through the same pipeline a viewer sees:
-    exposure (default: the reference's 99th-percentile luminance Y maps to 1),
-    XYZ → linear RGB of ``colourspace`` (paper eq. 7), clipping to the
-    display's [0, 1] and its transfer curve (eq. 8); the displayed colours are
-    then taken back to XYZ and to CIE L*a*b* (white: the colourspace's, D65)
-    and compared with CIEDE2000 (Sharma, Wu & Dalal 2005; colour-science's
-    ``delta_E(..., method="CIE 2000")``). Non-finite inputs give non-finite
-    results (they are not silently dropped).
+    ``exposure`` defaults to the reference's 99th-percentile luminance Y mapping
+    to display white. Non-finite inputs give non-finite results (they are not
+    silently dropped); the ``*_finite`` keys then say how the rest fared.
 
     **Returns:** ``{"dE2000_mean", "dE2000_p95", "dE2000_max", "exposure"}``.
     """
-    import colour
     import numpy as np
 
-    from jkatana.spectral.colorimetry import colourspace as _cs, to_display
+    from jkatana.spectral import delta_e_2000
 
     xyz_ref = np.asarray(xyz_ref, np.float64).reshape(-1, 3)
     xyz = np.asarray(xyz, np.float64).reshape(-1, 3)
     if exposure is None:
         y99 = float(np.percentile(xyz_ref[:, 1], 99.0))
         exposure = 1.0 / y99 if y99 > 0 else 1.0
-    cs = _cs(colourspace)
-
-    def lab(x):
-        bad = ~np.all(np.isfinite(x), axis=-1)
-        d = to_display(np.where(bad[:, None], 0.0, x), colourspace, exposure=exposure)
-        back = colour.RGB_to_XYZ(cs.cctf_decoding(d), cs, apply_cctf_decoding=False)
-        out = colour.XYZ_to_Lab(back, cs.whitepoint)
-        out[bad] = np.nan
-        return out
-
-    de = colour.delta_E(lab(xyz_ref), lab(xyz), method="CIE 2000")
+    de = delta_e_2000(xyz_ref, xyz, exposure=exposure, colourspace_name=colourspace)
     out = {"dE2000_mean": float(np.mean(de)), "dE2000_p95": float(np.percentile(de, percentile)),
            "dE2000_max": float(np.max(de)), "exposure": float(exposure)}
     finite = np.isfinite(de)

@@ -66,10 +66,10 @@ per frame unchanged within noise (35–37 ms): no mipmaps and explicit LOD leave
 pixel; at 2 cores a full 800×600 close-up therefore needs ~21 ms wall: 60 fps needs ``--rank 2``
 (ΔE within 0.01 of rank 3 on iron) and/or ``--taps 1``; the rows below give each one's fps and ΔE.
 
-Error: ΔE2000 (mean, p95) over the blade's pixels of the GL frame against the direct per-pixel JAX
-evaluation (:mod:`jkatana.interactive.reference`: exact Fresnel, 61 bands, lobe quadrature of the
-unfiltered environment) at a reduced resolution (200×150; 96×72 in quick mode) of the same view —
-the reference costs seconds per thousand pixels. The load average is recorded with every row: on
+Error: ΔE2000 (mean, p95) over the blade's pixels of the GL frame against the reference renderer
+(:func:`validation.gl_agreement.reference_frame`: jkatana.render's reference mode, exact Fresnel,
+61 bands, ``REF_SAMPLES`` samples per pixel of the unfiltered environment) at a reduced resolution
+(200×150; 96×72 in quick mode) of the same view — the reference costs seconds per thousand pixels. The load average is recorded with every row: on
 a shared machine the fps are lower bounds.
 """
 
@@ -82,6 +82,7 @@ import time
 import numpy as np
 
 from benchmarks._harness import machine_facts, record, timeit
+from validation import gl_agreement as A
 
 CONFIGS = {
     "full": dict(rank=3, rough=True, blend=True, two_tap=True, samples=0),
@@ -98,6 +99,8 @@ CONFIGS = {
     "env_f16": dict(rank=3, rough=True, blend=True, two_tap=True, samples=0, env_format="RGBA16F"),
     "gbuffer_f16": dict(rank=3, rough=True, blend=True, two_tap=True, samples=0, gbuffer_format="RGBA16F"),
 }
+#: Samples per pixel of the reference frame (its noise adds to the measured ΔE2000).
+REF_SAMPLES = 256
 #: cases skipped in quick mode (per view)
 QUICK_SKIP = {"demo": {"rank2", "msaa4", "env_f16", "gbuffer_f16", "forward"}, "closeup": {"msaa4", "gbuffer_f16"}}
 
@@ -160,7 +163,6 @@ def _viewer_fps(frames: int, closeup: bool, size=(800, 600), drag_scale: float =
 
 def run(quick: bool = False) -> list[dict]:
     from jkatana.interactive import glrender as G      # first: it chooses the GL platform (EGL)
-    from jkatana.interactive import reference as R
     from jkatana.interactive import scene as S
     from jkatana.interactive.bake import cached_bake
     from jkatana.interactive.gl import describe_context
@@ -180,10 +182,10 @@ def run(quick: bool = False) -> list[dict]:
     for vname, view in views.items():
         small = S.View(view.pose, view.yfov, *err_res)
         t = time.perf_counter()
-        gb = R.gbuffer(sc.mesh, small)
-        ref = R.display8(R.shade(gb, small, sc.radiance, sc.refl_map, n_phi=16, n_psi=24))
+        fr = A.reference_frame(sc.radiance, small, samples=REF_SAMPLES, seed=0)
+        ref = A.display255(fr.xyz, 1.0)
         ref_s = time.perf_counter() - t
-        _log(f"{vname}: reference {small.width}×{small.height} ({gb['mask'].sum()} px) in {ref_s:.1f} s")
+        _log(f"{vname}: reference {small.width}×{small.height} ({fr.mask.sum()} px) in {ref_s:.1f} s")
         for cname, cfg in CONFIGS.items():
             if quick and cname in QUICK_SKIP[vname]:
                 continue
@@ -208,9 +210,8 @@ def run(quick: bool = False) -> list[dict]:
                 r2.delete()
             finally:
                 G.ENV_FORMAT = G.GBUFFER_FORMAT = GL.GL_RGBA32F
-            de = R.delta_e_2000(img, ref)[gb["mask"]]
-            err = {"dE00_mean": float(de.mean()), "dE00_p95": float(np.percentile(de, 95)),
-                   "dE00_max": float(de.max())}
+            stats, _ = A.compare(img, ref, fr.mask & np.any(img != img[0, 0], -1))
+            err = {"dE00_mean": stats["mean"], "dE00_p95": stats["p95"], "dE00_max": stats["max"]}
             fps = 1.0 / drawn["median"]
             load = os.getloadavg()[0]
             _log(f"{vname:8s} {cname:11s} drawn {1e3 * drawn['median']:5.1f} ms ({fps:5.1f} fps)  read-back "
@@ -220,7 +221,8 @@ def run(quick: bool = False) -> list[dict]:
             rows.append(record("bench_interactive", {"view": vname, "config": cname, **cfg,
                                                      "width": view.width, "height": view.height},
                                time_s=drawn, error=err,
-                               reference=f"per-pixel JAX quadrature, 61 bands, {err_res[0]}×{err_res[1]}",
+                               reference=f"jkatana.render reference mode, {REF_SAMPLES} samples, 61 bands, "
+                                         f"{err_res[0]}×{err_res[1]}",
                                fps=fps, readback_s=readback, fps_readback=1.0 / readback["median"],
                                cpu_s=cpu_s, idle_fps_bound=(os.cpu_count() or 1) / cpu_s,
                                blade_pixels=covered, blade_coverage=covered / (view.width * view.height),

@@ -8,7 +8,7 @@ is skipped is logged), so the issue's headline number survives a slow machine.
 Studies (records follow the convention in :mod:`benchmarks`):
 
 - ``render vs Mitsuba 3 (...)``: the rough (Beckmann α = 0.2) iron sphere of
-  :mod:`jkatana.render.mitsuba_check` under the courtyard map, both renderers'
+  :mod:`validation.mitsuba` under the courtyard map, both renderers'
   noise (ΔE2000 between two seeds / √2) against frame time, at 692² (the pixel
   count of 800×600; ``render_mitsuba`` renders square frames) in full mode and
   128² in quick mode; the ratio record ``equal-error time`` is jkatana's time
@@ -158,7 +158,7 @@ def run(quick: bool) -> list[dict]:
 
 
 def _jk_frame_probe():
-    """Capture the :class:`~jkatana.render.frame.Frame` that ``mitsuba_check.render_jkatana`` renders.
+    """Capture the :class:`~jkatana.render.frame.Frame` that ``validation.mitsuba.render_jkatana`` renders.
 
     ``render_jkatana`` returns the shading time only and also spends time outside
     the frame (Mitsuba's RGB → spectrum upsampling in Python, sampling tables):
@@ -207,7 +207,7 @@ def _loglog_time_at(points, e):
 def _mitsuba(quick: bool, budget: float = float("inf")) -> list[dict]:
     """Rough (Beckmann α = 0.2) iron sphere: frame time of jkatana and Mitsuba 3 at equal noise.
 
-    Same scene from :mod:`jkatana.render.mitsuba_check` (``render_mitsuba`` /
+    Same scene from :mod:`validation.mitsuba` (``render_mitsuba`` /
     ``render_jkatana``). At the benchmark's size a converged frame is too
     costly, so each renderer's *noise* is measured as ΔE2000 between two frames
     with independent seeds divided by √2 (for small, independent noise the
@@ -226,7 +226,7 @@ def _mitsuba(quick: bool, budget: float = float("inf")) -> list[dict]:
     import math
     from pathlib import Path
 
-    from jkatana.render import mitsuba_check as mc
+    from validation import mitsuba as mc
 
     t_start = time.perf_counter()
     variant = mc.mitsuba_variant()

@@ -80,6 +80,8 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout's validation/ package
+
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
@@ -94,11 +96,12 @@ def main(argv=None) -> int:
 
     from PIL import Image
 
-    from jkatana.interactive import agreement as A
     from jkatana.interactive import glrender as G
     from jkatana.interactive import scene as S
     from jkatana.interactive.bake import cached_bake
     from jkatana.render.film import auto_exposure
+    from jkatana.spectral import display8
+    from validation import gl_agreement as A
 
     W, H = args.res
     mesh = S.blade()
@@ -137,7 +140,7 @@ def main(argv=None) -> int:
                     diff = np.clip(de * 25, 0, 255).astype(np.uint8)[..., None].repeat(3, -1)
                     diff[~m] = 40
                     suffix = "" if tag == "rank3" else "_moments"
-                    Image.fromarray(np.concatenate([img, A.display8(xyz, exposure), diff], 1)).save(
+                    Image.fromarray(np.concatenate([img, display8(xyz, exposure=exposure), diff], 1)).save(
                         out / f"{env_name}_{vname}{suffix}.png")
             summary.append(row)
             print(f"{env_name:7s} {vname:6s} px={row['rank3']['pixels']:6d}  rank3 ΔE mean "

@@ -1,6 +1,6 @@
 """Where does the rough-sphere difference between jkatana and Mitsuba 3 come from? Noise vs bias.
 
-Renders the rough (Beckmann α = 0.2) iron sphere of :mod:`jkatana.render.mitsuba_check`
+Renders the rough (Beckmann α = 0.2) iron sphere of :mod:`validation.mitsuba`
 with Mitsuba 3 at two seeds (their difference estimates Mitsuba's own noise) and
 with jkatana, caches the frames under ``experiments/output/mitsuba/cache`` and
 prints per-channel ratios over the sphere and ΔE2000 for each pairing.
@@ -25,7 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from jkatana.render import mitsuba_check as mc  # noqa: E402
+from validation import mitsuba as mc  # noqa: E402
 from jkatana.shared import shared_data
 
 OUT = Path(__file__).resolve().parent / "output" / "mitsuba"
@@ -87,22 +87,14 @@ def channel_report(label, a, b, mask):
 
 
 def delta_e_image(rgb_ref, rgb, mask):
-    """Per-pixel ΔE2000 with :func:`benchmarks._harness.delta_e_display`'s pipeline (reference's p99 Y → white)."""
-    import colour
-
-    from jkatana.spectral.colorimetry import colourspace, to_display, xyz_to_rgb_matrix
+    """Per-pixel display-referred ΔE2000 (:func:`jkatana.spectral.delta_e_2000`; the reference's p99 Y → white)."""
+    from jkatana.spectral import delta_e_2000
+    from jkatana.spectral.colorimetry import xyz_to_rgb_matrix
 
     to_xyz = np.linalg.inv(xyz_to_rgb_matrix("ITU-R BT.709"))
     a, b = rgb_ref @ to_xyz.T, rgb @ to_xyz.T
     exposure = 1.0 / np.percentile(a[mask][:, 1], 99.0)
-    cs = colourspace("sRGB")
-
-    def lab(x):
-        d = to_display(x.reshape(-1, 3), "sRGB", exposure=exposure)
-        return colour.XYZ_to_Lab(colour.RGB_to_XYZ(cs.cctf_decoding(d), cs, apply_cctf_decoding=False),
-                                 cs.whitepoint)
-
-    de = colour.delta_E(lab(a), lab(b), method="CIE 2000").reshape(mask.shape)
+    de = delta_e_2000(a, b, exposure=exposure)
     return np.where(mask, de, np.nan), exposure
 
 

@@ -1,16 +1,21 @@
 """The ``jkatana`` command.
 
 Each subcommand is a thin call into the library. Subcommands live next to the
-stage they drive (``jkatana/<stage>/commands.py``) and are registered here by
-name only, so that ``jkatana --help`` and a single subcommand import nothing but
-what they need (JAX start-up is paid only by commands that use it).
+stage they drive (``jkatana/<stage>/commands.py``) and are registered in
+:data:`COMMANDS` by module name and prefix only, so that ``jkatana <command>``
+imports that command's module alone (JAX start-up is paid only by commands
+that use it); ``jkatana --help`` imports them all for their help lines.
 
-A command module provides two functions::
+A command module provides, for its prefix ``name``::
 
-    def add_arguments(parser: argparse.ArgumentParser) -> None: ...
-    def run(args: argparse.Namespace) -> int: ...
+    def name_add_arguments(parser: argparse.ArgumentParser) -> None: ...
+    def name_run(args: argparse.Namespace) -> int: ...
 
-and a module-level ``HELP`` string.
+and optionally a module-level ``NAME_HELP`` string (else the module docstring).
+``bench`` is the exception: the benchmark suite is not part of the installed
+package, and ``jkatana bench`` runs the source checkout's ``benchmarks`` (one
+line and exit 2 where there is none). Bad input (:class:`~jkatana.errors.InputError`)
+is printed as one line naming the file, row or field, exit status 2.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from pathlib import Path
 
 from jkatana.errors import InputError
 
@@ -39,8 +45,22 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+def _checkout_root() -> Path | None:
+    """The source checkout this jkatana was imported from, if any: the folder holding both ``jkatana/``
+    and ``benchmarks/``. The benchmark suite is not installed with the package; ``jkatana bench`` runs
+    the checkout's (as ``python -m benchmarks`` there does)."""
+    root = Path(__file__).resolve().parents[1]
+    return root if (root / "benchmarks" / "__main__.py").is_file() else None
+
+
 def _load(name: str):
     module_name, prefix = COMMANDS[name]
+    if name == "bench":
+        root = _checkout_root()
+        if root is None:
+            return None, prefix
+        if str(root) not in sys.path:
+            sys.path.insert(0, str(root))
     try:
         module = importlib.import_module(module_name)
     except ModuleNotFoundError as err:  # a stage not built yet, or benchmarks/ outside a checkout
@@ -73,6 +93,10 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     only = argv[0] if argv and argv[0] in COMMANDS else None
+    if only == "bench" and _checkout_root() is None:
+        print("jkatana bench: error: the benchmark suite runs from a source checkout (benchmarks/ beside "
+              "jkatana/); there is none beside this installation", file=sys.stderr)
+        return 2
     parser = build_parser(only)
     args = parser.parse_args(argv)
     if args.command is None:

@@ -188,3 +188,30 @@ def test_equal_error_ratio_interpolates_measured_points_only():
     rows = [rec("A", 1.0, 4.0), rec("A", 4.0, 3.0), rec("B", 2.0, 2.0), rec("B", 8.0, 0.5)]
     (c,) = equal_error_ratios({"benchmarks": {"b": {"records": rows}}})
     assert np.isnan(c["ratio"]) and "no common error range" in c["note"]
+
+
+def test_the_library_never_imports_validation_or_benchmarks():
+    """jkatana's import graph (every import statement, also inside functions) stays out of the
+    checkout-only packages, and the wheel ships the library alone."""
+    import ast
+    import tomllib
+
+    offenders = []
+    for path in sorted((ROOT / "jkatana").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+            offenders += [f"{path.relative_to(ROOT)}: {n}" for n in names
+                          if n.split(".")[0] in ("benchmarks", "validation", "experiments", "tests")]
+    assert offenders == []
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert project["tool"]["setuptools"]["packages"]["find"]["include"] == ["jkatana*"]
+
+
+def test_jkatana_bench_outside_a_checkout_is_one_line(monkeypatch, capsys):
+    import jkatana.cli as cli
+
+    monkeypatch.setattr(cli, "_checkout_root", lambda: None)
+    assert cli.main(["bench", "--quick"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "source checkout" in err[0]

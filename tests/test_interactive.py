@@ -1,5 +1,5 @@
-"""Interactive path: baked tables (against the JAX models), GL frames (against the per-pixel
-JAX reference), the CLI, the windowed Viewer under Xvfb, and the no-GL message."""
+"""Interactive path: baked tables (against the JAX models), GL frames (against the reference renderer
+jkatana.render), the CLI, the windowed Viewer under Xvfb, and the no-GL message."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from jkatana.interactive import bake as B
 from jkatana.interactive import scene as S
 from jkatana.interactive.gl import GLUnavailable, missing_package
 from jkatana.models import Conductor, Hamon, Hiraji
+from validation import gl_agreement as A
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -111,29 +112,24 @@ def sky_scene():
 
 
 @pytest.mark.gl
-def test_gl_frame_agrees_with_per_pixel_reference(glr, sky_scene, tmp_path):
-    from jkatana.interactive import reference as R
-
+def test_gl_frame_agrees_with_the_reference_renderer_under_the_sky(glr, sky_scene, tmp_path):
+    """The built-in sky from an orbit view, against jkatana.render (reference mode, 256 samples)."""
     sc = sky_scene
     baked = B.cached_bake(sc.radiance, sc.grid, rank=3)
     st = glr.ShadingState(baked, sc.refl_map)
-    r = glr.BakedOffscreenRenderer(st, sc.view.width, sc.view.height)
-    img = r.render(glr.build_scene(sc.mesh, sc.view))
-    r.delete()
-    gb = R.gbuffer(sc.mesh, sc.view)
-    ref = R.display8(R.shade(gb, sc.view, sc.radiance, sc.refl_map, n_phi=16, n_psi=24))
-    m = gb["mask"]
+    img = A.gl_frame(st, sc.view, sc.mesh)
+    fr = A.reference_frame(sc.radiance, sc.view, samples=256, seed=0)
+    ref = A.display255(fr.xyz, st.exposure)
+    m = fr.mask
     assert m.sum() > 300
     drawn = np.any(img != img[0, 0], axis=-1)
     assert (drawn & m).sum() / (drawn | m).sum() > 0.95          # raster and ray-cast coverage agree
-    de = R.delta_e_2000(img, ref)[m]
-    assert de.mean() <= 1.0 and np.percentile(de, 95) <= 2.5, (de.mean(), np.percentile(de, 95))
+    m = m & drawn
+    stats, de = A.compare(img, ref, m)
+    assert stats["mean"] <= 1.0 and stats["p95"] <= 2.5, stats
     # a wrong shader would not pass: drop the blend and the roughness → visibly different
     st2 = glr.ShadingState(baked, sc.refl_map, rough=False, rank=1)
-    r2 = glr.BakedOffscreenRenderer(st2, sc.view.width, sc.view.height)
-    img2 = r2.render(glr.build_scene(sc.mesh, sc.view))
-    r2.delete()
-    assert R.delta_e_2000(img2, ref)[m].mean() > de.mean()
+    assert A.compare(A.gl_frame(st2, sc.view, sc.mesh), ref, m)[0]["mean"] > stats["mean"]
     # every combination of the static switches compiles and links (unused uniforms are allowed
     # only where the switch removes them)
     for rough in (False, True):
@@ -157,7 +153,6 @@ def test_gl_frame_agrees_with_jkatana_render(glr):
     (two softboxes, D50 and tungsten): it is not symmetric about +Y, so a turned environment shows.
     experiments/interactive_agreement.py covers all three environments and four views.
     """
-    from jkatana.interactive import agreement as A
     from jkatana.render.film import auto_exposure
 
     view = S.demo_view(120, 90)
@@ -236,7 +231,6 @@ def test_sun_glint_agrees_with_jkatana_render_only_with_fitted_taps(glr):
     direction, inside the hamon's wide lobe seen at ~55°. With the fitted taps the GL frame meets the
     agreement bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5); with the moment-matched taps (the previous shading,
     ``fit=False``) it does not (~10 % too dark along the hamon band)."""
-    from jkatana.interactive import agreement as A
     from jkatana.render.film import auto_exposure
 
     mesh = S.blade()
@@ -323,7 +317,6 @@ def test_windowed_viewer_under_xvfb(glr, tmp_path):
     import shutil
 
     from jkatana.interactive.commands import run_in_xvfb
-    from jkatana.interactive import reference as R
 
     if shutil.which("Xvfb") is None:  # pragma: no cover
         pytest.skip("Xvfb not installed (Debian package xvfb)")
@@ -337,7 +330,7 @@ def test_windowed_viewer_under_xvfb(glr, tmp_path):
     assert a.shape == (240, 320, 3)
     drawn = np.any(np.abs(a.astype(int) - a[0, 0]) > 3, -1)
     sc = S.default_scene("sky", 320, 240)
-    mask = R.gbuffer(sc.mesh, sc.view)["mask"]
+    mask = A.blade_mask(sc.mesh, sc.view)
     iou = (drawn & mask).sum() / max((drawn | mask).sum(), 1)
     assert mask.mean() > 0.02 and iou > 0.9, (mask.mean(), iou)
     # the same view headless (EGL, deferred), with the CLI's tables and exposure
@@ -374,7 +367,6 @@ def test_viewer_measures_its_frame_rate_under_xvfb(tmp_path):
 
     from PIL import Image
 
-    from jkatana.interactive import reference as R
     from jkatana.interactive.commands import run_in_xvfb
 
     if shutil.which("Xvfb") is None:  # pragma: no cover
@@ -390,7 +382,7 @@ def test_viewer_measures_its_frame_rate_under_xvfb(tmp_path):
     a = np.asarray(Image.open(shot)).astype(int)
     drawn = np.any(np.abs(a - a[0, 0]) > 3, -1)
     sc = S.default_scene("sky", 320, 240)
-    mask = R.gbuffer(sc.mesh, sc.view)["mask"]
+    mask = A.blade_mask(sc.mesh, sc.view)
     iou = (drawn & mask).sum() / max((drawn | mask).sum(), 1)
     assert iou > 0.8, iou                                  # half-resolution edges, scaled up
     # "auto" picks the fraction from the measured full-resolution draw: a 10 µs budget (100 kHz) is out of

@@ -2,14 +2,14 @@
 
 Skipped when Mitsuba is not installed (``pip install mitsuba==3.9.1``) or no
 spectral variant runs (probed in a subprocess). See
-:mod:`jkatana.render.mitsuba_check` for the conventions matched.
+:mod:`validation.mitsuba` for the conventions matched.
 """
 
 from __future__ import annotations
 
 import pytest
 
-from jkatana.render import mitsuba_check as mc
+from validation import mitsuba as mc
 from jkatana.shared import shared_data
 
 ENV = str(shared_data("envmaps", "courtyard.exr"))

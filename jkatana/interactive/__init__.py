@@ -7,8 +7,6 @@
   window), the pyrender/PyOpenGL versions, the numpy-2 alias.
 - :mod:`~jkatana.interactive.glrender`: the pyrender program-cache subclass,
   float textures, single-sample offscreen renderer (imports pyrender).
-- :mod:`~jkatana.interactive.reference`: direct per-pixel JAX evaluation on a
-  ray-cast G-buffer, and CIEDE2000 comparison.
 - :mod:`~jkatana.interactive.scene`: blade, reflectance map, built-in
   environments and cameras.
 - :mod:`~jkatana.interactive.viewer`: the windowed Viewer (``jkatana view``).

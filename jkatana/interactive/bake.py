@@ -30,7 +30,7 @@ from :mod:`jkatana.models` and :mod:`jkatana.spectral`:
 
    which is exact when the environment is constant over the lobe; the
    residual (lobe stretching at grazing view, environment gradients inside
-   the lobe) is what :func:`jkatana.interactive.reference` measures. This is
+   the lobe) is what the comparison with :mod:`jkatana.render` measures. This is
    the split-sum approximation of Karis (2013), "Real Shading in Unreal
    Engine 4", with the spectral dimension factored by the SVD.
 

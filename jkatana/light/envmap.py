@@ -22,7 +22,7 @@ same handedness and up axis but is turned **half a turn** about +Y — its
 along +Z — and its rows are corner-aligned (row ``j`` at ``v = j/(H − 1)``,
 zenith and nadir on the first and last rows; columns are centred as ours).
 To show a jkatana map in Mitsuba, or the reverse, rotate it by 180° about +Y
-(:data:`jkatana.render.mitsuba_check.MITSUBA_ENV_ROTATION_DEG`);
+(``MITSUBA_ENV_ROTATION_DEG`` in the checkout's ``validation/mitsuba.py``);
 ``tests/test_render_mitsuba.py`` pins both facts against Mitsuba's own lookup.
 pbrt-v4's image infinite lights use an equal-area octahedral square mapping
 (Clarberg 2008), not a latitude–longitude one.

@@ -33,7 +33,7 @@ static (trace-time) choices recorded in a :class:`Plan`:
   the renderer detects it and always runs one band (:func:`env_basis`).
 
 Per-sample cost and variance of the MIS modes (measured on the rough iron
-sphere of :mod:`jkatana.render.mitsuba_check`, 95 bands, CPU time per sample
+sphere of :mod:`validation.mitsuba` (in the source checkout), 95 bands, CPU time per sample
 so that the shared machine's load cancels; ``benchmarks/bench_render.py``):
 
 - the Fresnel factor is folded into the environment (:func:`fold_fresnel`,

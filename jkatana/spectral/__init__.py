@@ -2,6 +2,10 @@
 
 from jkatana.spectral.colorimetry import (
     cmfs as cmfs,
+    delta_e_2000 as delta_e_2000,
+    delta_e_2000_8bit as delta_e_2000_8bit,
+    delta_e_2000_display as delta_e_2000_display,
+    display8 as display8,
     encode as encode,
     illuminant as illuminant,
     spectrum_to_xyz as spectrum_to_xyz,

@@ -182,3 +182,50 @@ def to_display(xyz, colourspace_name: str = "sRGB", transfer: str | float | None
 def to_png8(display_rgb) -> np.ndarray:
     """Display values in [0, 1] → uint8, rounded."""
     return np.clip(np.round(np.asarray(display_rgb) * 255.0), 0, 255).astype(np.uint8)
+
+
+def display8(xyz, colourspace_name: str = "sRGB", transfer: str | float | None = None,
+             *, exposure: float = 1.0) -> np.ndarray:
+    """XYZ → 8-bit display RGB as a PNG stores it: :func:`to_display` then :func:`to_png8`."""
+    return to_png8(to_display(xyz, colourspace_name, transfer, exposure=exposure))
+
+
+def delta_e_2000_display(display_a, display_b, colourspace_name: str = "sRGB") -> np.ndarray:
+    """CIEDE2000 between colours as a display shows them: ``(..., 3)`` values in [0, 1] encoded with
+    the colourspace's own transfer function.
+
+    Each side is decoded to linear RGB, taken to XYZ and to CIE L*a*b* with the
+    colourspace's white (D65 for every space of :data:`COLOURSPACES`) and compared
+    with CIEDE2000 (Sharma, Wu & Dalal 2005, *Color Res. Appl.* 30(1); colour-science's
+    ``delta_E(..., method="CIE 2000")``). Comparing display values rather than scene
+    XYZ is what makes the number a visible difference: clipping and the transfer
+    curve apply to both sides as on screen.
+    """
+    cs = colourspace(colourspace_name)
+
+    def lab(d):
+        xyz = colour.RGB_to_XYZ(cs.cctf_decoding(np.asarray(d, np.float64)), cs, apply_cctf_decoding=False)
+        return colour.XYZ_to_Lab(xyz, cs.whitepoint)
+
+    return np.asarray(colour.delta_E(lab(display_a), lab(display_b), method="CIE 2000"), np.float64)
+
+
+def delta_e_2000_8bit(a8, b8, colourspace_name: str = "sRGB") -> np.ndarray:
+    """:func:`delta_e_2000_display` of images on the 0–255 scale (uint8 as written, or unrounded floats)."""
+    return delta_e_2000_display(np.asarray(a8, np.float64) / 255.0, np.asarray(b8, np.float64) / 255.0,
+                                colourspace_name)
+
+
+def delta_e_2000(xyz_a, xyz_b, *, exposure: float = 1.0, colourspace_name: str = "sRGB") -> np.ndarray:
+    """Display-referred CIEDE2000 between two ``(..., 3)`` XYZ arrays: both sides through the same
+    :func:`to_display` (``exposure``, eq. 7, clipping, the colourspace's transfer, eq. 8), then
+    :func:`delta_e_2000_display`. A colour with a non-finite component gives NaN (it is not dropped)."""
+    a = np.asarray(xyz_a, np.float64)
+    b = np.asarray(xyz_b, np.float64)
+    bad = ~(np.all(np.isfinite(a), axis=-1) & np.all(np.isfinite(b), axis=-1))
+
+    def shown(x):
+        return to_display(np.where(bad[..., None], 0.0, x), colourspace_name, exposure=exposure)
+
+    de = delta_e_2000_display(shown(a), shown(b), colourspace_name)
+    return np.where(bad, np.nan, de)

@@ -2,8 +2,8 @@
 
 A smooth and a rough (Beckmann) conductor sphere with iron's n, k under an
 RGB environment map, rendered by Mitsuba 3.9.1 and by jkatana, compared in
-CIE ΔE2000 (display-referred, :func:`benchmarks._harness.delta_e_display`
-convention: the Mitsuba frame's 99th-percentile Y maps to display white).
+CIE ΔE2000 (display-referred, :func:`jkatana.spectral.delta_e_2000`: the
+Mitsuba frame's 99th-percentile Y maps to display white).
 
 Conventions matched (measured with Mitsuba 3.9.1):
 
@@ -225,19 +225,23 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
 
 
 def compare(rgb_mi: np.ndarray, rgb_jk: np.ndarray, mask: np.ndarray, erode: int = 1) -> dict:
-    """ΔE2000 (mean, p95, p99, max) over the sphere's interior pixels (mask eroded by ``erode``)."""
+    """ΔE2000 (mean, p95, p99, max) over the sphere's interior pixels (mask eroded by ``erode``).
+
+    Display-referred (:func:`jkatana.spectral.delta_e_2000`, sRGB display): the
+    Mitsuba frame's 99th-percentile Y maps to display white on both sides.
+    """
     from scipy.ndimage import binary_erosion
 
-    from benchmarks._harness import delta_e_display
+    from jkatana.spectral import delta_e_2000
     from jkatana.spectral.colorimetry import xyz_to_rgb_matrix
 
     m = binary_erosion(mask, iterations=erode) if erode else mask
     to_xyz = np.linalg.inv(xyz_to_rgb_matrix("ITU-R BT.709"))
     a, b = rgb_mi[m] @ to_xyz.T, rgb_jk[m] @ to_xyz.T
-    p95 = delta_e_display(a, b, percentile=95.0)
-    p99 = delta_e_display(a, b, percentile=99.0)
-    return {"dE2000_mean": p95["dE2000_mean"], "dE2000_p95": p95["dE2000_p95"], "dE2000_p99": p99["dE2000_p95"],
-            "dE2000_max": p95["dE2000_max"], "pixels": int(m.sum())}
+    y99 = float(np.percentile(a[:, 1], 99.0))
+    de = delta_e_2000(a, b, exposure=1.0 / y99 if y99 > 0 else 1.0)
+    return {"dE2000_mean": float(np.mean(de)), "dE2000_p95": float(np.percentile(de, 95.0)),
+            "dE2000_p99": float(np.percentile(de, 99.0)), "dE2000_max": float(np.max(de)), "pixels": int(m.sum())}
 
 
 def _mitsuba_texels(env_path, grid):

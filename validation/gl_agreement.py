@@ -8,10 +8,14 @@ spectral environment radiance passed as ``env_radiance``, no rotation, float32,
 look the environment up with :func:`jkatana.light.envmap.direction_to_uv`'s
 convention (u = 0.5 + atan2(x, −z)/2π, v = acos y/π, Y up) and weigh spectra with
 :func:`jkatana.render.film.film_weights` (flat radiance 1 → Y = 1), and both
-displays are :func:`jkatana.render.film.display` with one fixed exposure.
+displays are :func:`jkatana.spectral.to_display` with one fixed exposure.
 
-:func:`compare` gives ΔE2000 (mean, p95, max) over the pixels that both paths
-call blade.
+:func:`blade_mask` is the reference renderer's own G-buffer
+(:func:`jkatana.render.gbuffer.gbuffer_mesh`, one ray per pixel centre) of the
+same view: the pixels a rasteriser without MSAA should cover.
+
+:func:`compare` gives ΔE2000 (mean, p95, max; :func:`jkatana.spectral.delta_e_2000_8bit`)
+over the pixels that both paths call blade.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from jkatana.interactive.scene import View
+from jkatana.render.camera import Camera
 
 
 def render_scene(view: View, *, mode: str = "reference", samples: int = 256, exposure: float = 1.0,
@@ -38,6 +43,21 @@ def render_scene(view: View, *, mode: str = "reference", samples: int = 256, exp
     }
 
 
+def view_camera(view: View) -> Camera:
+    """The :class:`jkatana.render.camera.Camera` of ``view`` (the camera :func:`render_scene` describes)."""
+    from jkatana.render.renderer import camera_for
+    from jkatana.render.scene import scene_from_dict
+
+    return camera_for(scene_from_dict(render_scene(view)))
+
+
+def blade_mask(mesh, view: View) -> np.ndarray:
+    """``(H, W)`` bool: pixels whose centre ray hits ``mesh`` (:func:`jkatana.render.gbuffer.gbuffer_mesh`)."""
+    from jkatana.render.gbuffer import gbuffer_mesh
+
+    return gbuffer_mesh(mesh, view_camera(view)).mask
+
+
 def reference_frame(radiance: np.ndarray, view: View, *, mode: str = "reference", samples: int = 256,
                     seed: int = 0):
     """:class:`jkatana.render.frame.Frame` of ``view`` under the spectral environment ``radiance (H, W, 61)``."""
@@ -50,24 +70,19 @@ def reference_frame(radiance: np.ndarray, view: View, *, mode: str = "reference"
 
 
 def display255(xyz: np.ndarray, exposure: float) -> np.ndarray:
-    """:func:`jkatana.render.film.display` (sRGB) × 255, NOT rounded: the reference side of a comparison
+    """:func:`jkatana.spectral.to_display` (sRGB) × 255, NOT rounded: the reference side of a comparison
     (the GL frame's own 8-bit rounding then counts as its error; rounding both would add a second one)."""
-    from jkatana.render.film import display
+    from jkatana.spectral import to_display
 
-    return 255.0 * np.clip(display(xyz, "sRGB", None, exposure=exposure), 0.0, 1.0)
-
-
-def display8(xyz: np.ndarray, exposure: float) -> np.ndarray:
-    """:func:`display255` rounded to 8 bits, as the render CLI writes its PNG."""
-    return np.round(display255(xyz, exposure)).astype(np.uint8)
+    return 255.0 * to_display(xyz, "sRGB", exposure=exposure)
 
 
-def compare(gl8: np.ndarray, ref8: np.ndarray, mask: np.ndarray) -> dict:
+def compare(gl8: np.ndarray, ref8: np.ndarray, mask: np.ndarray) -> tuple[dict, np.ndarray]:
     """ΔE2000 statistics over ``mask`` and the ΔE image; images are sRGB-encoded on a 0–255 scale
     (uint8, or float as :func:`display255`)."""
-    from jkatana.interactive.reference import delta_e_2000
+    from jkatana.spectral import delta_e_2000_8bit
 
-    de = delta_e_2000(gl8, ref8)
+    de = delta_e_2000_8bit(gl8, ref8)
     d = de[mask]
     return {"mean": float(d.mean()), "p95": float(np.percentile(d, 95)), "max": float(d.max()),
             "pixels": int(mask.sum())}, de

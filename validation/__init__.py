@@ -1,0 +1,8 @@
+"""Validation of jkatana against independent references; not part of the shipped library.
+
+- :mod:`validation.mitsuba`: the reference renderer against Mitsuba 3 (Jakob et al. 2022).
+- :mod:`validation.gl_agreement`: the interactive GL frame against the reference renderer.
+
+The tests, the benchmarks and the experiments import these from a source checkout;
+``jkatana`` itself never does (nor does it import :mod:`benchmarks`).
+"""
