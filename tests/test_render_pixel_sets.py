@@ -65,7 +65,7 @@ def _scene(n_pix: int, rng):
     from jkatana.light.sky import hosek_wilkie_sky
 
     sky = np.asarray(hosek_wilkie_sky(35.0, 160.0, 3.0, 0.1, (32, 64), GRID, sun_supersampling=4).radiance)
-    env, _, _ = build_environment(sky)
+    env, _, _ = build_environment(sky, dtype=jnp.float64)  # the precision of mat and px
     # per pixel a normal tilted towards the sun side; its 4 subpixels differ slightly (a footprint)
     base = rng.normal(size=(n_pix, 1, 3)) * np.array([0.3, 0.3, 0.0]) + np.array([0.0, 0.0, 1.0])
     n = base + rng.normal(size=(n_pix, S, 3)) * np.array([0.02, 0.02, 0.0])

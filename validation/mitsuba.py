@@ -5,7 +5,7 @@ RGB environment map, rendered by Mitsuba 3.9.1 and by jkatana, compared in
 CIE ΔE2000 (display-referred, :func:`jkatana.spectral.delta_e_2000`: the
 Mitsuba frame's 99th-percentile Y maps to display white).
 
-Conventions matched (measured with Mitsuba 3.9.1):
+Conventions matched (those of Mitsuba 3.9.1, pinned by ``tests/test_render_mitsuba.py``):
 
 - film: Mitsuba's spectral film integrates CIE 1931 over 360–830 nm and
   divides by 106.75 (≈ ∫ȳ dλ), then converts to linear Rec. 709 without white
@@ -28,24 +28,14 @@ Conventions matched (measured with Mitsuba 3.9.1):
      interpolating radiance gives bilinear(sigmoid·scale): they differ by
      −t(1 − t)·Δsigmoid·Δscale per axis.
 
-  Left uncompensated (texel spectra under our lookup) both made jkatana's
-  sphere darker than Mitsuba's by a colour-dependent 1.3 % / 1.1 % / 0.7 %
-  (R, G, B sums over the smooth sphere; 1.2 / 1.0 / 0.6 % rough) — the "red
-  offset" — about half each (over random directions at 650 nm: −0.62 % from
-  the rows alone, −0.53 % from the interpolation alone, −1.14 % both).
-  Compensated: jkatana gets an image with ``ENV_NODES`` = 3 nodes per texel
-  and axis whose values are Mitsuba's lookup at our texel centres
-  (:func:`mitsuba_env_spectra` with ``nodes``: exact there to 8e-5, float32;
-  between nodes the residual is our bilinear's interpolation error on the
-  finer grid: over random directions of the 256×128 test map, median
-  relative error 1.4e-4 (texel spectra: 1.5e-2) and sums within 0.1 % at
-  400–650 nm; 3 = odd puts a node on each of Mitsuba's column kinks).
-  Cost: 9× the texels (384 × 768 × 95 bands, 112 MB float32); warm shading
-  1.5–2× slower from memory traffic (48², 2×2 subpixels, 64 samples: median
-  of 3 warm runs 1.44 s vs 0.87 s, load average 6), peak RSS 1.85 GB vs
-  0.85 GB, +4 s to build: time jkatana with ``env_nodes=None`` (the texels
-  Mitsuba has) when comparing speed, and measure its error with the matched
-  copy at the same samples;
+  Left uncompensated, both make jkatana's sphere darker than Mitsuba's by a
+  colour-dependent ~1 %. Compensated: jkatana gets an image with ``ENV_NODES``
+  = 3 nodes per texel and axis whose values are Mitsuba's lookup at our texel
+  centres (:func:`mitsuba_env_spectra` with ``nodes``; between nodes the
+  residual is our bilinear's interpolation error on the finer grid; 3 = odd
+  puts a node on each of Mitsuba's column kinks). It costs 9× the texels:
+  time jkatana with ``env_nodes=None`` (the texels Mitsuba has) when comparing
+  speed, and measure its error with the matched copy at the same samples;
 - Beckmann α = √2 × per-axis RMS slope (Mitsuba's parameter) is the α of
   :func:`jkatana.models.beckmann`; masking is separable Smith with Walter's
   rational G1 on both sides (``Plan(rough_model="beckmann")``);
@@ -54,39 +44,9 @@ Conventions matched (measured with Mitsuba 3.9.1):
 - pixels: Mitsuba integrates each pixel with a box filter; jkatana renders at
   ``supersample``× resolution and box-averages.
 
-Agreement (64² sphere, 256-wide courtyard map, mask eroded by one pixel,
-ΔE2000 mean / p95 / p99; sums = Mitsuba/jkatana over the sphere, R, G, B):
-
-| sphere | Mitsuba spp | jkatana | mean | p95 | p99 | sums |
-| --- | --- | --- | --- | --- | --- | --- |
-| smooth | 1024 | mirror, 3×3 subpixels | 0.20 | 0.69 | 1.52 | 1.0017 1.0010 0.9998 |
-| smooth | 4096 | mirror, 3×3 subpixels | 0.13 | 0.45 | 1.30 | 1.0009 1.0006 1.0007 |
-| smooth (test) | 4096 | mirror, 6×6 subpixels | 0.087 | 0.30 | 0.54 | 1.0002 1.0001 1.0003 |
-| smooth | 2 seeds × 4096 | mirror, 6×6 (9×9: same) | 0.064 | 0.22 | 0.41 | 1.0001 1.0002 1.0006 |
-| rough α = 0.2 (test) | 16384 | 256 samples, 3×3 subpixels | 0.21 | 0.55 | 0.78 | 0.9994 0.9996 0.9995 |
-| rough α = 0.2 | 2 seeds × 16384 | 1024 samples, 3×3 | 0.13 | 0.35 | 0.49 | 0.9997 0.9998 0.9997 |
-| (uncompensated map) smooth | 4096 | mirror, 3×3 | 0.36 | 1.56 | 4.05 | 1.0132 1.0106 1.0070 |
-| (uncompensated map) smooth | 4096 | mirror, 6×6 | 0.33 | 1.43 | 4.00 | 1.0123 1.0099 1.0066 |
-| (uncompensated map) rough | 16384 | 256 samples, 3×3 | 0.33 | 0.88 | 1.14 | 1.0114 1.0093 1.0056 |
-
-The smooth sphere's p99 at 3×3 subpixels comes from the edges of sharp
-reflections, where a 3×3 midpoint rule is not Mitsuba's box integral over
-the pixel: 6×6 halves the mean and takes p99 from 1.3 to 0.4–0.5.
-
-What remains is noise, mostly Mitsuba's: two Mitsuba seeds differ by ΔE
-mean 0.51 at 4096 spp and 0.26 at 16384 (rough); jkatana at 256 vs 1024
-samples by 0.09. Against the mean of two 16384-spp seeds, jkatana at 1024
-samples differs per pixel by an RMS of 1.0 / 1.0 / 1.4 % (R, G, B), of
-which Mitsuba's own noise explains all but 0 / 0 / 0.3 % (jkatana's own
-noise not subtracted); the sums agree to < 0.05 %, and the blurred ratio
-maps stay within ±1 % with no structure that the seed-to-seed difference
-does not also show (the band of larger per-pixel differences round the
-upper half of the rough sphere is where the sun sits in the lobe's tail:
-it is as strong between two Mitsuba seeds). Before the map was matched,
-the uncompensated rows put a +1–4 % band on the upper (sky) half.
-``experiments/mitsuba_rough_bias.py`` reproduces these numbers and draws
-``experiments/output/mitsuba/rough_sphere.png`` (a copy:
-``experiments/gallery/mitsuba_rough_sphere.png``).
+The measured agreement, its noise budget and the residual's analysis are in
+``benchmarks/reports/mitsuba-agreement/NOTES.md``; ``experiments/mitsuba_rough_bias.py``
+reproduces them.
 
 The variant: ``llvm_ad_spectral`` when it runs (needs Debian's ``libllvm19``;
 with LLVM 15 it aborts the process, so it is probed in a subprocess), else

@@ -142,7 +142,7 @@ def _interp_fbar(theta, table):
     theta = jnp.clip(jnp.abs(theta), 0.0, jnp.pi / 2)
     x = theta * ((table.shape[0] - 1) / (jnp.pi / 2))
     i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, table.shape[0] - 2)
-    t = x - i
+    t = x - i.astype(x.dtype)
     return table[i] * (1 - t) + table[i + 1] * t
 
 

@@ -205,7 +205,8 @@ def solve(terms: Terms, y, w, p0, *, spec: ModelSpec, solver: str = "lm", max_st
         lm = jaxopt.LevenbergMarquardt(lambda p: residuals(p, args), maxiter=max_steps,
                                        stop_criterion="madsen-nielsen", xtol=rtol, gtol=atol,
                                        tol=atol, jit=True, implicit_diff=False)
-        p, state = lm.run(p0)
+        with jax.numpy_dtype_promotion("standard"):  # jaxopt's LM multiplies bool by float internally
+            p, state = lm.run(p0)
         steps = state.iter_num
         solver_ok = steps < max_steps
     else:

@@ -39,13 +39,13 @@ from pathlib import Path
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from jkatana.errors import InputError
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
 
 
-def direction_to_uv(d: Float[Array, "*b 3"]) -> tuple[Float[Array, "*b"], Float[Array, "*b"]]:
+def direction_to_uv(d: Float[ArrayLike, "*#b 3"]) -> tuple[Float[Array, "*#b"], Float[Array, "*#b"]]:
     """World direction (need not be unit) → equirectangular ``(u, v)`` in [0, 1].
 
     ``u = 0.5 + atan2(d_x, −d_z)/(2π)``, ``v = acos(d_y/|d|)/π`` (row 0 = zenith).
@@ -60,7 +60,7 @@ def direction_to_uv(d: Float[Array, "*b 3"]) -> tuple[Float[Array, "*b"], Float[
     return u, v
 
 
-def uv_to_direction(u, v) -> Float[Array, "*b 3"]:
+def uv_to_direction(u, v) -> Float[Array, "*#b 3"]:
     """Equirectangular ``(u, v)`` → unit world direction (inverse of :func:`direction_to_uv`)."""
     u, v = jnp.broadcast_arrays(jnp.asarray(u), jnp.asarray(v))
     phi = (u - 0.5) * 2 * jnp.pi
@@ -127,7 +127,7 @@ class EnvMap(eqx.Module):
         """Solid angle of every texel (sin θ weighting, exact per row; sums to 4π)."""
         return texel_solid_angles(self.height, self.width, self.radiance.dtype)
 
-    def lookup(self, d: Float[Array, "*b 3"]) -> Float[Array, "*b wl"]:
+    def lookup(self, d: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*#b wl"]:
         """Bilinear radiance in direction ``d``: wraps in ``u``; towards the poles (above the
         first / below the last row of texel centres) it blends with the pole value, the mean
         of the first / last row, so the lookup is continuous across each pole.
@@ -147,7 +147,7 @@ class EnvMap(eqx.Module):
         yc = jnp.clip(y, 0.0, H - 1.0)
         j0 = jnp.clip(jnp.floor(yc), 0, max(H - 2, 0)).astype(jnp.int32)
         j1 = jnp.minimum(j0 + 1, H - 1)
-        fy = (yc - j0).astype(dt)[..., None]
+        fy = (yc - j0.astype(yc.dtype)).astype(dt)[..., None]
         top = L[j0, i0] * (1 - fx) + L[j0, i1] * fx
         bottom = L[j1, i0] * (1 - fx) + L[j1, i1] * fx
         inner = top * (1 - fy) + bottom * fy
@@ -158,7 +158,7 @@ class EnvMap(eqx.Module):
         t_s = jnp.clip(2.0 * (y - (H - 1)), 0.0, 1.0).astype(dt)[..., None]
         return inner * (1 - t_n - t_s) + north * t_n + south * t_s
 
-    def lookup_nearest(self, d: Float[Array, "*b 3"]) -> Float[Array, "*b wl"]:
+    def lookup_nearest(self, d: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*#b wl"]:
         """Radiance of the texel containing ``d`` (piecewise constant: the density the sampler uses)."""
         u, v = direction_to_uv(d)
         i = jnp.mod(jnp.floor(u * self.width).astype(jnp.int32), self.width)
@@ -185,7 +185,7 @@ class EnvMap(eqx.Module):
         k = jnp.floor(shift)
         f = (shift - k).astype(self.radiance.dtype)
         k = k.astype(jnp.int32)
-        idx = jnp.mod(jnp.arange(self.width) - k, self.width)
+        idx = jnp.mod(jnp.arange(self.width, dtype=jnp.int32) - k, self.width)
         idx1 = jnp.mod(idx - 1, self.width)
         L = self.radiance[:, idx] * (1 - f) + self.radiance[:, idx1] * f
         return EnvMap(L, self.grid)

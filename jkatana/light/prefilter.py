@@ -46,7 +46,7 @@ from typing import Sequence
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from jkatana.errors import InputError
 from jkatana.light.envmap import EnvMap
@@ -144,7 +144,7 @@ class PrefilteredEnv(eqx.Module):
     levels: tuple[EnvMap, ...]
     mus: tuple[float, ...] = eqx.field(static=True)
 
-    def lookup(self, d: Float[Array, "*b 3"], mu) -> Float[Array, "*b wl"]:
+    def lookup(self, d: Float[ArrayLike, "*#b 3"], mu) -> Float[Array, "*#b wl"]:
         """Prefiltered radiance toward ``d`` for roughness ``mu`` (clamped to the stack's range)."""
         vals = jnp.stack([lvl.lookup(d) for lvl in self.levels], axis=0)  # (m, *b, wl)
         if len(self.mus) == 1:
@@ -246,12 +246,12 @@ class FresnelBasis(eqx.Module):
     def rank(self) -> int:
         return self.basis.shape[0]
 
-    def coeffs(self, cos_theta) -> Float[Array, "*b rank"]:
+    def coeffs(self, cos_theta) -> Float[Array, "*#b rank"]:
         """Coefficients at ``cos_theta`` (linear interpolation in the table)."""
         c = jnp.clip(jnp.asarray(cos_theta), 0.0, 1.0)
         return jnp.stack([jnp.interp(c, self.cos_table, self.coefficients[:, r]) for r in range(self.rank)], axis=-1)
 
-    def reconstruct(self, cos_theta) -> Float[Array, "*b wl"]:
+    def reconstruct(self, cos_theta) -> Float[Array, "*#b wl"]:
         """Rank-r F at ``cos_theta``."""
         return self.coeffs(cos_theta) @ self.basis
 

@@ -40,7 +40,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from jkatana.light.envmap import EnvMap, direction_to_uv
 from jkatana.spectral.colorimetry import cmfs
@@ -137,7 +137,7 @@ class EnvSampler(eqx.Module):
         """``n`` world directions and their density (per steradian)."""
         return self.sample_uniform(jax.random.uniform(key, (n, 4), self.texel_pdf.dtype))
 
-    def sample_uniform(self, u: Float[Array, "*b 4"]) -> tuple[Float[Array, "*b 3"], Float[Array, "*b"]]:
+    def sample_uniform(self, u: Float[ArrayLike, "*#b 4"]) -> tuple[Float[Array, "*#b 3"], Float[Array, "*#b"]]:
         """Directions and densities from given uniforms ``u`` in [0, 1)⁴ (row, column, φ and cos θ
         inside the texel): the warp behind :meth:`sample`, for quasi-Monte Carlo points
         (the renderer's randomised R_d sequence)."""
@@ -147,14 +147,14 @@ class EnvSampler(eqx.Module):
         u = u.reshape(-1, 4)
         j = jnp.clip(jnp.searchsorted(self.marginal, u[:, 0], side="right") - 1, 0, H - 1)
         i = _row_search(self.conditional, j, u[:, 1])
-        phi = ((i + u[:, 2]) / W - 0.5) * 2 * jnp.pi
+        phi = ((i.astype(u.dtype) + u[:, 2]) / W - 0.5) * 2 * jnp.pi
         c0, c1 = self.cos_edges[j], self.cos_edges[j + 1]
         cos_t = c0 + (c1 - c0) * u[:, 3]
         sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
         d = jnp.stack([sin_t * jnp.sin(phi), cos_t, -sin_t * jnp.cos(phi)], axis=-1)
         return d.reshape(shape + (3,)), self.texel_pdf[j, i].reshape(shape)
 
-    def sample_uniform2(self, u: Float[Array, "*b 2"]):
+    def sample_uniform2(self, u: Float[ArrayLike, "*#b 2"]):
         """Directions, densities and map ``(u, v)`` from *two* uniforms per sample.
 
         The same density as :meth:`sample_uniform`, but the position inside the
@@ -178,24 +178,25 @@ class EnvSampler(eqx.Module):
         i = _row_search(self.conditional, j, u[:, 1])
         c0, c1 = self.conditional[j, i], self.conditional[j, i + 1]
         r1 = jnp.clip((u[:, 1] - c0) / jnp.maximum(c1 - c0, 1e-30), 0.0, 1.0)
-        uu = (i + r1) / W
+        uu = (i.astype(r1.dtype) + r1) / W
         phi = (uu - 0.5) * 2 * jnp.pi
         e0, e1 = self.cos_edges[j], self.cos_edges[j + 1]
         cos_t = e0 + (e1 - e0) * r0
         sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
-        v = jnp.clip(jnp.arctan2(sin_t, cos_t) / jnp.pi, (j + 0.0) / H, (j + 1.0) / H)
+        jf = j.astype(cos_t.dtype)
+        v = jnp.clip(jnp.arctan2(sin_t, cos_t) / jnp.pi, jf / H, (jf + 1.0) / H)
         d = jnp.stack([sin_t * jnp.sin(phi), cos_t, -sin_t * jnp.cos(phi)], axis=-1)
         return (d.reshape(shape + (3,)), self.texel_pdf[j, i].reshape(shape), uu.reshape(shape),
                 v.reshape(shape))
 
-    def pdf_uv(self, u: Float[Array, "*b"], v: Float[Array, "*b"]) -> Float[Array, "*b"]:
+    def pdf_uv(self, u: Float[ArrayLike, "*#b"], v: Float[ArrayLike, "*#b"]) -> Float[Array, "*#b"]:
         """Density (per steradian) at equirectangular ``(u, v)`` (as :meth:`pdf`, without the ``atan2``)."""
         H, W = self.shape
         i = jnp.mod(jnp.floor(u * W).astype(jnp.int32), W)
         j = jnp.clip(jnp.floor(v * H).astype(jnp.int32), 0, H - 1)
         return self.texel_pdf[j, i]
 
-    def pdf(self, d: Float[Array, "*b 3"]) -> Float[Array, "*b"]:
+    def pdf(self, d: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*#b"]:
         """Density (per steradian) of :meth:`sample` at world directions ``d``."""
         H, W = self.shape
         u, v = direction_to_uv(d)
@@ -222,7 +223,7 @@ def _row_search(cdf: Float[Array, "H W1"], j: Int[Array, "n"], x: Float[Array, "
 # ---------------------------------------------------------------- frames
 
 
-def frame_from_normal(n: Float[Array, "*b 3"]) -> Float[Array, "*b 3 3"]:
+def frame_from_normal(n: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*#b 3 3"]:
     """Rows (t, b, n): an orthonormal frame around unit ``n`` (Duff et al. 2017, branchless).
 
     ``local = frame @ world`` and ``world = local @ frame`` (for row vectors).
@@ -267,7 +268,7 @@ def _phi_max_term(mu):
     return -jnp.expm1(-LN2 * (jnp.pi / 2) ** 2 / (mu * mu))
 
 
-def sample_gaussian_lobe(key, n: int, mu, V: Float[Array, "*b 3"]) -> tuple[Float[Array, "n *b 3"], Float[Array, "n *b"]]:
+def sample_gaussian_lobe(key, n: int, mu, V: Float[ArrayLike, "*#b 3"]) -> tuple[Float[Array, "n *#b 3"], Float[Array, "n *#b"]]:
     """Sample ``n`` incident directions L (local frame, N = +z) around the mirror of ``V``.
 
     φ ~ q(φ) ∝ φ exp(−ln2 φ²/μ²) on [0, π/2] by inverse CDF, azimuth uniform,
@@ -286,7 +287,7 @@ def sample_gaussian_lobe(key, n: int, mu, V: Float[Array, "*b 3"]) -> tuple[Floa
     return L, gaussian_lobe_pdf(L, V, mu)
 
 
-def gaussian_lobe_pdf(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"], mu) -> Float[Array, "*b"]:
+def gaussian_lobe_pdf(L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b 3"], mu) -> Float[Array, "*#b"]:
     """Density (per steradian of L) of :func:`sample_gaussian_lobe`.
 
     ``p_h = q(φ) / (2π sin φ)`` with ``q(φ) = (2 ln2/μ²) φ e^{−ln2 φ²/μ²} / c``
@@ -310,7 +311,7 @@ def gaussian_lobe_pdf(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"], mu) -> F
 # ---------------------------------------------------------------- Beckmann
 
 
-def sample_beckmann(key, n: int, alpha, V: Float[Array, "*b 3"]) -> tuple[Float[Array, "n *b 3"], Float[Array, "n *b"]]:
+def sample_beckmann(key, n: int, alpha, V: Float[ArrayLike, "*#b 3"]) -> tuple[Float[Array, "n *#b 3"], Float[Array, "n *#b"]]:
     """Sample L by the Beckmann NDF (Walter et al. 2007, eq. 28): ``tan²θ_h = −α² ln(1−ξ)``."""
     V = jnp.asarray(V)
     dt = V.dtype

@@ -14,6 +14,7 @@ Luminance of linear RGB uses the Rec. 709 / sRGB primaries' Y row
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -129,7 +130,7 @@ def otsu_threshold(y: np.ndarray, bins: int = 256) -> float:
     return float(centres[int(np.argmax(between))])
 
 
-def crop_to_uv(y: np.ndarray, crop: tuple[int, int, int, int] | None, resolution: tuple[int, int],
+def crop_to_uv(y: np.ndarray, crop: Sequence[int] | None, resolution: tuple[int, int],
                *, path=None, flip_v: bool = False, aspect_tolerance: float = 0.25,
                expected_aspect: float | None = None) -> np.ndarray:
     """Cut the blade's rectangle (x0, y0, x1, y1) out of the photo and resample it to the UV grid.

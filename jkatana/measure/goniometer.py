@@ -116,7 +116,7 @@ class Sensor:
         h = (self.height - 2 * m) // 2 * 2
         return {"hiraji": (m, m, w, h), "hamon": (half + m, m, w, h)}
 
-    def predicted_sigma(self, value, exposure_s, n_pixels) -> np.ndarray:
+    def predicted_sigma(self, value, exposure_s, n_pixels) -> np.ndarray | float:
         """Standard error of the ROI mean (camera units) this sensor should show."""
         f = np.asarray(value, np.float64) * exposure_s / self.gain
         span = self.white - np.mean(self.blacks)

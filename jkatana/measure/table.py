@@ -39,6 +39,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from jkatana.errors import InputError
 from jkatana.io.atomic import atomic_path
@@ -81,19 +82,20 @@ def check_angles(theta_i, theta_r, *, path=None, row=None) -> tuple[float, float
 
 @dataclasses.dataclass
 class MeasurementTable:
-    """Equal-length numpy columns (module docstring). Build with :meth:`from_rows` or directly."""
+    """Equal-length numpy columns (module docstring). Build with :meth:`from_rows` or directly: any
+    array-like column is converted to a 1-D numpy array of its column's dtype."""
 
-    capture: np.ndarray
-    region: np.ndarray
-    theta_i_deg: np.ndarray
-    theta_r_deg: np.ndarray
-    phi_deg: np.ndarray
-    theta_h_deg: np.ndarray
-    value: np.ndarray
-    sigma: np.ndarray
-    n_pixels: np.ndarray
-    n_saturated: np.ndarray
-    exposure_s: np.ndarray
+    capture: npt.ArrayLike
+    region: npt.ArrayLike
+    theta_i_deg: npt.ArrayLike
+    theta_r_deg: npt.ArrayLike
+    phi_deg: npt.ArrayLike
+    theta_h_deg: npt.ArrayLike
+    value: npt.ArrayLike
+    sigma: npt.ArrayLike
+    n_pixels: npt.ArrayLike
+    n_saturated: npt.ArrayLike
+    exposure_s: npt.ArrayLike
 
     def __post_init__(self):
         n = None

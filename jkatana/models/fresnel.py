@@ -22,13 +22,13 @@ physically-based rendering", CGF 13(3)) is provided for comparison only.
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from jkatana.models._safe import safe_div, safe_sqrt
 
 
-def fresnel_conductor(cos_theta: Float[Array, "*b"], n: Float[Array, "*b"], k: Float[Array, "*b"]
-                      ) -> Float[Array, "*b"]:
+def fresnel_conductor(cos_theta: Float[ArrayLike, "*#b"], n: Float[ArrayLike, "*#b"], k: Float[ArrayLike, "*#b"]
+                      ) -> Float[Array, "*#b"]:
     """Exact unpolarised Fresnel reflectance of air → conductor (n + i k).
 
     **Arguments:** `cos_theta` (cosine of the angle of incidence, clipped to

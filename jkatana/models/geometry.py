@@ -18,7 +18,7 @@ through ``valid`` so that models return 0 there with finite gradients.
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from jkatana.models._safe import norm, safe_atan2
 
@@ -33,7 +33,7 @@ def _cut(dtype) -> float:
     return float(jnp.finfo(dtype).eps)
 
 
-def half_vector_terms(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]):
+def half_vector_terms(L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b 3"]):
     """``(φ, cos φ, cos θH, valid)`` in one pass, guarded for the models.
 
     φ = atan2(|N × (L+V)|, N·(L+V)) (exact for small angles), cos φ = N·H,
@@ -54,7 +54,7 @@ def half_vector_terms(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]):
     return phi, cos_phi, cos_theta_h, valid
 
 
-def facet_angle(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]) -> Float[Array, "*b"]:
+def facet_angle(L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*#b"]:
     """φ = ∠(N, H) via atan2(|N × (L+V)|, N·(L+V)), N = +z. 0 where L = −V.
 
     Never ``acos(N·H)``: in float32 that is exactly 0 at φ = 1e-4 and has an
@@ -63,7 +63,7 @@ def facet_angle(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]) -> Float[Array
     return half_vector_terms(L, V)[0]
 
 
-def half_vector_cos(L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]):
+def half_vector_cos(L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b 3"]):
     """``(cos φ, cos θH, valid)`` with cos φ = N·H, cos θH = L·H = V·H.
 
     ``valid`` is False where |L + V| ≤ eps of the dtype (L = −V): the

@@ -40,7 +40,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from jkatana.models._safe import safe_div
 from jkatana.models.fresnel import fresnel_conductor
@@ -64,9 +64,9 @@ class Conductor(eqx.Module):
         n, k = load(source).on_grid(grid)
         return cls(jnp.asarray(n, dtype), jnp.asarray(k, dtype))
 
-    def fresnel(self, cos_theta: Float[Array, "*b"]) -> Float[Array, "*b wl"]:
-        """F(n(λ), k(λ), θ) for every λ: ``(*b,)`` cosines → ``(*b, wl)``."""
-        return fresnel_conductor(jnp.asarray(cos_theta)[..., None], self.n, self.k)
+    def fresnel(self, cos_theta: Float[ArrayLike, "*b"]) -> Float[Array, "*b wl"]:
+        """F(n(λ), k(λ), θ) for every λ: ``(*b,)`` cosines → ``(*b, wl)``, in the precision of n, k."""
+        return fresnel_conductor(jnp.asarray(cos_theta, self.n.dtype)[..., None], self.n, self.k)
 
 
 def _spectral(x, E):
@@ -89,8 +89,8 @@ def _lobe_times_fresnel(lobe, cos_theta, conductor: "Conductor"):
 class Hiraji(eqx.Module):
     """Paper eq. (1): χ D(φ, μ0) F(θi) E(λ). Defaults are the paper's fit."""
 
-    chi: Float[Array, "*p"] = 79000.0
-    mu: Float[Array, "*p"] = 0.05
+    chi: Float[ArrayLike, "*#p"] = 79000.0
+    mu: Float[ArrayLike, "*#p"] = 0.05
 
     def _terms(self, L, V):
         cos_i, cos_r = L[..., 2], V[..., 2]
@@ -98,14 +98,14 @@ class Hiraji(eqx.Module):
         visible = valid & (cos_i >= 0) & (cos_r >= 0)
         return cos_i, cos_th, jnp.where(visible, gaussian_facet(phi, self.mu), 0.0)
 
-    def camera(self, L: Float[Array, "*b 3"], V: Float[Array, "*b 3"], conductor: Conductor,
-               E: Float[Array, "wl"] | None = None) -> Float[Array, "*b wl"]:
+    def camera(self, L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b 3"], conductor: Conductor,
+               E: Float[ArrayLike, "wl"] | None = None) -> Float[Array, "*#b wl"]:
         """Eq. (1) in camera units: χ · D(φ, μ0) · F(θi) [· E(λ)]."""
         cos_i, _, d = self._terms(L, V)
         return _spectral(_lobe_times_fresnel(self.chi * d, cos_i, conductor), E)
 
     def brdf_cos(self, L, V, conductor: Conductor, calibration: float | None = None
-                 ) -> Float[Array, "*b wl"]:
+                 ) -> Float[Array, "*#b wl"]:
         """f_r cos θi for rendering (module docstring: calibrated or normalised)."""
         cos_i, cos_th, d = self._terms(L, V)
         if calibration is None:
@@ -118,8 +118,8 @@ class Hiraji(eqx.Module):
 class Hamon(eqx.Module):
     """Paper eq. (2), Torrance–Sparrow: β F(θH) D(φ, μ1) G / cos θr E(λ)."""
 
-    beta: Float[Array, "*p"] = 43000.0
-    mu: Float[Array, "*p"] = 0.05
+    beta: Float[ArrayLike, "*#p"] = 43000.0
+    mu: Float[ArrayLike, "*#p"] = 0.05
 
     def _terms(self, L, V):
         cos_i, cos_r = L[..., 2], V[..., 2]
@@ -128,7 +128,7 @@ class Hamon(eqx.Module):
         g_over_cos = vcavity_over_cos(cos_nh, jnp.maximum(cos_r, 0.0), jnp.maximum(cos_i, 0.0), cos_th)
         return cos_th, jnp.where(visible, gaussian_facet(phi, self.mu) * g_over_cos, 0.0)
 
-    def camera(self, L, V, conductor: Conductor, E=None) -> Float[Array, "*b wl"]:
+    def camera(self, L, V, conductor: Conductor, E=None) -> Float[Array, "*#b wl"]:
         """Eq. (2) in camera units: β · F(θH) · D(φ, μ1) · G / cos θr [· E(λ)]."""
         cos_th, dg = self._terms(L, V)
         return _spectral(_lobe_times_fresnel(self.beta * dg, cos_th, conductor), E)
@@ -143,7 +143,7 @@ class Hamon(eqx.Module):
         return _lobe_times_fresnel(scale * dg, cos_th, conductor)
 
 
-def blend(w: Float[Array, "*b"], c_f: Float[Array, "*b wl"], c_t: Float[Array, "*b wl"]):
+def blend(w: Float[ArrayLike, "*#b"], c_f: Float[ArrayLike, "*#b wl"], c_t: Float[ArrayLike, "*#b wl"]):
     """Eq. (5): w C_f + (1 − w) C_t, w = 1 mirror-like (hiraji), 0 rough (hamon)."""
     w = jnp.asarray(w)[..., None]
     return w * c_f + (1.0 - w) * c_t

@@ -41,8 +41,8 @@ def sample_map(maps: jax.Array, uv: jax.Array) -> jax.Array:
     y0 = jnp.clip(jnp.floor(y).astype(jnp.int32), 0, max(H - 2, 0))
     x1 = jnp.minimum(x0 + 1, W - 1)
     y1 = jnp.minimum(y0 + 1, H - 1)
-    fx = (x - x0).astype(maps.dtype)[:, None]
-    fy = (y - y0).astype(maps.dtype)[:, None]
+    fx = (x - x0.astype(x.dtype)).astype(maps.dtype)[:, None]
+    fy = (y - y0.astype(y.dtype)).astype(maps.dtype)[:, None]
     top = maps[y0, x0] * (1 - fx) + maps[y0, x1] * fx
     bot = maps[y1, x0] * (1 - fx) + maps[y1, x1] * fx
     return top * (1 - fy) + bot * fy

@@ -276,6 +276,9 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
 
 
 def exposure_for(prep: Prepared, frame: Frame) -> float:
+    """The film's exposure, or with ``"auto"`` the key-value exposure of
+    :func:`~jkatana.render.film.auto_exposure` (blade pixels' 75th-percentile Y → 0.6; a frame
+    without blade pixels: median Y → 0.18, the photographic mid-grey)."""
     e = prep.scene.film.exposure
     if e != "auto":
         return float(e)
@@ -285,6 +288,7 @@ def exposure_for(prep: Prepared, frame: Frame) -> float:
 
 
 def metadata(prep: Prepared, frame: Frame, exposure: float, extra: dict | None = None) -> dict:
+    """What every output file carries: version, the validated scene (TOML), grid, plan, timing, devices."""
     from importlib.metadata import PackageNotFoundError, version
 
     try:

@@ -115,9 +115,10 @@ WAVELENGTH_RANGE = (360.0, 830.0)  # nm, the CIE 1931 2° colour matching functi
 
 
 def _plain(v):
-    """A value as TOML writes it (paths as strings, tuples as arrays)."""
+    """A value as TOML writes it (paths as absolute strings, so that the text means the same files
+    wherever it is read; tuples as arrays)."""
     if isinstance(v, Path):
-        return str(v)
+        return str(v.absolute())
     if isinstance(v, tuple):
         return [_plain(x) for x in v]
     return v
@@ -231,7 +232,7 @@ class Occluder:
         elif self.kind == "sphere":
             d["sphere"] = self.radius
         else:
-            d.update(mesh=str(self.mesh), scale=self.scale)
+            d.update(mesh=_plain(self.mesh), scale=self.scale)
         return d
 
 
@@ -331,7 +332,7 @@ class Scene:
         return dataclasses.replace(self, output=dataclasses.replace(self.output, directory=Path(directory)))
 
     def to_dict(self) -> dict:
-        """The scene in the file schema (defaults filled in, paths absolute where the file gave a path)."""
+        """The scene in the file schema (defaults filled in, paths absolute)."""
         d = {name: getattr(self, name).to_dict() for name in
              ("geometry", "material", "environment", "camera", "spectral", "render", "film", "output")}
         if self.lights:

@@ -458,7 +458,7 @@ def _table_lookup(table, cos):
     T = table.shape[0]
     x = jnp.clip(cos, 0.0, 1.0) * (T - 1)
     i0 = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, T - 2)
-    f = (x - i0).astype(table.dtype)
+    f = (x - i0.astype(x.dtype)).astype(table.dtype)
     f = f.reshape(f.shape + (1,) * (table.ndim - 1))
     return table[i0] * (1 - f) + table[i0 + 1] * f
 
@@ -581,7 +581,8 @@ def _mix_w(plan: Plan, px: Pixels):
 # ---------------------------------------------------------------- Fresnel folded into the environment
 
 
-def fresnel_rank_for(ftable, tol: float = FRESNEL_RANK_TOL, max_rank: int = 8, *, _basis_too: bool = False) -> int:
+def fresnel_rank_for(ftable, tol: float = FRESNEL_RANK_TOL, max_rank: int = 8, *, _basis_too: bool = False
+                     ) -> int | tuple[int, np.ndarray]:
     """Smallest R with max |F − F_R| ≤ ``tol`` over the table (truncated SVD in λ), 0 if none ≤ ``max_rank``.
 
     F(cos θ, λ) of a conductor is smooth in both arguments: for iron (Johnson &
@@ -668,8 +669,8 @@ def _paper_ray(plan: Plan, px: Pixels, Vl, fr, key, k):
     P = Vl.shape[0]
     kk = jax.random.fold_in(key, k)
     j = jax.random.uniform(kk, (P, 3), Vl.dtype)
-    su = ((k // nv) + j[:, 0]) / nu
-    sv = ((k % nv) + j[:, 1]) / nv
+    su = (jnp.asarray(k // nv, Vl.dtype) + j[:, 0]) / nu
+    sv = (jnp.asarray(k % nv, Vl.dtype) + j[:, 1]) / nv
     # lobe choice per sample (mixture), then a stratified point in the disk φ ≤ 2.5 μ
     use0 = j[:, 2] < _mix_w(plan, px)
     mu = jnp.where(use0, px.mu0, px.mu1)
@@ -705,6 +706,7 @@ def _mis_offset(key, P, dtype, plan: Plan | None = None, ids: PixelIds | None = 
 def _sample_index(plan: Plan, ids: PixelIds | None, k):
     """Index of the k-th sample of each G-buffer sample in its pixel's sequence: ``k`` (scalar), or
     ``(P,)`` per subpixel (:data:`SUBPIXEL_ORDER`)."""
+    k = jnp.asarray(k, jnp.int32)
     if not _per_pixel(plan, ids):
         return k
     sub = ids.subpixel.astype(jnp.int32)
