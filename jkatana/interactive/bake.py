@@ -49,7 +49,6 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
 
 from jkatana.models import Conductor, Hamon, Hiraji, gaussian_facet
 from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
@@ -276,7 +275,7 @@ def lobe_kernel(model, conductor: Conductor, cos_v, n: int = 64):
     return K, ap, aq, dw
 
 
-def tap_kernel(params, mu, ap, aq, mu_min: float | Float[Array, ""] = 0.0):
+def tap_kernel(params, mu, ap, aq, mu_min: float = 0.0):
     """The shader's kernel for tap parameters ``(s, o_1..o_T, l_1..l_T)``: T taps at angles o_j from R
     along the plane of incidence, weights softmax(l), each the prefilter kernel at width
     μ_e = max(μ e^s, mu_min) (the environment level the shader reads)."""
