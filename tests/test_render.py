@@ -181,6 +181,16 @@ def test_effects_on_demand_are_static_choices(tmp_path):
     assert p.env_info["channels"] == GRID.size
 
 
+def test_prepare_overrides_are_checked_like_the_scene():
+    from jkatana.render.renderer import prepare
+
+    scene = scene_from_dict({"geometry": {"sphere": {"radius": 1.0}}, "material": {"w": 1.0}})
+    for kw, field in (({"samples": 0}, "samples"), ({"samples": 10**9}, "samples"), ({"mode": "fast"}, "mode")):
+        with pytest.raises(InputError) as err:
+            prepare(scene, **kw)
+        assert err.value.field == field
+
+
 # ----------------------------------------------------------------- gradients
 
 

@@ -26,7 +26,7 @@ from jkatana.errors import InputError
 from jkatana.render.camera import Camera
 from jkatana.render.film import auto_exposure, display, film_weights, write_png, write_spectral_exr, write_xyz_exr
 from jkatana.render.frame import Frame, pixel_blocks, render_frame
-from jkatana.render.scene import Scene
+from jkatana.render.scene import LIMITS, RENDER_MODES, Scene
 from jkatana.render.shading import MIRROR_MU, Environment, Light, Material, Plan, build_environment, fresnel_table
 from jkatana.spectral.grid import WavelengthGrid
 
@@ -166,7 +166,17 @@ def rotation_y(deg: float) -> np.ndarray:
 
 def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None,
             rank: int | None = None, env_radiance: np.ndarray | None = None) -> Prepared:
-    """Load the scene's assets and decide the shading plan (effects on demand)."""
+    """Load the scene's assets and decide the shading plan (effects on demand).
+
+    ``mode``, ``samples`` and ``rank`` override the scene's (``None``: the scene's); an override is
+    checked as the scene's own field is (``samples = 0`` is an error, not "the scene's count").
+    """
+    mode = scene.render.mode if mode is None else mode
+    samples = scene.render.samples if samples is None else samples
+    if mode not in RENDER_MODES:
+        raise InputError(f"must be one of {list(RENDER_MODES)}, got {mode!r}", field="mode")
+    if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= LIMITS["samples"]:
+        raise InputError(f"must be an integer in [1, {LIMITS['samples']}], got {samples!r}", field="samples")
     t0 = time.perf_counter()
     grid = scene.spectral.grid
     dtype = jnp.float64 if scene.render.precision == "float64" else jnp.float32
@@ -182,10 +192,8 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
         raise InputError(str(err), field="material.optical_constants") from None
     mat = Material(fresnel_table(jnp.asarray(n, dtype), jnp.asarray(k, dtype)), jnp.asarray(chi, dtype),
                    jnp.asarray(beta, dtype))
-    mode = mode or scene.render.mode
-    samples = samples or scene.render.samples
     radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
-    env_rank = (rank or scene.render.rank) if mode == "lowrank" else None
+    env_rank = (scene.render.rank if rank is None else rank) if mode == "lowrank" else None
     mus = ()
     if mode == "prefiltered":
         lo = max(float(np.min(maps[..., 1:])), 1e-3)
