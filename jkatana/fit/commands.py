@@ -43,6 +43,11 @@ def fit_run(args: argparse.Namespace) -> int:
     from jkatana.fit.region import FitData, Setup, fit_region
     from jkatana.measure.table import read_table
 
+    from jkatana.io.limits import number
+    from jkatana.io.outputs import Output, check_outputs
+
+    number(args.seed, "--seed", lo=0, hi=2 ** 32 - 1, integer=True)
+    check_outputs([Output(args.output, "--output", (".json",))], inputs=[args.table])
     table = read_table(args.table)
     data = FitData.from_table(table, args.region, source=args.table)
     setup = Setup(optical_constants=args.optical_constants, camera=args.camera, light=args.light)
@@ -73,10 +78,33 @@ def report_add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--table", default=None, help="measurement table (default: the one named in the file)")
 
 
+def _check_report_params(path) -> None:
+    """The parts of a parameter file the report draws (fit's diagnostics and Laplace intervals)."""
+    from jkatana.errors import InputError
+    from jkatana.fit.params import read_params
+
+    d = read_params(path).raw
+    for key in ("diagnostics", "laplace"):
+        if not isinstance(d.get(key), dict):
+            raise InputError("missing or not an object (the report draws it; write the file with "
+                             "`jkatana fit`)", path=path, field=key)
+    if not isinstance(d["laplace"].get("ci95", {}), dict):
+        raise InputError("not an object", path=path, field="laplace.ci95")
+
+
 def report_run(args: argparse.Namespace) -> int:
     _x64()
     from jkatana.fit.report import write_report
+    from jkatana.io.outputs import Output, check_outputs
 
+    check_outputs([Output(args.output, "--output", folder=True)])
+    out = Path(args.output)
+    for src in (args.params, args.table):
+        if src is not None and out.exists() and Path(src).resolve().parent == out.resolve() \
+                and Path(src).name in ("report.md", "params.json"):
+            from jkatana.errors import InputError
+            raise InputError("the report would overwrite its own input", path=src, field="--output")
+    _check_report_params(args.params)
     md = write_report(args.params, args.output, table=args.table)
     print(md)
     return 0
