@@ -33,6 +33,27 @@ def _x64():
     jax.config.update("jax_enable_x64", True)  # fits are float64 (DESIGN: numerical core)
 
 
+def _check_fit_data(data, args) -> None:
+    """Data a least-squares fit can use: more usable points than free parameters, and values whose
+    squares (the χ² sums) stay finite in float64 (|value| below 1e150)."""
+    import numpy as np
+
+    from jkatana.errors import InputError
+
+    n_free = 2 + int(args.tilt) + int(args.floor)
+    n = int(np.count_nonzero(data.usable))
+    if n <= n_free:
+        raise InputError(f"region {data.region!r} has {n} usable row(s); a fit of {n_free} free parameters "
+                         f"needs at least {n_free + 1}", path=args.table, field="value")
+    for name, col in (("value", data.value), ("sigma", data.sigma)):
+        if col is None:
+            continue
+        big = np.abs(col[data.usable]) > 1e150
+        if big.any():
+            raise InputError(f"{int(big.sum())} value(s) beyond ±1e150: their squares overflow float64 in the "
+                             "fit's sums (rescale the table, e.g. the manifest's gain)", path=args.table, field=name)
+
+
 def fit_run(args: argparse.Namespace) -> int:
     _x64()
     from tqdm import tqdm
@@ -50,6 +71,7 @@ def fit_run(args: argparse.Namespace) -> int:
     check_outputs([Output(args.output, "--output", (".json",))], inputs=[args.table])
     table = read_table(args.table)
     data = FitData.from_table(table, args.region, source=args.table)
+    _check_fit_data(data, args)
     setup = Setup(optical_constants=args.optical_constants, camera=args.camera, light=args.light)
     with tqdm(total=2 + int(args.emcee), desc=f"fit {data.region}", file=sys.stderr) as bar:
         bar.set_postfix_str("least squares + per-incidence refits")

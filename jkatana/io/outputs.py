@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import tempfile
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -57,8 +58,12 @@ def _writable_folder(folder: Path, field: str, what: Path) -> None:
         probe = probe.parent
     if not probe.is_dir():
         raise InputError(f"{probe} is a file, not a folder", path=what, field=field)
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise InputError(f"the folder {probe} is not writable", path=what, field=field)
+    try:  # a real probe: os.access says yes to root on a read-only mount or a /proc folder
+        fd, tmp = tempfile.mkstemp(prefix=".jkatana-probe.", dir=probe)
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as err:
+        raise InputError(f"the folder {probe} is not writable ({err.strerror})", path=what, field=field) from None
 
 
 def _same(a: Path, b: Path) -> bool:

@@ -32,6 +32,64 @@ def _setup_devices(n: int | None = None) -> None:
         os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={max(1, n)}").strip()
 
 
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _check_common(args) -> None:
+    """``--samples`` and ``--devices`` in range (before JAX starts: XLA crashes on absurd device counts)."""
+    from jkatana.io.limits import number
+
+    number(args.samples, "--samples", lo=1, hi=2 ** 16, integer=True)
+    cores = _cores()
+    number(args.devices, "--devices", lo=1, hi=max(8, 4 * cores), integer=True)
+
+
+def _section(scene, name: str):
+    return getattr(scene, name)
+
+
+def _get(section, key: str, default=None):
+    if isinstance(section, dict):
+        return section.get(key, default)
+    return getattr(section, key, default)
+
+
+def check_render_memory(scene, *, samples=None, devices=None, views: int = 1, max_memory=None) -> None:
+    """Refuse, naming the field, a frame whose estimated peak memory exceeds the budget.
+
+    The estimate counts the arrays a frame allocates: the G-buffer and film (per pixel: ~40 float64
+    values, XYZ and, for spectral output, one float32 per band), the environment (float32 per texel
+    and band: radiance, its rotated/factored copy and the sampling tables), and one shading call
+    (``devices × chunk`` pixels × bands, ~16 float32 temporaries, plus ~32 bytes per sample).
+    """
+    from jkatana.io.limits import require_memory
+    from jkatana.render.frame import DEFAULT_CHUNK
+
+    cam = _section(scene, "camera")
+    w, h = (int(v) for v in _get(cam, "resolution"))
+    spec = _section(scene, "spectral")
+    start, stop, step = (float(_get(spec, k)) for k in ("start", "stop", "step"))
+    bands = int((stop - start) / step) + 1
+    env = _section(scene, "environment")
+    eh, ew = (int(v) for v in (_get(env, "resolution") or (16, 32)))
+    samples = int(samples or _get(_section(scene, "render"), "samples"))
+    devices = int(devices or _cores())
+    spectral = bool(_get(_section(scene, "output"), "spectral", False))
+    film = w * h * (40 * 8 + 3 * 8 + (4 * bands if spectral else 0))
+    envmap = eh * ew * bands * 4 * 3
+    call = devices * min(DEFAULT_CHUNK, w * h) * (bands * 4 * 16) + devices * samples * 32
+    fields = (("camera.resolution", film, f"a {w}×{h} frame"),
+              ("environment.resolution", envmap, f"a {eh}×{ew} environment map with {bands} bands"),
+              ("spectral.step", (film + envmap + call), f"{bands} wavelength bands"),
+              ("--samples", call, f"{samples} samples per pixel"))
+    total = film + envmap + call
+    biggest = max(fields[:2] + fields[3:], key=lambda f: f[1])
+    if bands > 4096:
+        biggest = fields[2]
+    require_memory(total, biggest[0], f"{biggest[2]} (whole frame ~{total / 2**30:.3g} GiB)", max_memory)
+
+
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=("reference", "paper", "prefiltered", "lowrank"), default=None,
                    help="shading mode (default: the scene's)")
@@ -47,7 +105,13 @@ def demo_add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def demo_run(args: argparse.Namespace) -> int:
+    from jkatana.io.limits import numbers
+    from jkatana.io.outputs import Output, check_outputs
+
     t_start = time.perf_counter()
+    _check_common(args)
+    numbers(args.resolution, "--resolution", lo=1, hi=2 ** 15, integer=True)
+    check_outputs([Output(args.output, "--output", folder=True)])
     _setup_devices(args.devices)
     from jkatana.render.scene import DEMO_SCENE, scene_from_dict
 
@@ -56,6 +120,7 @@ def demo_run(args: argparse.Namespace) -> int:
     if args.resolution:
         raw["camera"] = {**raw["camera"], "resolution": list(args.resolution)}
     scene = scene_from_dict(raw)
+    check_render_memory(scene, samples=args.samples, devices=args.devices, max_memory=args.max_memory)
     from jkatana.render.renderer import prepare, render_view, write_outputs
 
     t0 = time.perf_counter()
@@ -92,16 +157,29 @@ def render_add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def render_run(args: argparse.Namespace) -> int:
+    from jkatana.io.limits import number
+    from jkatana.io.outputs import Output, check_outputs
+
+    _check_common(args)
+    number(args.views, "--views", lo=1, hi=100000, integer=True)
+    number(args.lights, "--lights", lo=1, hi=100000, integer=True)
+    number(args.workers, "--workers", lo=1, hi=max(8, 4 * _cores()), integer=True)
+    if args.scheduler is not None and ("\x00" in args.scheduler or not args.scheduler.strip()):
+        from jkatana.errors import InputError
+        raise InputError(f"not a scheduler address: {args.scheduler!r}", field="--scheduler")
     _setup_devices(args.devices)
-    from jkatana.errors import InputError
     from jkatana.render.batch import plan_batch, run_batch_dask, run_batch_serial, summary_table
     from jkatana.render.scene import load_scene
 
-    if args.views < 1 or args.lights < 1:
-        raise InputError("--views and --lights must be ≥ 1", field="--views" if args.views < 1 else "--lights")
     scene = load_scene(args.scene)
     if args.output:
         scene.output["directory"] = Path(args.output)
+    name = str(scene.output["name"])
+    if name in ("", ".", "..") or "/" in name or "\x00" in name:
+        from jkatana.errors import InputError
+        raise InputError(f"not a file name: {name!r}", path=args.scene, field="output.name")
+    check_outputs([Output(scene.output["directory"], "--output", folder=True)], inputs=[args.scene])
+    check_render_memory(scene, samples=args.samples, devices=args.devices, max_memory=args.max_memory)
     jobs = plan_batch(scene, args.views, args.lights)
     if args.dask or args.scheduler:
         results = run_batch_dask(args.scene, scene, jobs, mode=args.mode, samples=args.samples,
