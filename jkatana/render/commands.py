@@ -128,10 +128,10 @@ def demo_run(args: argparse.Namespace) -> int:
     t1 = time.perf_counter()
     frame = render_view(prep)
     t2 = time.perf_counter()
-    stem = Path(scene.output["directory"]) / scene.output["name"]
+    stem = Path(scene.output.directory) / scene.output.name
     paths = write_outputs(prep, frame, stem, {"jkatana_cold_start_s": round(t2 - t_start, 2)})
     t3 = time.perf_counter()
-    w, h = scene.camera["resolution"]
+    w, h = scene.camera.resolution
     p = prep.plan
     print(f"jkatana demo: built-in blade, Hosek–Wilkie sky, {p.mode} mode, {p.samples} spp, {w}×{h}, "
           f"{prep.grid.size} bands, {frame.stats['pixels_shaded']} blade pixels")
@@ -173,12 +173,12 @@ def render_run(args: argparse.Namespace) -> int:
 
     scene = load_scene(args.scene)
     if args.output:
-        scene.output["directory"] = Path(args.output)
-    name = str(scene.output["name"])
+        scene = scene.with_output_directory(args.output)
+    name = str(scene.output.name)
     if name in ("", ".", "..") or "/" in name or "\x00" in name:
         from jkatana.errors import InputError
         raise InputError(f"not a file name: {name!r}", path=args.scene, field="output.name")
-    check_outputs([Output(scene.output["directory"], "--output", folder=True)], inputs=[args.scene])
+    check_outputs([Output(scene.output.directory, "--output", folder=True)], inputs=[args.scene])
     check_render_memory(scene, samples=args.samples, devices=args.devices, max_memory=args.max_memory)
     jobs = plan_batch(scene, args.views, args.lights)
     if args.dask or args.scheduler:
