@@ -419,13 +419,17 @@ def test_unreachable_scheduler_refused_in_time(tmp_path):
 
 # ---------------------------------------------------------------- scene fields (typed scene)
 
-@pytest.mark.parametrize("patch, field", [
-    ('[output]\ndirectory = "out"\nname = "f"\nspectral = "false"\n', "output.spectral"),
-    ('[output]\ndirectory = "out"\nname = ".."\n', "output.name"),
+@pytest.mark.parametrize("old, new, field", [
+    ('name = "f"\n', 'name = "f"\nspectral = "false"\n', "output.spectral"),
+    ('name = "f"\n', 'name = ".."\n', "output.name"),
+    ('resolution = [16, 32]\n', 'resolution = [16, 32]\nsun = "false"\n', "environment.sun"),
+    ('samples = 1\n', 'samples = 1\nmode = "lowrank"\nrank = 64\n', "render.rank"),
 ])
-def test_scene_fields_one_line(patch, field, tmp_path, monkeypatch, capsys):
+def test_scene_fields_one_line(old, new, field, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    text = (SCENE % (8, 8, 1)).replace('[output]\ndirectory = "out"\nname = "f"\n', patch)
+    text = (SCENE % (8, 8, 1))
+    assert old in text
+    text = text.replace(old, new)
     (tmp_path / "scene.toml").write_text(text)
     rc, _, err = run(["render", "scene.toml"], capsys)
     one_line(rc, err, field)
