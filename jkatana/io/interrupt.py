@@ -23,6 +23,7 @@ import sys
 import threading
 
 _INSTALLED = False
+_SOCKETS: tuple = ()  # the wakeup socket pair, kept open for the process's life
 
 
 def _children_terminate() -> None:
@@ -64,7 +65,7 @@ def _exit_on(signum: int, command: str) -> None:
 
 def install(command: str) -> None:
     """Route SIGINT and SIGTERM of this (main-thread) process to the clean exit; idempotent."""
-    global _INSTALLED
+    global _INSTALLED, _SOCKETS
     if _INSTALLED or threading.current_thread() is not threading.main_thread():
         return
     rsock, wsock = socket.socketpair()
@@ -81,8 +82,7 @@ def install(command: str) -> None:
 
     threading.Thread(target=watch, name="jkatana-interrupt", daemon=True).start()
     _INSTALLED = True
-    # keep the sockets alive for the process's life
-    install._socks = (rsock, wsock)  # type: ignore[attr-defined]
+    _SOCKETS = (rsock, wsock)
 
 
 __all__ = ["install"]

@@ -51,14 +51,17 @@ def numbers(values, field: str, **kw):
 
 
 def parse_size(text: str | int | float | None, field: str = "--max-memory") -> int | None:
-    """``"4G"``, ``"512M"``, ``"1.5g"``, ``"1000000"`` → bytes (binary units); None → None."""
+    """``"4G"``, ``"512M"``, ``"1.5GiB"``, ``"1000000"`` → bytes (binary units); None → None."""
     if text is None:
         return None
-    s = str(text).strip().lower().removesuffix("ib").removesuffix("b") if not isinstance(text, (int, float)) \
-        else str(text)
-    unit = s[-1:] if s[-1:] in _UNITS and not s[-1:].isdigit() else ""
+    s = str(text).strip().lower()
+    for suffix in ("ib", "b"):
+        if s.endswith(suffix) and len(s) > len(suffix):
+            s = s[: -len(suffix)]
+            break
+    unit = s[-1] if s and s[-1] in "kmgt" else ""
     try:
-        value = float(s[: len(s) - len(unit)] if unit else s)
+        value = float(s[:-1] if unit else s)
     except ValueError:
         raise InputError(f"not a size (e.g. 4G, 512M): {text!r}", field=field) from None
     if not math.isfinite(value) or value <= 0:
@@ -113,8 +116,8 @@ def require_memory(estimate: float, field: str, what: str, max_memory: int | Non
     """Refuse (naming ``field``) a request whose estimated peak ``estimate`` bytes exceeds the budget."""
     budget = memory_budget(max_memory)
     if estimate > budget:
-        raise InputError(f"{what} needs about {human(estimate)} of memory, more than the "
-                         f"{human(budget)} available{' (--max-memory)' if max_memory is not None and max_memory <= budget else ''}",
+        limit = "allowed by --max-memory" if max_memory is not None and budget == max_memory else "available"
+        raise InputError(f"{what} needs about {human(estimate)} of memory, more than the {human(budget)} {limit}",
                          field=field)
 
 
