@@ -79,18 +79,11 @@ def scene_inputs(scene: Scene, *, mode=None, samples=None) -> dict:
     (command-line overrides applied), and for each file the scene names its size and
     modification time (a replaced environment map or mesh changes the frame too).
     """
-    import tomllib
-
-    text = scene.to_toml_text()
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError:
-        raw = json.loads(text)
     flat: dict = {}
-    _flatten(raw, "", flat)
+    _flatten(scene.to_dict(), "", flat)
     flat = {k: v for k, v in flat.items() if not k.startswith("output.directory")}
-    flat["mode (effective)"] = mode or _field(scene, "render", "mode")
-    flat["samples (effective)"] = samples or _field(scene, "render", "samples")
+    flat["mode (effective)"] = mode or scene.render.mode
+    flat["samples (effective)"] = samples or scene.render.samples
     base = Path(scene.path).parent if getattr(scene, "path", None) else Path.cwd()
     for key, value in list(flat.items()):
         if isinstance(value, str) and value and "\x00" not in value and len(value) < 4096:
@@ -102,11 +95,6 @@ def scene_inputs(scene: Scene, *, mode=None, samples=None) -> dict:
             except OSError:
                 pass
     return json.loads(json.dumps(flat, default=str, sort_keys=True))
-
-
-def _field(scene: Scene, section: str, key: str):
-    sec = getattr(scene, section)
-    return sec[key] if isinstance(sec, dict) else getattr(sec, key)
 
 
 def _job_inputs(inputs: dict, job: Job) -> dict:

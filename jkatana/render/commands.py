@@ -45,49 +45,32 @@ def _check_common(args) -> None:
     number(args.devices, "--devices", lo=1, hi=max(8, 4 * cores), integer=True)
 
 
-def _section(scene, name: str):
-    return getattr(scene, name)
+def check_render_memory(scene, *, samples=None, devices=None, max_memory=None) -> None:
+    """Refuse, naming the field that dominates, a frame whose estimated peak memory exceeds the budget.
 
-
-def _get(section, key: str, default=None):
-    if isinstance(section, dict):
-        return section.get(key, default)
-    return getattr(section, key, default)
-
-
-def check_render_memory(scene, *, samples=None, devices=None, views: int = 1, max_memory=None) -> None:
-    """Refuse, naming the field, a frame whose estimated peak memory exceeds the budget.
-
-    The estimate counts the arrays a frame allocates: the G-buffer and film (per pixel: ~40 float64
+    The estimate counts the arrays a frame allocates: the G-buffer and film (per pixel ~40 float64
     values, XYZ and, for spectral output, one float32 per band), the environment (float32 per texel
-    and band: radiance, its rotated/factored copy and the sampling tables), and one shading call
+    and band: radiance, its rotated or factored copy and the sampling tables), and one shading call
     (``devices × chunk`` pixels × bands, ~16 float32 temporaries, plus ~32 bytes per sample).
     """
     from jkatana.io.limits import require_memory
-    from jkatana.render.frame import DEFAULT_CHUNK
 
-    cam = _section(scene, "camera")
-    w, h = (int(v) for v in _get(cam, "resolution"))
-    spec = _section(scene, "spectral")
-    start, stop, step = (float(_get(spec, k)) for k in ("start", "stop", "step"))
-    bands = int((stop - start) / step) + 1
-    env = _section(scene, "environment")
-    eh, ew = (int(v) for v in (_get(env, "resolution") or (16, 32)))
-    samples = int(samples or _get(_section(scene, "render"), "samples"))
+    w, h = scene.camera.resolution
+    bands = scene.spectral.grid.size
+    eh, ew = scene.environment.resolution or (16, 32)
+    samples = int(samples or scene.render.samples)
     devices = int(devices or _cores())
-    spectral = bool(_get(_section(scene, "output"), "spectral", False))
-    film = w * h * (40 * 8 + 3 * 8 + (4 * bands if spectral else 0))
-    envmap = eh * ew * bands * 4 * 3
-    call = devices * min(DEFAULT_CHUNK, w * h) * (bands * 4 * 16) + devices * samples * 32
-    fields = (("camera.resolution", film, f"a {w}×{h} frame"),
-              ("environment.resolution", envmap, f"a {eh}×{ew} environment map with {bands} bands"),
-              ("spectral.step", (film + envmap + call), f"{bands} wavelength bands"),
-              ("--samples", call, f"{samples} samples per pixel"))
-    total = film + envmap + call
-    biggest = max(fields[:2] + fields[3:], key=lambda f: f[1])
-    if bands > 4096:
-        biggest = fields[2]
-    require_memory(total, biggest[0], f"{biggest[2]} (whole frame ~{total / 2**30:.3g} GiB)", max_memory)
+    parts = {
+        "camera.resolution": (w * h * (40 * 8 + 3 * 8 + (4 * bands if scene.output.spectral else 0)),
+                              f"a {w}×{h} frame"),
+        "environment.resolution": (eh * ew * bands * 4 * 3, f"a {eh}×{ew} environment with {bands} bands"),
+        "render.chunk": (devices * min(scene.render.chunk, w * h) * bands * 4 * 16,
+                         f"{devices} × {scene.render.chunk} pixels per shading call"),
+        "--samples": (devices * samples * 32, f"{samples} samples per pixel"),
+    }
+    total = sum(v for v, _ in parts.values())
+    field = max(parts, key=lambda k: parts[k][0])
+    require_memory(total, field, f"{parts[field][1]} (the whole frame)", max_memory)
 
 
 def _common(p: argparse.ArgumentParser) -> None:
