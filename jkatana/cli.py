@@ -22,6 +22,7 @@ import sys
 import warnings
 
 from jkatana.errors import InputError
+from jkatana.io.interrupt import hold_if_exiting
 
 # name -> (module, attribute prefix). The prefix lets one module hold several
 # commands: ``measure`` and ``simulate`` both live in ``jkatana.measure.commands``
@@ -122,15 +123,25 @@ def main(argv: list[str] | None = None, *, handle_signals: bool | None = None) -
         print(f"jkatana: the command {args.command!r} is not available in this build", file=sys.stderr)
         return 2
     try:
+        return _run(args, module, prefix)
+    finally:  # returning or unwinding while an interrupt is handled: wait for its clean exit
+        hold_if_exiting()
+
+
+def _run(args: argparse.Namespace, module, prefix: str) -> int:
+    """Run the parsed command; bad input → one line, exit 2."""
+    try:
         if getattr(args, "max_memory", None) is not None:
             from jkatana.io.limits import parse_size
 
             args.max_memory = parse_size(args.max_memory)
         return int(getattr(module, f"{prefix}_run")(args) or 0)
     except InputError as err:  # bad input: one line naming file/row/field, exit 2
+        hold_if_exiting()
         print(f"jkatana {args.command}: error: {err}", file=sys.stderr)
         return 2
     except (OSError, UnicodeDecodeError, MemoryError) as err:  # a file the system refused, text not UTF-8
+        hold_if_exiting()
         print(f"jkatana {args.command}: error: {_one_line(err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # in-process callers; as a program the interrupt module exits first

@@ -11,7 +11,9 @@ once, removes the temporaries of atomic writes in flight
 pools, Dask workers), prints one line and leaves with ``os._exit`` (128 +
 the signal number, the shell's convention) without running interpreter
 teardown. Finished outputs are complete files (atomic renames), so nothing
-partial remains.
+partial remains. Meanwhile the main thread, should it finish or fail first,
+waits (:func:`hold_if_exiting`) and the process's output is closed after the
+one line, so no traceback follows it.
 """
 
 from __future__ import annotations
@@ -48,19 +50,46 @@ def _children_terminate() -> None:
             pass
 
 
+_EXITING = threading.Event()
+
+
+def _silence() -> None:
+    """Point this process's stdout and stderr at /dev/null: after the one line, nothing else is
+    printed while the exit proceeds (the main thread may still be running, e.g. seeing its decoding
+    pool vanish)."""
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        for fd in (1, 2):
+            os.dup2(null, fd)
+    except OSError:
+        pass
+
+
 def _exit_on(signum: int, command: str) -> None:
     from jkatana.io.atomic import remove_live
 
+    _EXITING.set()
     remove_live()
     name = signal.Signals(signum).name
     try:
+        sys.stdout.flush()
         sys.stderr.write(f"\njkatana {command}: interrupted ({name}); nothing partial was written\n")
         sys.stderr.flush()
     except Exception:  # noqa: BLE001 - stderr may be closed; the exit status still tells
         pass
+    _silence()
     _children_terminate()
     remove_live()
     os._exit(128 + signum)
+
+
+def hold_if_exiting() -> None:
+    """In the main thread: if an interrupt is being handled, wait for its exit instead of returning
+    (or unwinding into a traceback, or starting interpreter teardown under running threads)."""
+    import time
+
+    while _EXITING.is_set():
+        time.sleep(0.1)
 
 
 def install(command: str) -> None:
@@ -85,4 +114,4 @@ def install(command: str) -> None:
     _SOCKETS = (rsock, wsock)
 
 
-__all__ = ["install"]
+__all__ = ["install", "hold_if_exiting"]
