@@ -22,10 +22,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import warnings
 from pathlib import Path
 
 from jkatana.errors import InputError
+from jkatana.io.interrupt import hold_if_exiting
 
 # name -> (module, attribute prefix). The prefix lets one module hold several
 # commands: ``measure`` and ``simulate`` both live in ``jkatana.measure.commands``
@@ -87,17 +90,54 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text.strip().splitlines()[0] if help_text else None,
                            description=help_text)
         getattr(module, f"{prefix}_add_arguments")(p)
+        if name != "bench":
+            p.add_argument("--max-memory", default=None, metavar="SIZE",
+                           help="refuse requests estimated to need more memory than this (e.g. 8G; "
+                                "default: what the machine has available)")
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    only = argv[0] if argv and argv[0] in COMMANDS else None
-    if only == "bench" and _checkout_root() is None:
+def _one_line(err: BaseException) -> str:
+    """An OS or decoding error as one line naming the file."""
+    if isinstance(err, OSError):
+        where = f"{err.filename}: " if err.filename else ""
+        return f"{where}{err.strerror or err}"
+    if isinstance(err, UnicodeDecodeError):
+        return f"not UTF-8 text ({err.reason} at byte {err.start})"
+    if isinstance(err, MemoryError):
+        return "out of memory (a smaller request, or --max-memory to be refused up front)"
+    return str(err).splitlines()[0] if str(err) else type(err).__name__
+
+
+def main(argv: list[str] | None = None, *, handle_signals: bool | None = None) -> int:
+    """Run one command; bad input prints one line and returns 2.
+
+    As a program (``argv`` None, or ``handle_signals``), SIGINT/SIGTERM end the
+    command cleanly with 130/143 (:mod:`jkatana.io.interrupt`). Python warnings
+    (numpy's RuntimeWarnings, library notices) are not printed unless asked for
+    with ``-W``/``PYTHONWARNINGS``: problems they hint at are checked and
+    reported as errors.
+    """
+    if handle_signals is None:
+        handle_signals = argv is None
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = argv[0] if argv and argv[0] in COMMANDS else None
+    if handle_signals:
+        from jkatana.io.interrupt import install
+
+        install(command or "")
+    if not sys.warnoptions and not os.environ.get("PYTHONWARNINGS"):
+        warnings.simplefilter("ignore")
+    for a in argv:
+        if "\x00" in a:
+            print(f"jkatana{' ' + command if command else ''}: error: an argument contains a NUL byte "
+                  f"({a.split(chr(0))[0]!r}...)", file=sys.stderr)
+            return 2
+    if command == "bench" and _checkout_root() is None:
         print("jkatana bench: error: the benchmark suite runs from a source checkout (benchmarks/ beside "
               "jkatana/); there is none beside this installation", file=sys.stderr)
         return 2
-    parser = build_parser(only)
+    parser = build_parser(command)
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
@@ -107,10 +147,30 @@ def main(argv: list[str] | None = None) -> int:
         print(f"jkatana: the command {args.command!r} is not available in this build", file=sys.stderr)
         return 2
     try:
+        return _run(args, module, prefix)
+    finally:  # returning or unwinding while an interrupt is handled: wait for its clean exit
+        hold_if_exiting()
+
+
+def _run(args: argparse.Namespace, module, prefix: str) -> int:
+    """Run the parsed command; bad input → one line, exit 2."""
+    try:
+        if getattr(args, "max_memory", None) is not None:
+            from jkatana.io.limits import parse_size
+
+            args.max_memory = parse_size(args.max_memory)
         return int(getattr(module, f"{prefix}_run")(args) or 0)
     except InputError as err:  # bad input: one line naming file/row/field, exit 2
+        hold_if_exiting()
         print(f"jkatana {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except (OSError, UnicodeDecodeError, MemoryError) as err:  # a file the system refused, text not UTF-8
+        hold_if_exiting()
+        print(f"jkatana {args.command}: error: {_one_line(err)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # in-process callers; as a program the interrupt module exits first
+        print(f"jkatana {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

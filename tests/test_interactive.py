@@ -190,12 +190,38 @@ def test_shipped_tap_table_is_current(iron):
     np.testing.assert_array_equal(got[0], taps)
 
 
+def _tap_l1(iron, taps, mus, n_cos: int = 64, n: int = 32) -> np.ndarray:
+    """∫ |K − fit| dω of a tap table, evaluated (not fitted) on the lobe grid of :func:`bake.tap_fit`."""
+    import jax
+
+    cos_c = jnp.asarray(np.maximum(np.linspace(0.0, 1.0, n_cos), 1e-3))
+    mu_min = float(np.min(mus))
+    err = np.empty(taps.shape[:3])
+    for m, cls in enumerate((Hiraji, Hamon)):
+        for i, mu in enumerate(mus):
+            mu_j = jnp.asarray(float(mu))
+            K, ap, aq, dw = jax.vmap(lambda c: B.lobe_kernel(cls(jnp.asarray(1.0), mu_j), iron, c, n))(cos_c)
+            p = np.concatenate([taps[m, i, :, :1 + B.N_TAPS], np.log(taps[m, i, :, 1 + B.N_TAPS:])], -1)
+            Ka = jax.vmap(lambda q, a, b: B.tap_kernel(q, mu_j, a, b, mu_min))(jnp.asarray(p), ap, aq)
+            err[m, i] = np.sum(np.abs(np.asarray(Ka) - np.asarray(K)) * np.asarray(dw), axis=(-2, -1))
+    return err
+
+
 @pytest.mark.slow          # the full fit: 1–5 min on 2 cores
-def test_shipped_tap_table_equals_a_fresh_fit(iron):
+def test_shipped_tap_table_is_as_good_as_a_fresh_fit(iron):
+    """What the shader needs from the shipped taps is the lobe error they achieve, not particular tap
+    values: the least-squares fit has near-equal minima, and which one a machine's solver reaches
+    differs in the last bits of its arithmetic. So: the shipped table's recorded error is what its taps
+    give here, and at every (model, μ, θv) it is within 0.01 (of ∫|K| = 1) of a fresh fit's, and on
+    average within 1e-3."""
     with np.load(B.SHIPPED_TAPS / f"taps-{B.tap_fit_key(iron, B.MU_LEVELS, 64)}.npz") as z:
-        shipped = z["taps"]
-    _, taps, _, _ = B.tap_fit(iron, B.MU_LEVELS, n_cos=64)
-    np.testing.assert_allclose(taps, shipped, atol=2e-3)
+        shipped, shipped_l1 = z["taps"], z["l1"]
+    shipped_err = _tap_l1(iron, shipped, B.MU_LEVELS)
+    np.testing.assert_allclose(shipped_err, shipped_l1, atol=1e-6)
+    _, taps, l1, ok = B.tap_fit(iron, B.MU_LEVELS, n_cos=64)
+    np.testing.assert_allclose(_tap_l1(iron, taps, B.MU_LEVELS), l1, atol=1e-6)
+    assert np.all(shipped_err <= l1 + 0.01), float(np.max(shipped_err - l1))
+    assert abs(float(np.mean(shipped_err - l1))) < 1e-3
 
 
 def test_fitted_taps_match_the_oblique_lobe_better_than_its_moments(iron):

@@ -33,6 +33,27 @@ def _x64():
     jax.config.update("jax_enable_x64", True)  # fits are float64 (DESIGN: numerical core)
 
 
+def _check_fit_data(data, args) -> None:
+    """Data a least-squares fit can use: more usable points than free parameters, and values whose
+    squares (the χ² sums) stay finite in float64 (|value| below 1e150)."""
+    import numpy as np
+
+    from jkatana.errors import InputError
+
+    n_free = 2 + int(args.tilt) + int(args.floor)
+    n = int(np.count_nonzero(data.usable))
+    if n <= n_free:
+        raise InputError(f"region {data.region!r} has {n} usable row(s); a fit of {n_free} free parameters "
+                         f"needs at least {n_free + 1}", path=args.table, field="value")
+    for name, col in (("value", data.value), ("sigma", data.sigma)):
+        if col is None:
+            continue
+        big = np.abs(col[data.usable]) > 1e150
+        if big.any():
+            raise InputError(f"{int(big.sum())} value(s) beyond ±1e150: their squares overflow float64 in the "
+                             "fit's sums (rescale the table, e.g. the manifest's gain)", path=args.table, field=name)
+
+
 def fit_run(args: argparse.Namespace) -> int:
     _x64()
     from tqdm import tqdm
@@ -43,8 +64,14 @@ def fit_run(args: argparse.Namespace) -> int:
     from jkatana.fit.region import FitData, Setup, fit_region
     from jkatana.measure.table import read_table
 
+    from jkatana.io.limits import number
+    from jkatana.io.outputs import Output, check_outputs
+
+    number(args.seed, "--seed", lo=0, hi=2 ** 32 - 1, integer=True)
+    check_outputs([Output(args.output, "--output", (".json",))], inputs=[args.table])
     table = read_table(args.table)
     data = FitData.from_table(table, args.region, source=args.table)
+    _check_fit_data(data, args)
     setup = Setup(optical_constants=args.optical_constants, camera=args.camera, light=args.light)
     with tqdm(total=2 + int(args.emcee), desc=f"fit {data.region}", file=sys.stderr) as bar:
         bar.set_postfix_str("least squares + per-incidence refits")
@@ -73,10 +100,33 @@ def report_add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--table", default=None, help="measurement table (default: the one named in the file)")
 
 
+def _check_report_params(path) -> None:
+    """The parts of a parameter file the report draws (fit's diagnostics and Laplace intervals)."""
+    from jkatana.errors import InputError
+    from jkatana.fit.params import read_params
+
+    d = read_params(path).raw
+    for key in ("diagnostics", "laplace"):
+        if not isinstance(d.get(key), dict):
+            raise InputError("missing or not an object (the report draws it; write the file with "
+                             "`jkatana fit`)", path=path, field=key)
+    if not isinstance(d["laplace"].get("ci95", {}), dict):
+        raise InputError("not an object", path=path, field="laplace.ci95")
+
+
 def report_run(args: argparse.Namespace) -> int:
     _x64()
     from jkatana.fit.report import write_report
+    from jkatana.io.outputs import Output, check_outputs
 
+    check_outputs([Output(args.output, "--output", folder=True)])
+    out = Path(args.output)
+    for src in (args.params, args.table):
+        if src is not None and out.exists() and Path(src).resolve().parent == out.resolve() \
+                and Path(src).name in ("report.md", "params.json"):
+            from jkatana.errors import InputError
+            raise InputError("the report would overwrite its own input", path=src, field="--output")
+    _check_report_params(args.params)
     md = write_report(args.params, args.output, table=args.table)
     print(md)
     return 0

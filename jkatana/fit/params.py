@@ -98,9 +98,11 @@ def read_params(path) -> Params:
     """Read and validate a parameter file; errors name the file and the field."""
     path = Path(path)
     try:
-        d = json.loads(path.read_text())
+        d = json.loads(path.read_text(encoding="utf-8"))
     except OSError as err:
         raise InputError(f"cannot read: {err.strerror or err}", path=path) from None
+    except UnicodeDecodeError:
+        raise InputError("not UTF-8 text (a JSON parameter file is)", path=path) from None
     except json.JSONDecodeError as err:
         raise InputError(f"not JSON ({err.msg} at line {err.lineno})", path=path) from None
     return params_from_dict(d, path)

@@ -162,15 +162,31 @@ def _fallback(args, out: Path) -> int:
     return 0
 
 
+def _check(args) -> None:
+    """Every number of ``view`` in range, the frame's memory within the budget, outputs writable."""
+    from jkatana.io.limits import number, numbers, require_memory
+    from jkatana.io.outputs import Output, check_outputs
+
+    number(args.frames, "--frames", lo=1, hi=100000, integer=True)
+    number(args.measure_fps, "--measure-fps", lo=0, hi=100000, integer=True)
+    number(args.refresh, "--refresh", lo=0, lo_open=True, hi=1000)
+    number(args.exposure, "--exposure", lo=0, lo_open=True)
+    number(args.msaa, "--msaa", lo=0, hi=16, integer=True)
+    if args.resolution:
+        w, h = numbers(args.resolution, "--resolution", lo=1, hi=16384, integer=True)
+        # RGBA8 colour, depth and the deferred G-buffer (about 16 float32 per pixel), MSAA multiplies
+        require_memory(w * h * 80 * max(1, args.msaa), "--resolution", f"a {w}×{h} view",
+                       getattr(args, "max_memory", None))
+    outs = [Output(args.output, "--output", folder=True)]
+    if args.screenshot:
+        outs.append(Output(args.screenshot, "--screenshot", (".png",)))
+    check_outputs(outs, inputs=[args.scene])
+
+
 def view_run(args: argparse.Namespace) -> int:
     from jkatana.errors import InputError
 
-    if args.frames < 1:
-        raise InputError(f"--frames must be >= 1, got {args.frames}", field="--frames")
-    if args.measure_fps < 0:
-        raise InputError(f"--measure-fps must be >= 0, got {args.measure_fps}", field="--measure-fps")
-    if not args.refresh > 0:
-        raise InputError(f"--refresh must be > 0 Hz, got {args.refresh}", field="--refresh")
+    _check(args)
     if args.drag_scale != "auto":
         try:
             args.drag_scale = float(args.drag_scale)

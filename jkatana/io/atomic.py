@@ -3,6 +3,13 @@
 A reader (or a resumed batch) never sees a half-written file: either the old
 file, or the complete new one. ``os.replace`` is atomic on POSIX within one
 file system, which is why the temporary lives in the target's own folder.
+
+The temporary is created private (``mkstemp``: mode 0600) and given the
+permissions an ordinary ``open()`` would have given a new file — 0666 less
+the process umask — just before the rename, so outputs are as readable as
+any other file the user writes. Temporaries still being written are listed
+in :data:`LIVE`, so that an interrupt (:mod:`jkatana.io.interrupt`) can remove
+them before the process exits.
 """
 
 from __future__ import annotations
@@ -10,8 +17,34 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
+import threading
 from pathlib import Path
 from typing import Iterator
+
+#: Temporaries being written right now (removed by the interrupt handler).
+LIVE: set[Path] = set()
+_LOCK = threading.Lock()
+_UMASK: int | None = None
+
+
+def file_mode() -> int:
+    """The permission bits a new file gets under this process's umask (0666 & ~umask)."""
+    global _UMASK
+    if _UMASK is None:
+        with _LOCK:  # os.umask can only be read by setting it; do that once
+            _UMASK = os.umask(0o022)
+            os.umask(_UMASK)
+    return 0o666 & ~_UMASK
+
+
+def remove_live() -> None:
+    """Remove every temporary still being written (interrupt clean-up)."""
+    with _LOCK:
+        paths = list(LIVE)
+        LIVE.clear()
+    for p in paths:
+        with contextlib.suppress(OSError):
+            p.unlink()
 
 
 @contextlib.contextmanager
@@ -23,18 +56,25 @@ def atomic_path(path: str | Path, *, suffix: str | None = None) -> Iterator[Path
     temporary is removed and ``path`` is left as it was.
     """
     path = Path(path)
+    mode = file_mode()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix or path.suffix or ".tmp",
-                               dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    with _LOCK:  # created and listed at once: an interrupt in between would leave it behind
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix or path.suffix or ".tmp",
+                                   dir=path.parent)
+        os.close(fd)
+        tmp_path = Path(tmp)
+        LIVE.add(tmp_path)
     try:
         yield tmp_path
+        os.chmod(tmp_path, mode)
         os.replace(tmp_path, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
+    finally:
+        with _LOCK:
+            LIVE.discard(tmp_path)
 
 
 def write_text(path: str | Path, text: str) -> Path:

@@ -69,7 +69,28 @@ def light_add_arguments(p: argparse.ArgumentParser) -> None:
 def _grid(args):
     from jkatana.spectral import WavelengthGrid
 
-    return WavelengthGrid(*args.grid)
+    start, stop, step = _check_grid(args)
+    return WavelengthGrid(start, stop, step)
+
+
+def _check_grid(args) -> tuple[float, float, float]:
+    from jkatana.io.limits import number, numbers
+
+    start, stop, step = numbers(args.grid, "--grid", lo=0, lo_open=True, hi=1e5)
+    if not stop > start:
+        raise InputError(f"STOP must be above START, got {start:g} {stop:g}", field="--grid")
+    return start, stop, step
+
+
+def _bands(args) -> int:
+    start, stop, step = _check_grid(args)
+    return int((stop - start) / step) + 1
+
+
+def _need(args, nbytes: float, field: str, what: str) -> None:
+    from jkatana.io.limits import require_memory
+
+    require_memory(nbytes, field, what, getattr(args, "max_memory", None))
 
 
 def preview_png(env, path, *, exposure: float | None = None, mark_sun: bool = True, sun_dir=None) -> dict:
@@ -110,14 +131,39 @@ def preview_png(env, path, *, exposure: float | None = None, mark_sun: bool = Tr
             "brightest_0.1%_power_share": share}
 
 
+def _finite(values, what: str, field: str) -> None:
+    """No NaN/inf written to a spectral EXR: refuse, naming the option that led to it."""
+    arr = np.asarray(values)
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{what} holds {int(np.count_nonzero(~np.isfinite(arr)))} non-finite values; "
+                         "nothing written", field=field)
+
+
 def light_run(args: argparse.Namespace) -> int:
     return {"build": _build, "convert": _convert, "inspect": _inspect, "prefilter": _prefilter}[args.light_command](args)
 
 
 def _build(args) -> int:
+    from jkatana.io.limits import number, numbers
+    from jkatana.io.outputs import Output, check_outputs
     from jkatana.light.sky import hosek_wilkie_sky, sun_direction, sun_position
     from jkatana.light.spectral_exr import write_spectral_exr
 
+    number(args.elevation, "--elevation", lo=-90, hi=90)
+    number(args.azimuth, "--azimuth", lo=-360, hi=720)
+    if args.place:
+        lat, lon = numbers(args.place, "--place", lo=-180, hi=180)
+        number(lat, "--place", lo=-90, hi=90)
+    number(args.turbidity, "--turbidity", lo=1, hi=10)
+    number(args.albedo, "--albedo", lo=0, hi=1)
+    h, w = numbers(args.resolution, "--resolution", lo=2, hi=2 ** 20, integer=True)
+    nb = _bands(args)
+    # radiance (float32) and its float64 copies for the XYZ preview and the EXR channels
+    _need(args, h * w * (nb * (4 + 8 + 4) + 64), "--grid" if nb > 1000 else "--resolution",
+          f"a {h}×{w} sky with {nb} bands")
+    out = Path(args.output)
+    png = out.with_suffix(".png")
+    check_outputs([Output(out, "--output", (".exr",)), Output(png, "--output (its .png preview)", (".png",))])
     elev, az = args.elevation, args.azimuth
     if args.place:
         if not args.time:
@@ -132,10 +178,10 @@ def _build(args) -> int:
             raise InputError(f"the sun is below the horizon ({elev:.1f}°) at that place and time", field="time")
     env = hosek_wilkie_sky(elev, az, args.turbidity, args.albedo, tuple(args.resolution), _grid(args),
                            sun=not args.no_sun)
-    out = Path(args.output)
+    _finite(env.radiance, "the sky model", "--elevation")
     write_spectral_exr(out, np.asarray(env.radiance), env.grid)
-    facts = preview_png(env, out.with_suffix(".png"), sun_dir=sun_direction(elev, az))
-    print(f"wrote {out} ({env.height}×{env.width}×{env.grid.size}) and {out.with_suffix('.png')}; "
+    facts = preview_png(env, png, sun_dir=sun_direction(elev, az))
+    print(f"wrote {out} ({env.height}×{env.width}×{env.grid.size}) and {png}; "
           f"sun share of luminous power (brightest 0.1 % texels): {facts['brightest_0.1%_power_share']:.3f}")
     return 0
 
@@ -145,9 +191,19 @@ def _convert(args) -> int:
     from jkatana.light.spectral_exr import write_spectral_exr
     from jkatana.light.upsampling import rgb_to_spectrum, round_trip_error
 
+    from jkatana.io.limits import number
+    from jkatana.io.outputs import Output, check_outputs
+
+    number(args.scale, "--scale", lo=0, lo_open=True)
     grid = _grid(args)
-    rgb = read_rgb_image(args.input) * args.scale
+    check_outputs([Output(args.output, "--output", (".exr",))], inputs=[args.input])
+    _need(args, 1e6 * grid.size * 4 * 3, "--grid", f"{grid.size} bands")  # per megapixel, before reading
+    rgb = read_rgb_image(args.input)
+    _need(args, rgb.shape[0] * rgb.shape[1] * grid.size * 4 * 3, "--grid",
+          f"a {rgb.shape[0]}×{rgb.shape[1]} map with {grid.size} bands")
+    rgb = rgb * args.scale
     L = rgb_to_spectrum(rgb, args.upsampling, grid)
+    _finite(L, "the upsampled spectra", "--scale")
     write_spectral_exr(args.output, L, grid)
     sub = rgb.reshape(-1, 3)[:: max(1, rgb.size // 3 // 20000)]
     err = round_trip_error(sub, args.upsampling, grid)
@@ -160,8 +216,14 @@ def _convert(args) -> int:
 def _inspect(args) -> int:
     from jkatana.light.envmap import load_envmap
 
-    env = load_envmap(args.input, _grid(args), upsampling=args.upsampling)
+    from jkatana.io.limits import number
+    from jkatana.io.outputs import Output, check_outputs
+
+    number(args.exposure, "--exposure", lo=0, lo_open=True)
+    grid = _grid(args)
     out = Path(args.output) if args.output else Path(args.input).with_suffix(".png")
+    check_outputs([Output(out, "--output", (".png",))], inputs=[args.input])
+    env = load_envmap(args.input, grid, upsampling=args.upsampling)
     facts = preview_png(env, out, exposure=args.exposure)
     p = np.asarray(env.irradiance((0.0, 1.0, 0.0)))
     print(f"{args.input}: {env.height}×{env.width}, grid {env.grid.start:g}–{env.grid.stop:g}/{env.grid.step:g} nm, "
@@ -178,10 +240,21 @@ def _prefilter(args) -> int:
     from jkatana.light.prefilter import prefilter
     from jkatana.light.spectral_exr import write_spectral_exr
 
-    env = load_envmap(args.input, _grid(args), upsampling=args.upsampling)
-    pf = prefilter(env, args.mus, progress=True)
+    from jkatana.io.limits import numbers
+    from jkatana.io.outputs import Output, check_outputs
+
+    mus = numbers(args.mus, "--mus", lo=0, lo_open=True, hi=10)
+    grid = _grid(args)
+    paths = [Path(f"{args.output}_mu{mu:g}.exr") for mu in mus]
+    check_outputs([Output(p, "--output") for p in paths], inputs=[args.input])
+    env = load_envmap(args.input, grid, upsampling=args.upsampling)
+    _need(args, env.height * env.width * env.grid.size * 4 * (len(mus) + 3), "--mus",
+          f"{len(mus)} levels of a {env.height}×{env.width}×{env.grid.size} map")
+    pf = prefilter(env, mus, progress=True)
+    for lvl in pf.levels:
+        _finite(lvl.radiance, "a prefiltered level", "--mus")
     for mu, lvl in zip(pf.mus, pf.levels):
-        path = Path(f"{args.output}_mu{mu:g}.exr")
+        path = Path(f"{args.output}_mu{float(mu):g}.exr")
         write_spectral_exr(path, np.asarray(lvl.radiance), lvl.grid)
         print(f"wrote {path} ({lvl.height}×{lvl.width})")
     return 0

@@ -294,6 +294,8 @@ def read_rgb_image(path: str | Path) -> np.ndarray:
         if buf.has_error:
             raise InputError(f"not a readable Radiance HDR ({buf.geterror()})", path=path)
         px = buf.get_pixels(oiio.FLOAT)
+        if buf.has_error:  # e.g. a header without its pixels: OpenImageIO returns the buffer's garbage
+            raise InputError(f"not a readable Radiance HDR ({buf.geterror().splitlines()[0]})", path=path)
         if px is None or px.ndim != 3 or px.shape[2] < 3:
             raise InputError("not an RGB image", path=path)
         rgb = np.asarray(px[..., :3], np.float32)

@@ -30,12 +30,14 @@ _T_CHANNEL = re.compile(r"^T\.(\d+(?:,\d+)?)(nm|um|pm|Hz)?$")
 def _channel_names(path: Path) -> list[str]:
     import OpenEXR
 
+    from jkatana.io.exr import _os_name
+
     try:
-        with OpenEXR.File(str(path), header_only=True) as f:
+        with OpenEXR.File(_os_name(path), header_only=True) as f:
             return list(f.header()["channels"].keys()) if "channels" in f.header() else list(f.channels().keys())
     except Exception:
         try:
-            with OpenEXR.File(str(path)) as f:
+            with OpenEXR.File(_os_name(path)) as f:
                 return list(f.channels().keys())
         except Exception as err:
             raise InputError(f"not a readable OpenEXR file ({err})", path=path) from None

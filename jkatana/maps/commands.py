@@ -30,6 +30,22 @@ def map_run(args: argparse.Namespace) -> int:
     from jkatana.maps.photo import load_region_parameters, map_from_photo, read_photo
     from jkatana.maps.reflectance_map import default_map
 
+    from jkatana.io.limits import number, numbers, require_memory
+    from jkatana.io.outputs import Output, check_outputs
+
+    h, w = numbers(args.resolution, "--resolution", lo=2, hi=2 ** 16, integer=True)
+    number(args.aspect, "--aspect", lo=0, lo_open=True, hi=1e3)
+    number(args.dark, "--dark", lo=0)
+    number(args.bright, "--bright", lo=0)
+    if args.dark is not None and args.bright is not None and not args.bright > args.dark:
+        raise InputError(f"--bright must be above --dark, got {args.dark:g} {args.bright:g}", field="--bright")
+    numbers(args.crop, "--crop", lo=0, hi=2 ** 20, integer=True)
+    # the map's channels (w and per-pixel parameters) in float64 while built, float32 when written
+    require_memory(h * w * 8 * 16, "--resolution", f"a {h}×{w} map", getattr(args, "max_memory", None))
+    check_outputs([Output(args.output, "--output", (".exr",))], inputs=[args.photo, args.hiraji, args.hamon])
+    if args.default and (args.hiraji or args.hamon or args.photo):
+        raise InputError("--default writes the built-in map; --hiraji, --hamon and PHOTO apply to a photo's map",
+                         field="--default")
     if args.default:
         m = default_map(tuple(args.resolution))
     else:

@@ -46,13 +46,20 @@ def read_photo(path: str | Path) -> np.ndarray:
     elif suffix in (".tif", ".tiff"):
         import tifffile
 
-        img = np.asarray(tifffile.imread(path))
+        try:
+            img = np.asarray(tifffile.imread(path))
+        except Exception as err:  # noqa: BLE001  (tifffile raises several kinds for bad files)
+            raise InputError(f"not a readable TIFF ({type(err).__name__}: {err})", path=path) from None
         img = _normalise_int(img, path)
     elif suffix == ".png":
         from PIL import Image
 
-        with Image.open(path) as im:
-            img = np.asarray(im)
+        try:
+            with Image.open(path) as im:
+                img = np.asarray(im)
+        except (OSError, ValueError, SyntaxError) as err:  # Pillow: truncated or not a PNG
+            raise InputError(f"not a readable PNG ({str(err).splitlines()[0] if str(err) else type(err).__name__})",
+                             path=path) from None
         img = _normalise_int(img, path)
     elif suffix in RAW_SUFFIXES:
         return _raw_green(path)
@@ -168,16 +175,24 @@ def crop_to_uv(y: np.ndarray, crop: Sequence[int] | None, resolution: tuple[int,
 def load_region_parameters(path: str | Path, model: str) -> dict[str, float]:
     """Read a region fit JSON (fit stage) and return the model's parameters.
 
-    Accepts ``{"parameters": {name: value | {"value": v}}}`` or a flat
-    ``{name: value}``; hiraji needs chi and mu0 (or mu), hamon beta and mu1 (or mu).
+    Accepts a ``jkatana fit`` parameter file (its ``values``: ``chi``/``beta`` and ``mu``),
+    ``{"parameters": {name: value | {"value": v}}}`` or a flat ``{name: value}``;
+    hiraji needs chi and mu0 (or mu), hamon beta and mu1 (or mu).
     """
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise InputError("region parameter file not found", path=path) from None
+    except UnicodeDecodeError:
+        raise InputError("not UTF-8 text (a JSON parameter file is)", path=path) from None
     except json.JSONDecodeError as err:
         raise InputError(f"not JSON ({err})", path=path) from None
+    if isinstance(data, dict) and "values" in data and "model" in data:  # a `jkatana fit` parameter file
+        if data["model"] != model:
+            raise InputError(f"is a {data['model']!r} fit; --{model} needs a {model!r} one", path=path,
+                             field="model")
+        data = data["values"]
     params = data.get("parameters", data) if isinstance(data, dict) else {}
     flat = {k: (v.get("value") if isinstance(v, dict) else v) for k, v in params.items()}
     keys = ("chi", "mu0") if model == "hiraji" else ("beta", "mu1")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -26,7 +27,30 @@ def _kv(text: str) -> tuple[str, dict]:
         params = {k.strip(): float(v) for k, v in (item.split("=", 1) for item in rest.split(",") if item)}
     except ValueError:
         raise InputError(f"expected REGION:name=value,..., got {text!r}", field="--params") from None
+    for k, v in params.items():
+        if not math.isfinite(v):
+            raise InputError(f"{region.strip()}:{k} must be a finite number, got {v!r}", field="--params")
     return region.strip(), params
+
+
+def _check_simulate(args) -> None:
+    """Every number of ``simulate`` in range, and the frames' memory within the budget."""
+    from jkatana.io.limits import number, numbers, require_memory
+
+    numbers(args.incidences, "--incidences", lo=0, hi=89.999)
+    number(args.dense_step, "--dense-step", lo=0.001, hi=90)
+    number(args.sparse_step, "--sparse-step", lo=0.001, hi=90)
+    w, h = numbers(args.size, "--size", lo=24, hi=2 ** 20, integer=True)
+    number(args.full_well, "--full-well", lo=0, lo_open=True)
+    number(args.read_noise, "--read-noise", lo=0)
+    number(args.exposure, "--exposure", lo=0, lo_open=True, hi=3600)
+    number(args.fill, "--fill", lo=0, lo_open=True, hi=4)
+    number(args.tilt, "--tilt", lo=-89.999, hi=89.999)
+    number(args.jitter, "--jitter", lo=0, hi=90)
+    number(args.stray, "--stray", lo=0)
+    number(args.seed, "--seed", lo=0, hi=2 ** 32 - 1, integer=True)
+    # a frame lives as float64 model, black and DN planes plus the uint16 mosaic and its DNG buffer
+    require_memory(w * h * (4 * 8 + 3 * 2), "--size", f"a {w}×{h} frame", getattr(args, "max_memory", None))
 
 
 def simulate_add_arguments(p: argparse.ArgumentParser) -> None:
@@ -60,6 +84,10 @@ def simulate_run(args: argparse.Namespace) -> int:
     from jkatana.measure.goniometer import Sensor, simulate_campaign
     from jkatana.measure.protocol import Protocol
 
+    from jkatana.io.outputs import Output, check_outputs
+
+    _check_simulate(args)
+    check_outputs([Output(args.output, "--output", folder=True)])
     protocol = Protocol(**({"incidences_deg": tuple(args.incidences)} if args.incidences else {}),
                         dense_step_deg=args.dense_step, sparse_step_deg=args.sparse_step)
     params = dict(_kv(t) for t in args.params)
@@ -96,7 +124,21 @@ def measure_run(args: argparse.Namespace) -> int:
     from jkatana.measure.ingest import measure_to_file
     from jkatana.measure.manifest import read_manifest
 
+    from jkatana.io.limits import number
+    from jkatana.io.outputs import Output, check_outputs
+
+    number(args.workers, "--workers", lo=0, hi=256, integer=True)
+    if args.overlay is not None and args.plot is None:
+        from jkatana.errors import InputError
+        raise InputError("--overlay draws on the --plot; give --plot too", field="--overlay")
+    outputs = [Output(args.output, "--output", (".csv", ".parquet"))]
+    if args.plot is not None:
+        outputs.append(Output(args.plot, "--plot", (".png",)))
+        if args.overlay is not None:
+            outputs.append(Output(args.plot.with_name(args.plot.stem + "-residuals.png"), "--plot"))
+    check_outputs(outputs, inputs=[args.manifest, args.overlay])
     manifest = read_manifest(args.manifest)
+    check_outputs(outputs, inputs=[e.file for e in manifest.entries] + [e.dark for e in manifest.entries])
     with _progress(len(manifest), "measure", args.quiet, unit="row") as bar:
         table = measure_to_file(manifest, args.output, workers=args.workers or None,
                                 progress=bar.update)

@@ -164,10 +164,25 @@ def read_frame(path: str | Path, *, black_level: float | None = None,
         raise InputError("no such file", path=path)
     suffix = path.suffix.lower()
     if suffix in TIFF_SUFFIXES:
-        return _read_tiff(path, black_level, white_level)
-    if suffix in EXR_SUFFIXES:
-        return _read_exr(path, black_level, white_level)
-    return _read_raw(path, window)
+        frame = _read_tiff(path, black_level, white_level)
+    elif suffix in EXR_SUFFIXES:
+        frame = _read_exr(path, black_level, white_level)
+    else:
+        frame = _read_raw(path, window)
+    return _checked(frame, path)
+
+
+def _checked(frame: Frame, path: Path) -> Frame:
+    """Refuse levels that make x = (DN − black)/(white − black) meaningless: the white level must lie
+    above every black level, and both must be finite (white may be ``inf`` for EXR: no saturation)."""
+    black = np.asarray(frame.black, np.float64)
+    if not np.all(np.isfinite(black)) or math.isnan(frame.white):
+        raise InputError(f"black level {black.tolist()} / white level {frame.white} not finite", path=path)
+    if not frame.white > float(black.max()):
+        raise InputError(f"white level {frame.white:g} is not above the black level {float(black.max()):g}: "
+                         "the file's levels are inconsistent (or the manifest's black_level/white_level)",
+                         path=path)
+    return frame
 
 
 @dataclasses.dataclass(frozen=True)
@@ -215,6 +230,9 @@ def roi_stats(frame: Frame, rois, *, dark: Frame | None = None) -> RoiStats:
         what = (f"all {n_sat} green photosites in the ROI are saturated" if n_sat and n == 0
                 else f"the ROI holds {n} usable green photosite(s) ({n_sat} saturated); need at least 2")
         raise InputError(what)
+    if not np.all(np.isfinite(x)):
+        raise InputError(f"{int(np.count_nonzero(~np.isfinite(x)))} photosite(s) in the ROI are not finite "
+                         "(NaN or inf)")
     mean = float(x.mean())
     stderr = float(x.std(ddof=1) / math.sqrt(n))
     return RoiStats(mean=mean, stderr=stderr, n_pixels=n, n_saturated=n_sat)

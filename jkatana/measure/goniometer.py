@@ -203,6 +203,50 @@ def write_dng(path: str | Path, image: np.ndarray, *, black=(0, 0, 0, 0), white:
     return Path(path)
 
 
+#: The file beside the captures that records what produced them (``resume`` compares it).
+FINGERPRINT = ".simulation-inputs.json"
+
+
+def _jsonable(value):
+    """Inputs as JSON values; arrays (a custom light or camera) by their SHA-256."""
+    import hashlib
+
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if value is None or isinstance(value, (str, bool, int, float)):
+        return value
+    if isinstance(value, Path):
+        return str(value)
+    arr = np.ascontiguousarray(np.asarray(value, np.float64))
+    return {"array_sha256": hashlib.sha256(arr.tobytes()).hexdigest(), "shape": list(arr.shape)}
+
+
+def _fingerprint(**inputs) -> dict:
+    """Every input that changes a capture, the truth table or the manifest, as comparable JSON."""
+    return json.loads(json.dumps(_jsonable(inputs), sort_keys=True))
+
+
+def _check_resume(stamp: Path, raw_dir: Path, inputs: dict) -> None:
+    """Resume only captures made from the same inputs; say which inputs differ otherwise."""
+    if not stamp.is_file():
+        if raw_dir.is_dir() and any(raw_dir.glob("*.dng")):
+            raise InputError(f"cannot resume: {raw_dir} holds captures but no record of the inputs that made "
+                             f"them ({FINGERPRINT}); simulate again without --resume", path=stamp, field="resume")
+        return
+    try:
+        old = json.loads(stamp.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        raise InputError("cannot resume: the record of the inputs is unreadable; simulate again without "
+                         "--resume", path=stamp, field="resume") from None
+    changed = sorted(k for k in set(old) | set(inputs) if old.get(k) != inputs.get(k)) \
+        if isinstance(old, dict) else ["(all)"]
+    if changed:
+        raise InputError(f"cannot resume: the captures there were simulated with other {', '.join(changed)}; "
+                         "simulate again without --resume, or into another folder", path=stamp, field="resume")
+
+
 def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", "hamon"), params=None,
                       optical_constants: str = "Fe-Johnson", light="D65", camera=DEFAULT_CAMERA,
                       sensor: Sensor | None = None, exposure_s: float | None = None, fill: float = 0.5,
@@ -218,7 +262,8 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
     - `params`: None (paper's), or ``{"hiraji": {...}, "hamon": {...}}``.
     - `sensor`: a :class:`Sensor` (default 64×64, 16-bit, noiseless).
     - `exposure_s`: force one exposure for all captures (else auto, ``fill``).
-    - `resume`: keep DNG files already written (same seed ⇒ same frames).
+    - `resume`: keep DNG files already written; they were made from the same inputs (recorded in
+      ``.simulation-inputs.json`` before the first capture), else :class:`InputError` naming what changed.
     - `progress`: called with 1 after each capture.
 
     **Returns:** a dict with the paths and counts.
@@ -236,11 +281,29 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
         raise InputError(f"fill must be in (0, 4], got {fill}", field="fill")
     if not (math.isfinite(stray_floor) and stray_floor >= 0):
         raise InputError(f"stray-light floor must be finite and >= 0, got {stray_floor}", field="stray_floor")
+    if not (math.isfinite(tilt_deg) and abs(tilt_deg) < 90):
+        raise InputError(f"tilt must be finite and within ±90°, got {tilt_deg}", field="tilt_deg")
+    if not (math.isfinite(angle_jitter_deg) and 0 <= angle_jitter_deg <= 90):
+        raise InputError(f"angle jitter must be finite and in [0, 90]°, got {angle_jitter_deg}",
+                         field="angle_jitter_deg")
+    if exposure_s is not None and not (math.isfinite(exposure_s) and exposure_s > 0):
+        raise InputError(f"exposure must be finite and > 0 s, got {exposure_s}", field="exposure_s")
     params = params or {}
+    for r, ps in params.items():
+        for k, v in (ps or {}).items():
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
+                raise InputError(f"must be a finite number, got {v!r}", field=f"params.{r}.{k}")
     ti, tr = true_angles(pairs, tilt_deg=tilt_deg, angle_jitter_deg=angle_jitter_deg,
                          rng=np.random.default_rng([seed, 2 ** 31]))
     kw = dict(optical_constants=optical_constants, light=light, grid=grid)
     truth = {r: green_values(ti, tr, r, params.get(r), camera=camera, **kw) + stray_floor for r in regions}
+    for r in regions:
+        bad = ~np.isfinite(truth[r])
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(f"the {r} model gives a non-finite value at θi={pairs[i][0]:g}°, θr={pairs[i][1]:g}° "
+                             f"(true angles {float(ti[i]):g}°, {float(tr[i]):g}°); check the parameters and "
+                             "effects", field=f"params.{r}")
     ratios = {r: (np.ones(len(pairs)), np.ones(len(pairs))) for r in regions}
     if isinstance(camera, str):  # red and blue photosites through the same camera's own curves
         from jkatana.measure.camera import green_sensitivity
@@ -251,7 +314,16 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
             safe = np.where(truth[r] > 0, truth[r], 1.0)
             ratios[r] = tuple(np.where(truth[r] > 0, v / safe, 1.0) for v in rgb)
     raw_dir = out / "raw"
+    inputs = _fingerprint(pairs=[[float(a), float(b)] for a, b in pairs], regions=list(regions),
+                          params={r: params.get(r) for r in regions}, optical_constants=optical_constants,
+                          light=light, camera=camera, sensor=dataclasses.asdict(sensor), exposure_s=exposure_s,
+                          fill=fill, tilt_deg=tilt_deg, stray_floor=stray_floor,
+                          angle_jitter_deg=angle_jitter_deg, grid=grid.as_dict(), seed=seed)
+    stamp = out / FINGERPRINT
+    if resume:
+        _check_resume(stamp, raw_dir, inputs)
     raw_dir.mkdir(parents=True, exist_ok=True)
+    write_text(stamp, json.dumps(inputs, indent=2, sort_keys=True))
     rois = sensor.rois()
     n_green = {r: rois[r][2] * rois[r][3] // 2 for r in regions}
     manifest_rows, truth_rows = [], []

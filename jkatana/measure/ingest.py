@@ -92,6 +92,14 @@ def _raise(manifest: Manifest, error: tuple) -> None:
     raise InputError(message, path=manifest.path, row=row, field=field)
 
 
+def _leave_interrupts_to_parent() -> None:
+    """Decoding workers ignore SIGINT: a Ctrl-C reaches the whole process group, and the parent ends
+    the command cleanly (one line, workers terminated) instead of every worker printing a traceback."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def auto_workers(manifest: Manifest, *, min_bytes: int = 64 * 2**20) -> int:
     """2 decoding processes (or the usable cores, if fewer) when the captures total more
     than ``min_bytes``; else 1 — for small frames a process pool costs more than it saves
@@ -135,7 +143,8 @@ def measure(manifest: str | Path | Manifest, *, workers: int | None = None,
     else:
         # LibRaw is built with OpenMP: fork() after it is loaded can deadlock, so use forkserver.
         context = multiprocessing.get_context("forkserver")
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                                    initializer=_leave_interrupts_to_parent) as pool:
             chunk = max(1, min(32, len(jobs) // (4 * workers)))
             for entries, res in zip(jobs, pool.map(_measure_file, [manifest.path] * len(jobs), jobs,
                                                    chunksize=chunk)):

@@ -85,9 +85,13 @@ class Manifest:
 
 def resolve_inside(folder: Path, value: str, *, path, row, field) -> Path:
     """Resolve ``value`` against ``folder``; refuse anything that ends up outside it."""
-    value = str(value).strip()
+    if not isinstance(value, str):
+        raise InputError(f"must be a path (text), got {value!r}", path=path, row=row, field=field)
+    value = value.strip()
     if not value:
         raise InputError("empty path", path=path, row=row, field=field)
+    if "\x00" in value:
+        raise InputError("a path may not contain a NUL byte", path=path, row=row, field=field)
     root = folder.resolve()
     target = (root / value).resolve()
     try:
@@ -131,6 +135,8 @@ def parse_rois(value, *, path, row) -> tuple[tuple[int, int, int, int], ...]:
 def _number(value, *, path, row, field, positive=False, default=None):
     if value is None or (isinstance(value, str) and not value.strip()):
         return default
+    if isinstance(value, bool):  # TOML true/false: not a number
+        raise InputError(f"not a number: {value!r}", path=path, row=row, field=field)
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -160,6 +166,9 @@ def _records(path: Path) -> list[dict]:
     if not rows:
         raise InputError("empty manifest (no header)", path=path)
     header = [h.strip() for h in rows[0]]
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise InputError(f"the header names column(s) {dup} more than once", path=path, row=0, field=dup[0])
     records = []
     for i, r in enumerate(rows[1:], start=1):
         if len(r) != len(header):

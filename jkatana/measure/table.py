@@ -65,6 +65,8 @@ COLUMNS: dict[str, type] = {
 def check_angles(theta_i, theta_r, *, path=None, row=None) -> tuple[float, float]:
     """Validate one (θi, θr) pair in degrees: finite, 0 ≤ θi < 90, 0 ≤ θr < 90."""
     for name, v in (("theta_i_deg", theta_i), ("theta_r_deg", theta_r)):
+        if isinstance(v, bool):
+            raise InputError(f"not a number: {v!r}", path=path, row=row, field=name)
         try:
             v = float(v)
         except (TypeError, ValueError):
@@ -267,6 +269,9 @@ def read_table(path: str | Path) -> MeasurementTable:
         if not rows:
             raise InputError("empty table (no header)", path=path)
         header = [h.strip() for h in rows[0]]
+        dup = sorted({h for h in header if header.count(h) > 1})
+        if dup:
+            raise InputError(f"the header names column(s) {dup} more than once", path=path, row=0, field=dup[0])
         for i, r in enumerate(rows[1:]):
             if len(r) != len(header):
                 raise InputError(f"has {len(r)} fields, the header has {len(header)}", path=path, row=i + 1)

@@ -32,6 +32,47 @@ def _setup_devices(n: int | None = None) -> None:
         os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={max(1, n)}").strip()
 
 
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _check_common(args) -> None:
+    """``--samples`` and ``--devices`` in range (before JAX starts: XLA crashes on absurd device counts)."""
+    from jkatana.io.limits import number
+
+    number(args.samples, "--samples", lo=1, hi=2 ** 16, integer=True)
+    cores = _cores()
+    number(args.devices, "--devices", lo=1, hi=max(8, 4 * cores), integer=True)
+
+
+def check_render_memory(scene, *, samples=None, devices=None, max_memory=None) -> None:
+    """Refuse, naming the field that dominates, a frame whose estimated peak memory exceeds the budget.
+
+    The estimate counts the arrays a frame allocates: the G-buffer and film (per pixel ~40 float64
+    values, XYZ and, for spectral output, one float32 per band), the environment (float32 per texel
+    and band: radiance, its rotated or factored copy and the sampling tables), and one shading call
+    (``devices × chunk`` pixels × bands, ~16 float32 temporaries, plus ~32 bytes per sample).
+    """
+    from jkatana.io.limits import require_memory
+
+    w, h = scene.camera.resolution
+    bands = scene.spectral.grid.size
+    eh, ew = scene.environment.resolution or (16, 32)
+    samples = int(samples or scene.render.samples)
+    devices = int(devices or _cores())
+    parts = {
+        "camera.resolution": (w * h * (40 * 8 + 3 * 8 + (4 * bands if scene.output.spectral else 0)),
+                              f"a {w}×{h} frame"),
+        "environment.resolution": (eh * ew * bands * 4 * 3, f"a {eh}×{ew} environment with {bands} bands"),
+        "render.chunk": (devices * min(scene.render.chunk, w * h) * bands * 4 * 16,
+                         f"{devices} × {scene.render.chunk} pixels per shading call"),
+        "--samples": (devices * samples * 32, f"{samples} samples per pixel"),
+    }
+    total = sum(v for v, _ in parts.values())
+    field = max(parts, key=lambda k: parts[k][0])
+    require_memory(total, field, f"{parts[field][1]} (the whole frame)", max_memory)
+
+
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=("reference", "paper", "prefiltered", "lowrank"), default=None,
                    help="shading mode (default: the scene's)")
@@ -47,7 +88,13 @@ def demo_add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def demo_run(args: argparse.Namespace) -> int:
+    from jkatana.io.limits import numbers
+    from jkatana.io.outputs import Output, check_outputs
+
     t_start = time.perf_counter()
+    _check_common(args)
+    numbers(args.resolution, "--resolution", lo=1, hi=2 ** 15, integer=True)
+    check_outputs([Output(args.output, "--output", folder=True)])
     _setup_devices(args.devices)
     from jkatana.render.scene import DEMO_SCENE, scene_from_dict
 
@@ -56,6 +103,7 @@ def demo_run(args: argparse.Namespace) -> int:
     if args.resolution:
         raw["camera"] = {**raw["camera"], "resolution": list(args.resolution)}
     scene = scene_from_dict(raw)
+    check_render_memory(scene, samples=args.samples, devices=args.devices, max_memory=args.max_memory)
     from jkatana.render.renderer import prepare, render_view, write_outputs
 
     t0 = time.perf_counter()
@@ -92,16 +140,29 @@ def render_add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def render_run(args: argparse.Namespace) -> int:
+    from jkatana.io.limits import number
+    from jkatana.io.outputs import Output, check_outputs
+
+    _check_common(args)
+    number(args.views, "--views", lo=1, hi=100000, integer=True)
+    number(args.lights, "--lights", lo=1, hi=100000, integer=True)
+    number(args.workers, "--workers", lo=1, hi=max(8, 4 * _cores()), integer=True)
+    if args.scheduler is not None and ("\x00" in args.scheduler or not args.scheduler.strip()):
+        from jkatana.errors import InputError
+        raise InputError(f"not a scheduler address: {args.scheduler!r}", field="--scheduler")
     _setup_devices(args.devices)
-    from jkatana.errors import InputError
     from jkatana.render.batch import plan_batch, run_batch_dask, run_batch_serial, summary_table
     from jkatana.render.scene import load_scene
 
-    if args.views < 1 or args.lights < 1:
-        raise InputError("--views and --lights must be ≥ 1", field="--views" if args.views < 1 else "--lights")
     scene = load_scene(args.scene)
     if args.output:
         scene = scene.with_output_directory(args.output)
+    name = str(scene.output.name)
+    if name in ("", ".", "..") or "/" in name or "\x00" in name:
+        from jkatana.errors import InputError
+        raise InputError(f"not a file name: {name!r}", path=args.scene, field="output.name")
+    check_outputs([Output(scene.output.directory, "--output", folder=True)], inputs=[args.scene])
+    check_render_memory(scene, samples=args.samples, devices=args.devices, max_memory=args.max_memory)
     jobs = plan_batch(scene, args.views, args.lights)
     if args.dask or args.scheduler:
         results = run_batch_dask(args.scene, scene, jobs, mode=args.mode, samples=args.samples,

@@ -39,6 +39,24 @@ def shape_run(args: argparse.Namespace) -> int:
                                            surface_error)
     from jkatana.shape.scans import merge, read_scan, register_sections, simulate_scans
 
+    from jkatana.io.limits import number, numbers, require_memory
+    from jkatana.io.outputs import Output, check_outputs
+
+    sw, sh = numbers(args.scan_resolution, "--scan-resolution", lo=8, hi=2 ** 16, integer=True)
+    number(args.seed, "--seed", lo=0, hi=2 ** 32 - 1, integer=True)
+    number(args.degree, "--degree", lo=1, hi=7, integer=True)
+    pa, pc = numbers(args.patches, "--patches", lo=1, hi=4096, integer=True)
+    number(args.smoothness, "--smoothness", lo=0)
+    number(args.max_points, "--max-points", lo=16, hi=2 ** 31, integer=True)
+    budget = getattr(args, "max_memory", None)
+    if args.simulate:
+        # about 40 sections (both faces), each a W×H range image → points (float64 xyz, with copies)
+        require_memory(40 * sw * sh * 3 * 8 * 4, "--scan-resolution", f"simulated {sw}×{sh} scans", budget)
+    n_ctrl = (pa * args.degree + 1) * (pc * args.degree + 1)
+    # per fitted point its (degree+1)² Bernstein weights and indices; per control point the CG vectors
+    require_memory(args.max_points * (args.degree + 1) ** 2 * 16 + n_ctrl * 8 * 32, "--patches",
+                   f"{pa}×{pc} patches of degree {args.degree} fitted to {args.max_points} points", budget)
+    check_outputs([Output(args.output, "--output", (".ply", ".glb", ".obj"))], inputs=args.scans)
     if args.blade:
         export_blade(default_blade(), args.output)
         print(f"wrote {args.output}", file=sys.stderr)

@@ -86,8 +86,13 @@ def read_yaml(path: str | Path, *, formula_samples: int = 401) -> OpticalTable:
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise InputError("file not found", path=path) from None
-    except yaml.YAMLError as err:
-        raise InputError(f"not valid YAML: {err}", path=path) from None
+    except UnicodeDecodeError:
+        raise InputError("not UTF-8 text (a YAML file is)", path=path) from None
+    except yaml.YAMLError as err:  # one line: the problem and where, not PyYAML's multi-line excerpt
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise InputError(f"not valid YAML ({getattr(err, 'problem', None) or type(err).__name__}{where})",
+                         path=path) from None
     if not isinstance(doc, dict) or "DATA" not in doc:
         raise InputError("no DATA section (not a refractiveindex.info file?)", path=path)
     n_part = k_part = None

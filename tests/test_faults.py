@@ -1,0 +1,572 @@
+"""The fault harness: every class of bad input gives one line and exit 2, or a correct output; nothing is lost.
+
+Classes (each with at least one case here, on tiny inputs): output paths (unwritable folder, parent is a
+file, target is a folder, ``..``, an input as output, wrong extension, two outputs in one file), file
+permissions, checked CLI numbers, memory-bounded sizes (refused under 1 GB), malformed inputs (duplicate
+columns, booleans as numbers, NUL bytes, non-UTF-8 text, corrupt images, header-only HDR, inconsistent
+RAW levels), no NaN written, resume with changed inputs (simulate, render), parameter files between
+commands, unreachable scheduler, interrupts (SIGINT/SIGTERM: exit 130/143, one line, nothing partial,
+rerun resumes). Most cases call :func:`jkatana.cli.main` in-process: they fail before any work starts.
+Interrupts need a real process; the 20-interrupt runs are ``slow``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import stat
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jkatana.cli import main
+from jkatana.errors import InputError
+
+ROOT = Path(__file__).resolve().parents[1]
+CLI = [sys.executable, "-m", "jkatana.cli"]
+
+SCENE = """
+[geometry]
+sphere = {radius = 1.0}
+[material]
+w = 0.5
+mu0 = 0.05
+mu1 = 0.1
+[environment]
+type = "sky"
+resolution = [16, 32]
+[camera]
+type = "orbit"
+target = [0, 0, 0]
+distance = 4.0
+elevation_deg = 10
+fov_deg = 35
+resolution = [%d, %d]
+[spectral]
+start = 400.0
+stop = 700.0
+step = 20.0
+[render]
+samples = %d
+[output]
+directory = "out"
+name = "f"
+"""
+
+
+def _env():
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
+    return env
+
+
+def run(argv, capsys) -> tuple[int, str, str]:
+    rc = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def one_line(rc: int, err: str, *needles: str) -> str:
+    """Exit 2 and exactly one non-empty stderr line that names each of ``needles``."""
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert rc == 2, (rc, err)
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+    return lines[0]
+
+
+def no_temporaries(folder: Path) -> None:
+    left = [p for p in folder.rglob(".*") if p.is_file() and not p.name.endswith(".inputs.json")
+            and p.name != ".simulation-inputs.json"]
+    assert not left, left
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    """A tiny simulated campaign (2 incidences, 24×24 frames) and its measured table."""
+    from jkatana.measure.goniometer import Sensor, simulate_campaign
+    from jkatana.measure.ingest import measure_to_file
+    from jkatana.measure.protocol import Protocol
+
+    out = tmp_path_factory.mktemp("campaign")
+    simulate_campaign(out, Protocol(incidences_deg=(25.0, 45.0), dense_step_deg=5.0, sparse_step_deg=10.0),
+                      sensor=Sensor(width=24, height=24), seed=1)
+    measure_to_file(out / "manifest.csv", out / "table.csv", workers=1)
+    return out
+
+
+# ---------------------------------------------------------------- output paths, data loss, permissions
+
+@pytest.mark.parametrize("argv, needle", [
+    (["light", "build", "-o", "sky.png"], "--output"),            # the preview would overwrite the EXR
+    (["light", "build", "-o", "/proc/sky.exr"], "not writable"),  # unwritable folder (also for root)
+    (["light", "build", "-o", "afile/sky.exr"], "is a file"),     # parent is a file
+    (["light", "build", "-o", "adir"], "is a folder"),            # target is a folder
+    (["light", "build", "-o", ".."], "--output"),                 # no hidden '...exr'
+    (["map", "--default", "-o", "m.png"], ".exr"),                # extension of what is written
+    (["shape", "--blade", "-o", "afile/b.ply"], "is a file"),
+    (["demo", "-o", "afile"], "not a folder"),
+    (["view", "-o", "afile"], "not a folder"),
+    (["simulate", "-o", "afile"], "not a folder"),
+    (["light", "prefilter", "env.exr", "-o", "p", "--mus", "0.1", "0.1"], "two outputs"),
+])
+def test_output_path_refused_before_work(argv, needle, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "adir").mkdir()
+    rc, _, err = run(argv, capsys)
+    one_line(rc, err, needle)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "afile"]  # nothing written
+
+
+def test_outputs_never_overwrite_inputs(campaign, tmp_path, capsys):
+    before = {p: p.read_bytes() for p in (campaign / "manifest.csv", campaign / "table.csv")}
+    rc, _, err = run(["measure", campaign / "manifest.csv", "-o", campaign / "manifest.csv", "--quiet"], capsys)
+    one_line(rc, err, "inputs")
+    rc, _, err = run(["measure", campaign / "manifest.csv", "-o", tmp_path / "t.csv", "--plot",
+                      campaign / "raw" / "i25.0_r10.0.dng", "--quiet"], capsys)
+    one_line(rc, err, "--plot")
+    rc, _, err = run(["fit", campaign / "table.csv", "-o", campaign / "table.json", "--seed", "-1"], capsys)
+    one_line(rc, err, "--seed")
+    rc, _, err = run(["light", "convert", campaign / "table.csv", "-o", campaign / "table.csv"], capsys)
+    one_line(rc, err)
+    assert {p: p.read_bytes() for p in before} == before
+
+
+def test_outputs_get_the_umask_permissions(tmp_path):
+    from jkatana.io import atomic
+    from jkatana.io.atomic import write_text
+
+    old = os.umask(0o022)
+    atomic._UMASK = None
+    try:
+        p = tmp_path / "a.txt"
+        p.write_text("old")
+        os.chmod(p, 0o600)
+        write_text(p, "new")  # an overwrite gets the umask's mode, not the temporary's 0600
+        assert stat.S_IMODE(p.stat().st_mode) == 0o644
+        os.umask(0o077)
+        atomic._UMASK = None
+        write_text(tmp_path / "b.txt", "x")
+        assert stat.S_IMODE((tmp_path / "b.txt").stat().st_mode) == 0o600
+    finally:
+        os.umask(old)
+        atomic._UMASK = None
+    assert not list(tmp_path.glob(".*"))
+
+
+# ---------------------------------------------------------------- checked numbers
+
+@pytest.mark.parametrize("argv, field", [
+    (["simulate", "-o", "s", "--exposure", "-1"], "--exposure"),
+    (["simulate", "-o", "s", "--exposure", "nan"], "--exposure"),
+    (["simulate", "-o", "s", "--exposure", "inf"], "--exposure"),
+    (["simulate", "-o", "s", "--jitter", "-1"], "--jitter"),
+    (["simulate", "-o", "s", "--tilt", "nan"], "--tilt"),
+    (["simulate", "-o", "s", "--seed", "-1"], "--seed"),
+    (["simulate", "-o", "s", "--params", "hiraji:chi=nan"], "--params"),
+    (["fit", "t.csv", "-o", "f.json", "--seed", "-1"], "--seed"),
+    (["light", "build", "-o", "s.exr", "--azimuth", "inf"], "--azimuth"),
+    (["light", "build", "-o", "s.exr", "--grid", "700", "400", "5"], "--grid"),
+    (["light", "convert", "x.hdr", "-o", "s.exr", "--scale", "nan"], "--scale"),
+    (["light", "convert", "x.hdr", "-o", "s.exr", "--scale", "-1"], "--scale"),
+    (["light", "prefilter", "x.exr", "-o", "p", "--mus", "nan"], "--mus"),
+    (["shape", "--simulate", "-o", "b.ply", "--max-points", "-1"], "--max-points"),
+    (["shape", "--simulate", "-o", "b.ply", "--patches", "100000", "6"], "--patches"),
+    (["map", "--default", "-o", "m.exr", "--resolution", "-4", "16"], "--resolution"),
+    (["map", "photo.png", "-o", "m.exr", "--aspect", "0"], "--aspect"),
+    (["render", "scene.toml", "--samples", "-4"], "--samples"),
+    (["render", "scene.toml", "--samples", "0"], "--samples"),   # not "the scene's count"
+    (["render", "scene.toml", "--samples", "1000000000"], "--samples"),
+    (["render", "scene.toml", "--devices", "100000"], "--devices"),
+    (["render", "scene.toml", "--dask", "--workers", "0"], "--workers"),
+    (["demo", "-o", "d", "--samples", "-4"], "--samples"),
+    (["view", "--resolution", "0", "0"], "--resolution"),
+    (["view", "--msaa", "-1"], "--msaa"),
+    (["measure", "m.csv", "-o", "t.csv", "--workers", "-2"], "--workers"),
+])
+def test_cli_numbers_checked_in_one_line(argv, field, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    t0 = time.perf_counter()
+    rc, _, err = run(argv, capsys)
+    one_line(rc, err, field)
+    assert time.perf_counter() - t0 < 30
+    assert not any(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------- memory-bounded sizes
+
+MEMORY_CASES = [
+    (["simulate", "-o", "s", "--size", "100000", "100000"], "--size"),
+    (["light", "build", "-o", "s.exr", "--resolution", "100000", "100000"], "--resolution"),
+    (["light", "build", "-o", "s.exr", "--grid", "400", "700", "0.001"], "--grid"),
+    (["shape", "--simulate", "-o", "b.ply", "--scan-resolution", "60000", "60000"], "--scan-resolution"),
+    (["map", "--default", "-o", "m.exr", "--resolution", "60000", "60000"], "--resolution"),
+    (["demo", "-o", "d", "--resolution", "8000", "8000", "--max-memory", "2G"], "camera.resolution"),
+    (["view", "--resolution", "16000", "16000", "--msaa", "16"], "--resolution"),
+    (["map", "--default", "-o", "m.exr", "--max-memory", "1M"], "--max-memory"),
+]
+
+
+@pytest.mark.parametrize("argv, field", MEMORY_CASES)
+def test_oversized_requests_refused_naming_field_and_estimate(argv, field, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    rc, _, err = run(argv, capsys)
+    line = one_line(rc, err, field, "needs about")
+    assert "iB" in line
+    assert not any(tmp_path.iterdir())
+
+
+def test_refused_requests_stay_under_1_gb(tmp_path):
+    """All oversized requests in one process: its peak resident memory stays under 1 GB."""
+    code = textwrap.dedent(f"""
+        import resource, sys
+        from jkatana.cli import main
+        cases = {[c[0] for c in MEMORY_CASES]!r}
+        codes = [main(a) for a in cases]
+        print(codes, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
+    """)
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=_env(), capture_output=True, text=True,
+                       timeout=300)
+    codes, peak = r.stdout.strip().rsplit(" ", 1)[0], int(r.stdout.strip().rsplit(" ", 1)[1])
+    assert codes == str([2] * len(MEMORY_CASES)), r.stderr
+    assert peak < 1e9, peak
+    assert "Traceback" not in r.stderr
+
+
+# ---------------------------------------------------------------- malformed inputs
+
+def _manifest(campaign: Path, folder: Path, header: str, row: str) -> Path:
+    import shutil
+
+    shutil.copytree(campaign / "raw", folder / "raw", dirs_exist_ok=True)
+    p = folder / "m.csv"
+    p.write_text(header + "\n" + row + "\n")
+    return p
+
+
+def test_duplicate_manifest_and_table_columns_refused(campaign, tmp_path, capsys):
+    m = _manifest(campaign, tmp_path, "file,region,theta_i_deg,theta_r_deg,roi,roi",
+                  "raw/i25.0_r10.0.dng,hiraji,25,10,2 2 8 8,12 2 8 8")
+    rc, _, err = run(["measure", m, "-o", tmp_path / "t.csv", "--quiet"], capsys)
+    one_line(rc, err, "'roi'", "more than once")
+    t = tmp_path / "dup.csv"
+    text = (campaign / "table.csv").read_text().splitlines()
+    t.write_text("\n".join([text[0] + ",value"] + [r + ",1" for r in text[1:]]) + "\n")
+    rc, _, err = run(["fit", t, "-o", tmp_path / "f.json"], capsys)
+    one_line(rc, err, "'value'")
+    assert not (tmp_path / "t.csv").exists() and not (tmp_path / "f.json").exists()
+
+
+def test_toml_boolean_is_not_a_number_and_nul_path_refused(campaign, tmp_path, capsys):
+    import shutil
+
+    shutil.copytree(campaign / "raw", tmp_path / "raw")
+    (tmp_path / "m.toml").write_text(textwrap.dedent("""
+        [[capture]]
+        file = "raw/i25.0_r10.0.dng"
+        region = "hiraji"
+        theta_i_deg = 25
+        theta_r_deg = 10
+        roi = [[2, 2, 8, 8]]
+        exposure_s = true
+    """))
+    rc, _, err = run(["measure", tmp_path / "m.toml", "-o", tmp_path / "t.csv", "--quiet"], capsys)
+    one_line(rc, err, "exposure_s", "not a number")
+    m = _manifest(campaign, tmp_path, "file,region,theta_i_deg,theta_r_deg,roi",
+                  "raw/i25.0\x00_r10.0.dng,hiraji,25,10,2 2 8 8")
+    rc, _, err = run(["measure", m, "-o", tmp_path / "t.csv", "--quiet"], capsys)
+    one_line(rc, err, "NUL")
+
+
+def test_non_utf8_json_and_yaml_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "p.json").write_bytes(b'\xff\xfe{"format": 1}')
+    rc, _, err = run(["report", "p.json", "-o", "rep"], capsys)
+    one_line(rc, err, "p.json", "UTF-8")
+    rc, _, err = run(["map", "photo.exr", "-o", "m.exr", "--hiraji", "p.json"], capsys)
+    one_line(rc, err)
+    (tmp_path / "n.yml").write_bytes(b"\xff\xfedata: [1, 2\n")
+    (tmp_path / "bad.yml").write_text("data: [1, 2\n  - x: :\n")
+    for name in ("n.yml", "bad.yml"):
+        rc, _, err = run(["simulate", "-o", "s", "--optical-constants", name, "--incidences", "25", "--size", "24",
+                          "24", "--quiet"], capsys)
+        one_line(rc, err, name)
+
+
+def test_corrupt_png_and_header_only_hdr_refused(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "photo.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 40)
+    rc, _, err = run(["map", "photo.png", "-o", "m.exr"], capsys)
+    one_line(rc, err, "photo.png", "PNG")
+    (tmp_path / "h.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 16 +X 32\n")
+    rc, _, err = run(["light", "convert", "h.hdr", "-o", "s.exr", "--grid", "400", "700", "50"], capsys)
+    one_line(rc, err, "h.hdr")
+    assert not (tmp_path / "s.exr").exists() and not (tmp_path / "m.exr").exists()
+
+
+def test_raw_white_level_below_black_level_refused(tmp_path, capsys):
+    from jkatana.measure.goniometer import write_dng
+
+    img = np.full((24, 24), 4095, np.uint16)
+    write_dng(tmp_path / "c.dng", img, black=(4096,) * 4, white=4095, exposure_s=0.01)
+    (tmp_path / "m.csv").write_text("file,region,theta_i_deg,theta_r_deg,roi\nc.dng,hiraji,25,20,2 2 8 8\n")
+    rc, _, err = run(["measure", tmp_path / "m.csv", "-o", tmp_path / "t.csv", "--quiet"], capsys)
+    one_line(rc, err, "white level", "black level")
+
+
+def test_non_utf8_file_name_is_read(tmp_path, capsys):
+    from jkatana.io.exr import read_exr, write_exr
+
+    name = tmp_path / os.fsdecode(b"env\xff.exr")
+    write_exr(name, {c: np.ones((8, 16)) for c in "RGB"})
+    assert sorted(read_exr(name)[0]) == ["B", "G", "R"]
+
+
+# ---------------------------------------------------------------- nothing non-finite written
+
+def test_no_nan_written(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    from jkatana.measure.goniometer import Sensor, simulate_campaign
+
+    for kw, field in ((dict(tilt_deg=float("nan")), "tilt"), (dict(angle_jitter_deg=float("nan")), "jitter"),
+                      (dict(params={"hiraji": {"chi": float("nan"), "mu": 0.05}}), "chi")):
+        with pytest.raises(InputError, match=field):
+            simulate_campaign(tmp_path / "s", [(25.0, 25.0)], sensor=Sensor(width=24, height=24), **kw)
+    assert not (tmp_path / "s" / "truth.csv").exists()
+    rc, _, err = run(["light", "build", "-o", "s.exr", "--resolution", "4", "8", "--grid", "400", "700", "50"],
+                     capsys)
+    assert rc == 0
+    rc, _, err = run(["light", "prefilter", "s.exr", "-o", "p", "--mus", "nan", "--grid", "400", "700", "50"], capsys)
+    one_line(rc, err, "--mus")
+    assert not list(tmp_path.glob("p_*"))
+
+
+def test_fit_refuses_unusable_tables(campaign, tmp_path, capsys):
+    lines = (campaign / "table.csv").read_text().splitlines()
+    (tmp_path / "one.csv").write_text("\n".join(lines[:2]) + "\n")
+    rc, _, err = run(["fit", tmp_path / "one.csv", "-o", tmp_path / "f.json"], capsys)
+    one_line(rc, err, "usable row")
+    header = lines[0].split(",")
+    iv = header.index("value")
+    rows = [r.split(",") for r in lines[1:]]
+    for r in rows:
+        r[iv] = "1e308"
+    (tmp_path / "big.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    rc, _, err = run(["fit", tmp_path / "big.csv", "--region", "hiraji", "-o", tmp_path / "f.json"], capsys)
+    one_line(rc, err, "1e150")
+
+
+# ---------------------------------------------------------------- resume means same inputs
+
+def test_simulate_resume_with_other_inputs_refused(tmp_path, capsys):
+    base = ["simulate", "-o", tmp_path / "s", "--incidences", "25", "--dense-step", "5", "--sparse-step", "20",
+            "--size", "24", "24", "--regions", "hiraji", "--quiet"]
+    assert run(base, capsys)[0] == 0
+    truth = (tmp_path / "s" / "truth.csv").read_bytes()
+    assert run(base + ["--resume"], capsys)[0] == 0
+    rc, _, err = run(base + ["--resume", "--params", "hiraji:chi=50000,mu=0.05"], capsys)
+    one_line(rc, err, "params", "--resume")
+    assert (tmp_path / "s" / "truth.csv").read_bytes() == truth
+
+
+def test_render_resume_with_other_scene_refused(tmp_path):
+    from jkatana.render.batch import _record, finished, plan_batch, plan_resume, scene_inputs
+    from jkatana.render.scene import load_scene
+
+    (tmp_path / "scene.toml").write_text(SCENE % (48, 32, 4))
+    scene = load_scene(tmp_path / "scene.toml")
+    jobs = plan_batch(scene, 2, 1)
+    inputs = scene_inputs(scene)
+    for j in jobs:  # frames "finished" from these inputs
+        for suffix in (".png", ".exr"):
+            Path(j.stem).with_suffix(suffix).parent.mkdir(parents=True, exist_ok=True)
+            Path(j.stem).with_suffix(suffix).write_bytes(b"x")
+        _record(j, inputs)
+    assert all(finished(j) for j in jobs)
+    todo, skipped = plan_resume(jobs, scene_inputs(scene))
+    assert todo == [] and len(skipped) == 2
+    (tmp_path / "scene.toml").write_text(SCENE % (64, 40, 8))
+    changed = load_scene(tmp_path / "scene.toml")
+    with pytest.raises(InputError, match=r"camera\.resolution.*samples|samples.*camera\.resolution"):
+        plan_resume(plan_batch(changed, 2, 1), scene_inputs(changed))
+    with pytest.raises(InputError, match="samples"):  # a command-line override counts as well
+        plan_resume(jobs, scene_inputs(scene, samples=16))
+    assert len(plan_resume(jobs, scene_inputs(changed), force=True)[0]) == 2
+
+
+def test_unreachable_scheduler_refused_in_time(tmp_path):
+    from jkatana.render.batch import plan_batch, run_batch_dask
+    from jkatana.render.scene import load_scene
+
+    (tmp_path / "scene.toml").write_text(SCENE % (8, 8, 1))
+    scene = load_scene(tmp_path / "scene.toml").with_output_directory(tmp_path / "out")
+    t0 = time.perf_counter()
+    with pytest.raises(InputError, match="--scheduler"):
+        run_batch_dask(tmp_path / "scene.toml", scene, plan_batch(scene, 1, 1), scheduler="tcp://127.0.0.1:9",
+                       connect_timeout=2.0)
+    assert time.perf_counter() - t0 < 60
+
+
+# ---------------------------------------------------------------- scene fields (typed scene)
+
+@pytest.mark.parametrize("old, new, field", [
+    ('name = "f"\n', 'name = "f"\nspectral = "false"\n', "output.spectral"),
+    ('name = "f"\n', 'name = ".."\n', "output.name"),
+    ('resolution = [16, 32]\n', 'resolution = [16, 32]\nsun = "false"\n', "environment.sun"),
+    ('samples = 1\n', 'samples = 1\nmode = "lowrank"\nrank = 64\n', "render.rank"),
+])
+def test_scene_fields_one_line(old, new, field, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    text = (SCENE % (8, 8, 1))
+    assert old in text
+    text = text.replace(old, new)
+    (tmp_path / "scene.toml").write_text(text)
+    rc, _, err = run(["render", "scene.toml"], capsys)
+    one_line(rc, err, field)
+    assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------- parameter files flow between commands
+
+def test_map_and_report_accept_a_fit_parameter_file(tmp_path, capsys):
+    from jkatana.fit.params import FORMAT, read_params
+    from jkatana.maps.photo import load_region_parameters
+
+    d = {"format": FORMAT, "region": "hiraji", "model": "hiraji", "values": {"chi": 79000.0, "mu": 0.05},
+         "laplace": {"ci95": {}}, "optical_constants": "Fe-Johnson", "converged": True,
+         "diagnostics": {"chi2_dof": 1.0}}
+    p = tmp_path / "hiraji.json"
+    p.write_text(json.dumps(d))
+    read_params(p)  # a valid fit parameter file
+    assert load_region_parameters(p, "hiraji") == {"chi": 79000.0, "mu0": 0.05}
+    with pytest.raises(InputError, match="hamon"):
+        load_region_parameters(p, "hamon")
+    del d["diagnostics"]
+    p.write_text(json.dumps(d))
+    rc, _, err = run(["report", p, "-o", tmp_path / "rep"], capsys)
+    one_line(rc, err, "diagnostics")
+
+
+@pytest.mark.slow
+def test_fit_output_feeds_map_and_report(campaign, tmp_path):
+    r = subprocess.run(CLI + ["fit", campaign / "table.csv", "--region", "hiraji", "-o", tmp_path / "h.json"],
+                       env=_env(), capture_output=True, text=True, timeout=600)
+    assert r.returncode in (0, 1), r.stderr
+    (tmp_path / "photo.exr").parent.mkdir(exist_ok=True)
+    from jkatana.io.exr import write_exr
+
+    y = np.tile(np.linspace(0.1, 1.0, 64), (16, 1))
+    write_exr(tmp_path / "photo.exr", {"Y": y})
+    r = subprocess.run(CLI + ["map", tmp_path / "photo.exr", "-o", tmp_path / "m.exr", "--resolution", "8", "32",
+                              "--hiraji", tmp_path / "h.json"], env=_env(), capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run(CLI + ["report", tmp_path / "h.json", "-o", tmp_path / "rep"], env=_env(),
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "rep" / "report.md").is_file()
+
+
+# ---------------------------------------------------------------- interrupts
+
+def _interrupt(argv, cwd: Path, after: float, sig=signal.SIGINT, timeout: float = 300, when=None):
+    """Start ``jkatana argv``; send ``sig`` after ``after`` s, or as soon as ``when()`` is true (checked
+    every 10 ms, at most ``after`` s), if it is still running; return (rc, stderr)."""
+    proc = subprocess.Popen(CLI + [str(a) for a in argv], cwd=cwd, env=_env(), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + after
+    while proc.poll() is None and time.monotonic() < deadline and not (when is not None and when()):
+        time.sleep(0.01)
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    _, err = proc.communicate(timeout=timeout)
+    return proc.returncode, err
+
+
+def _clean_interrupt(rc, err, sig=signal.SIGINT):
+    assert rc == 128 + sig, (rc, err)
+    assert "Traceback" not in err and "Segmentation" not in err
+    last = [ln for ln in err.replace("\r", "\n").splitlines() if ln.strip()][-1]
+    assert "interrupted" in last
+
+
+def test_sigint_during_fit_emcee_exits_130_without_output(campaign, tmp_path):
+    rc, err = _interrupt(["fit", campaign / "table.csv", "--region", "hiraji", "-o", tmp_path / "f.json",
+                          "--emcee"], tmp_path, after=6.0)
+    _clean_interrupt(rc, err)   # fit + emcee takes far longer than 6 s
+    assert not (tmp_path / "f.json").exists()
+    no_temporaries(tmp_path)
+
+
+def test_sigterm_during_simulate_exits_143_and_resume_completes(tmp_path):
+    argv = ["simulate", "-o", tmp_path / "s", "--incidences", "15", "25", "35", "45", "--dense-step", "0.5",
+            "--sparse-step", "5", "--size", "24", "24", "--quiet"]
+    raw = tmp_path / "s" / "raw"
+    rc, err = _interrupt(argv, tmp_path, after=120.0, sig=signal.SIGTERM,
+                         when=lambda: raw.is_dir() and len(list(raw.glob("*.dng"))) >= 3)
+    _clean_interrupt(rc, err, signal.SIGTERM)   # mid-campaign: 3 of ~400 captures written
+    assert not (tmp_path / "s" / "manifest.csv").exists()
+    no_temporaries(tmp_path)
+    kept = {p.name: p.stat().st_mtime_ns for p in raw.glob("*.dng")}
+    r = subprocess.run(CLI + [str(a) for a in argv + ["--resume"]], cwd=tmp_path, env=_env(), capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "s" / "manifest.csv").is_file()
+    assert {n: (raw / n).stat().st_mtime_ns for n in kept} == kept   # resumed: finished captures kept
+
+
+@pytest.mark.slow
+def test_twenty_interrupts_at_random_moments(campaign, tmp_path):
+    """20 interrupts over `fit --emcee`, `measure` and `render --views 4`: every one exits 130 with one line
+    (or the command had already finished), leaves no partial output, and a rerun resumes to completion."""
+    import shutil
+
+    rng = random.Random(17)
+    # a campaign large enough that `measure` takes seconds
+    big = tmp_path / "big"
+    r = subprocess.run(CLI + ["simulate", "-o", big, "--size", "256", "256", "--quiet"], env=_env(),
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    (tmp_path / "scene.toml").write_text(SCENE % (48, 32, 16))
+    kinds = ["fit", "measure", "render"]
+    moments = {"fit": (1.0, 10.0), "measure": (0.5, 4.0), "render": (1.0, 15.0)}  # within each one's run time
+    landed = 0
+    for k in range(20):
+        kind = kinds[k % 3]
+        work = tmp_path / f"run{k}"
+        work.mkdir()
+        if kind == "fit":
+            argv = ["fit", campaign / "table.csv", "--region", "hiraji", "-o", work / "f.json", "--emcee"]
+            out = [work / "f.json"]
+        elif kind == "measure":
+            argv = ["measure", big / "manifest.csv", "-o", work / "t.csv", "--quiet"]
+            out = [work / "t.csv"]
+        else:
+            shutil.copy(tmp_path / "scene.toml", work / "scene.toml")
+            argv = ["render", work / "scene.toml", "--views", "4", "-o", work / "out"]
+            out = []
+        rc, err = _interrupt(argv, work, after=rng.uniform(*moments[kind]))
+        if rc != 0:
+            _clean_interrupt(rc, err)
+            landed += 1
+            for p in out:
+                assert not p.exists()
+        no_temporaries(work)
+        r = subprocess.run(CLI + [str(a) for a in argv], cwd=work, env=_env(), capture_output=True, text=True,
+                           timeout=900)
+        assert r.returncode in (0, 1), r.stderr  # fit: 1 = finished, not converged
+        for p in out:
+            assert p.is_file()
+        if kind == "render":
+            assert len([p for p in (work / "out").glob("*.png") if not p.name.startswith(".")]) == 4
+    assert landed >= 15, landed   # most interrupts came mid-run
