@@ -142,7 +142,7 @@ def run(quick: bool) -> list[dict]:
                 err = _de(ref, f, mask)
                 label = f"{mode} {spp} spp" if mode != "prefiltered" else "prefiltered"
                 if mode == "lowrank":
-                    label += f" (rank {scene.render['rank']})"
+                    label += f" (rank {scene.render.rank})"
                 rows.append(record(BENCH, {"scene": scene_name, "mode": mode, "samples": spp},
                                    study=study, variant=label, time_s=t, error=err, error_metric="dE2000_mean",
                                    reference=f"reference mode {ref_spp} spp, other seed", tolerance=1.0,

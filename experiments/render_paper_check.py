@@ -77,7 +77,7 @@ def regions(prep, rmap) -> tuple[np.ndarray, np.ndarray]:
 
 
 def stats(prep, frame, exposure, rmap) -> dict:
-    rgb = display(frame.xyz, prep.scene.film["colourspace"], prep.scene.film["transfer"], exposure=exposure)
+    rgb = display(frame.xyz, prep.scene.film.colourspace, prep.scene.film.transfer, exposure=exposure)
     luma = rgb @ np.array([0.2126, 0.7152, 0.0722])
     ji, ha = regions(prep, rmap)
     Y = frame.xyz[..., 1]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+import tomllib
 
 import jax
 import jax.numpy as jnp
@@ -272,7 +273,7 @@ def test_scene_roundtrip_and_outputs(tmp_path):
     assert np.allclose(ch["Y"], frame.xyz[..., 1])
     assert hdr["jkatana_samples"] == 4 and hdr["jkatana_mode"] == "reference"
     assert "shade_s" in json.loads(hdr["jkatana_timing"])
-    assert json.loads(hdr["jkatana_scene"])["render"]["samples"] == 4
+    assert scene_from_dict(tomllib.loads(hdr["jkatana_scene"]), scene.path) == scene  # the scene as TOML
     from PIL import Image
 
     im = Image.open(paths["png"])
@@ -317,6 +318,62 @@ def test_bad_scene_gives_one_clear_error(tmp_path, text, field):
         assert "malformed TOML" in str(err.value)
 
 
+@pytest.mark.parametrize("text, field", [
+    ("[output]\nspectral = 'false'", "output.spectral"),                              # a string is not a bool
+    ("[environment]\nsun = 'false'", "environment.sun"),
+    ("[environment]\nsun = 0", "environment.sun"),
+    ("[render]\nsamples = 4.0", "render.samples"),                                   # ints are ints
+    ("[render]\nsamples = true", "render.samples"),
+    ("[render]\nsamples = 100000000", "render.samples"),                             # bounded
+    ("[render]\nseed = -1", "render.seed"),
+    ("[render]\nmode = 'lowrank'\nrank = 64", "render.rank"),                        # > 61 wavelengths
+    ("[render]\nmode = 'lowrank'\nrank = 40\n[environment]\nresolution = [4, 8]", "render.rank"),
+    ("[camera]\nresolution = [100000, 600]", "camera.resolution"),
+    ("[camera]\nresolution = [800.0, 600]", "camera.resolution"),
+    ("[camera]\nfov_deg = 180", "camera.fov_deg"),
+    ("[environment]\nresolution = [100000, 100000]", "environment.resolution"),
+    ("[environment]\nresolution = [4096, 4096]", "environment.resolution"),           # 8 GiB of float64
+    ("[environment]\ntype = 'constant'\nresolution = [0, 8]", "environment.resolution"),
+    ("[spectral]\nstep = 0.001", "spectral.step"),                                   # 300001 wavelengths
+    ("[spectral]\nstep = 7.0", "spectral.step"),                                     # not a whole number of steps
+    ("[spectral]\nstart = 100.0", "spectral.start"),                                 # outside the CMFs' domain
+    ("[film]\nexposure = nan", "film.exposure"),
+    ("[film]\nexposure = true", "film.exposure"),
+    ("[[lights]]\nposition = [0, 1, 0]\nspectrum = 'D99'", "lights[0].spectrum"),
+    ("[[lights]]\nposition = [0, 1, 0]\nspectrum = 100", "lights[0].spectrum"),
+    ("[output]\nname = '..'", "output.name"),
+])
+def test_scene_types_and_ranges_are_strict(tmp_path, text, field):
+    with pytest.raises(InputError) as err:
+        load_scene(_write(tmp_path, text))
+    assert err.value.field == field and str(tmp_path) in str(err.value)
+
+
+def test_scene_is_typed_and_its_toml_text_reads_back(tmp_path):
+    """Every section is a typed dataclass; to_toml_text is TOML that validates to the same scene."""
+    text = SMALL + textwrap.dedent("""
+        [[lights]]
+        type = "directional"
+        direction = [0, 1, 1]
+        spectrum = 5000
+        [[occluders]]
+        sphere = 0.2
+        center = [1, 0, 0]
+        [film]
+        transfer = 2.2
+        exposure = 0.5
+        """)
+    scene = load_scene(_write(tmp_path, text))
+    assert scene.render.samples == 4 and isinstance(scene.render.samples, int)
+    assert scene.environment.sun is True and scene.output.spectral is False
+    assert scene.material.uniform.mu1 == 0.08 and scene.lights[0].spectrum == 5000.0
+    assert scene.spectral.grid.size == GRID.size and scene.occluders[0].radius == 0.2
+    back = scene_from_dict(tomllib.loads(scene.to_toml_text()), scene.path)
+    assert back == scene
+    moved = scene.with_output_directory(tmp_path / "elsewhere")
+    assert moved.output.directory == tmp_path / "elsewhere" and scene.output.directory == tmp_path / "out"
+
+
 def test_zero_area_and_degenerate_cameras():
     with pytest.raises(InputError, match="resolution"):
         Camera(width=0, height=10)
@@ -352,7 +409,7 @@ def test_region_parameter_file_sets_mu(tmp_path):
     w = prep.maps[..., 0]
     assert np.isclose(np.median(prep.maps[..., 2][w < 1]), 0.12, rtol=0.05)
     assert float(prep.material.beta) == 40000.0
-    assert scene.material["hamon"].name == "hamon.json"
+    assert scene.material.hamon.name == "hamon.json"
 
 
 def test_example_scene_validates():
@@ -361,4 +418,4 @@ def test_example_scene_validates():
     import jkatana.render
 
     scene = load_scene(Path(jkatana.render.__file__).parent / "example_scene.toml")
-    assert scene.render["mode"] == "reference" and scene.camera["resolution"] == (400, 300)
+    assert scene.render.mode == "reference" and scene.camera.resolution == (400, 300)

@@ -28,7 +28,7 @@ def demo_gbuffer():
 def test_demo_frames_the_upper_blade_with_the_kissaki(demo_gbuffer):
     scene, gb = demo_gbuffer
     m, u = gb.mask, gb.uv[..., 0]
-    assert scene.camera["resolution"] == (800, 600)
+    assert scene.camera.resolution == (800, 600)
     # the kissaki tip is in the frame, not cut by its border, and the last ~25-40 cm are visible
     assert u[m].max() > 0.995
     border = np.zeros_like(m)
@@ -59,7 +59,7 @@ def test_demo_ji_mirrors_sky_near_horizon_and_sun_lights_only_the_hamon(demo_gbu
     assert 10 < np.median(elev[ji]) < 25 and 0 < np.median(elev[ha]) < np.median(elev[ji])
     assert np.percentile(elev[ji], 99) - np.percentile(elev[ji], 1) > 5
     e = scene.environment
-    sun = sun_direction(e["elevation_deg"], e["azimuth_deg"])
+    sun = sun_direction(e.elevation_deg, e.azimuth_deg)
     facet = 0.5 * np.arccos(np.clip(r @ sun, -1, 1))  # facet angle between mirror and sun (rad)
     mu0 = PAPER_PARAMETERS["mu0"]
     hamon_mu = float(np.median(default_map((64, 256)).mu1[-8:]))
@@ -68,7 +68,7 @@ def test_demo_ji_mirrors_sky_near_horizon_and_sun_lights_only_the_hamon(demo_gbu
     assert facet[ji].min() > 3 * mu0 and np.median(facet[ji]) > 4 * mu0
     # ... but within ~1.7 μ1 of the hamon's mirror directions: the hamon's lobe catches it
     assert np.median(facet[ha]) < 1.7 * hamon_mu
-    assert e["type"] == "sky" and DEMO_SCENE["film"]["exposure"] == "auto"
+    assert e.type == "sky" and DEMO_SCENE["film"]["exposure"] == "auto"
 
 
 def test_builtin_hamon_is_softer_than_the_ji_and_keeps_paper_levels():

@@ -145,7 +145,7 @@ def _fallback(args, out: Path) -> int:
     print("jkatana view: falling back to the JAX reference renderer (slow; one frame per view)", file=sys.stderr)
     if args.scene:
         scene = load_scene(args.scene)
-        raw = {k: dict(v) if isinstance(v, dict) else v for k, v in scene.raw.items()}
+        raw = scene.to_dict()
         path = Path(args.scene)
     else:
         raw = {k: dict(v) if isinstance(v, dict) else v for k, v in DEMO_SCENE.items()}

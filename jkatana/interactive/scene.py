@@ -1,10 +1,10 @@
 """Scene content for the interactive path: blade, reflectance map, environments, cameras.
 
-Uses the project's own blade (:func:`jkatana.shape.katana.default_blade`) and
-reflectance map (:func:`jkatana.maps.reflectance_map.default_map`) when they are
-available, else small stand-ins built here with the same conventions (Y up,
-blade along +X, edge toward −Y, flats facing ±Z; UV u along the blade, v across
-from mune 0 to ha 1).
+The built-in scene is the project's blade (:func:`jkatana.shape.katana.default_blade`:
+Y up, blade along +X, edge toward −Y, flats facing ±Z; UV u along the blade, v
+across from mune 0 to ha 1) with its reflectance map
+(:func:`jkatana.maps.reflectance_map.default_map`); a render scene TOML
+(:func:`from_render_scene`) is loaded by :mod:`jkatana.render`'s own loaders.
 
 Built-in environments (equirectangular, Y up, see
 :func:`jkatana.interactive.bake.texel_directions`), spectral on the grid:
@@ -24,15 +24,18 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from pathlib import Path
 
 import numpy as np
 import trimesh
 
-from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
-from jkatana.render.film import film_weights
-from jkatana.spectral.colorimetry import illuminant
-
+from jkatana.errors import InputError
 from jkatana.interactive.bake import texel_directions
+from jkatana.maps.reflectance_map import default_map
+from jkatana.render.film import film_weights
+from jkatana.shape.katana import default_blade
+from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
+from jkatana.spectral.colorimetry import illuminant
 
 ENVIRONMENTS = ("sky", "sun", "studio")
 
@@ -55,7 +58,7 @@ def _disc(d: np.ndarray, centre: np.ndarray, radius_deg: float, soft_deg: float)
 def environment(name: str = "sky", grid: WavelengthGrid = DEFAULT_GRID, height: int = 128) -> np.ndarray:
     """A built-in spectral environment ``(height, 2·height, wl)`` (see the module docstring)."""
     if name not in ENVIRONMENTS:
-        raise ValueError(f"unknown environment {name!r}; built-in: {', '.join(ENVIRONMENTS)}")
+        raise InputError(f"unknown environment {name!r}; built-in: {', '.join(ENVIRONMENTS)}", field="environment")
     d = texel_directions(height, 2 * height)
     y = d[..., 1:2]
     up = np.clip(y, 0.0, 1.0)
@@ -91,42 +94,17 @@ def environment(name: str = "sky", grid: WavelengthGrid = DEFAULT_GRID, height: 
 # ----------------------------------------------------------------------------- blade and map
 
 
-def _standin_blade(n_along: int = 200, n_across: int = 24) -> trimesh.Trimesh:
-    """A lens-section blade 0.7 m long, 30 mm wide, 7 mm thick with smooth normals and UVs."""
-    u = np.linspace(0.0, 1.0, n_along)
-    v = np.linspace(0.0, 1.0, n_across)
-    U, Vv = np.meshgrid(u, v, indexing="ij")
-    x = 0.7 * U
-    sag = 0.018 * (1 - (2 * U - 1) ** 2)
-    y = -0.030 * Vv - sag + 0.018
-    verts, uvs, faces = [], [], []
-    for side in (+1, -1):
-        z = side * 0.0035 * np.sin(np.pi * np.clip(Vv * 0.9 + 0.1, 0, 1)) ** 0.6
-        base = sum(len(p) for p in verts)
-        verts.append(np.stack([x, y, z], -1).reshape(-1, 3))
-        uvs.append(np.stack([U, Vv], -1).reshape(-1, 2))
-        i = np.arange(n_along - 1)[:, None] * n_across + np.arange(n_across - 1)[None, :]
-        q = np.stack([i, i + n_across, i + n_across + 1, i + 1], -1).reshape(-1, 4) + base
-        f = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
-        faces.append(f if side > 0 else f[:, ::-1])
-    mesh = trimesh.Trimesh(np.concatenate(verts), np.concatenate(faces), process=False)
-    mesh.visual = trimesh.visual.TextureVisuals(uv=np.concatenate(uvs))
-    return mesh
-
-
 @functools.lru_cache(maxsize=2)
 def blade() -> trimesh.Trimesh:
-    """The project's default blade if :mod:`jkatana.shape` provides it, else a stand-in."""
-    try:
-        from jkatana.shape.katana import default_blade
-    except ImportError:
-        return _standin_blade()
+    """The built-in blade (:func:`jkatana.shape.katana.default_blade`), cached for the viewer's session."""
     return default_blade()
 
 
 @dataclasses.dataclass(frozen=True)
-class ReflectanceMap:
-    """Per-texel blend weight and lobe widths, ``(H, W)`` each; row 0 is v = 0 (the mune)."""
+class LobeMaps:
+    """The three channels the GL path shades with: blend weight and lobe widths, ``(H, W)`` each;
+    row 0 is v = 0 (the mune). The scale factors χ, β of :class:`jkatana.maps.ReflectanceMap` are
+    not needed: the interactive path renders normalised lobes."""
 
     w: np.ndarray
     mu0: np.ndarray
@@ -136,25 +114,12 @@ class ReflectanceMap:
         return np.stack([self.w, self.mu0, self.mu1], -1).astype(np.float64)
 
 
-def _standin_map(height: int = 64, width: int = 512) -> ReflectanceMap:
-    u = (np.arange(width) + 0.5) / width
-    v = (np.arange(height) + 0.5) / height
-    line = 0.72 + 0.05 * np.sin(2 * np.pi * 9 * u) + 0.02 * np.sin(2 * np.pi * 23 * u + 1.0)
-    w = np.clip((line[None, :] - v[:, None]) / 0.04 + 0.5, 0.0, 1.0)
-    return ReflectanceMap(w=w, mu0=np.full_like(w, 0.05), mu1=np.full_like(w, 0.05))
-
-
 @functools.lru_cache(maxsize=2)
-def reflectance_map() -> ReflectanceMap:
-    """The project's default map if :mod:`jkatana.maps` provides it, else a stand-in (wavy hamon line)."""
-    try:
-        from jkatana.maps.reflectance_map import default_map
-        m = default_map()
-        w, mu0, mu1 = (np.asarray(getattr(m, k) if hasattr(m, k) else m[k], np.float64)
-                       for k in ("w", "mu0", "mu1"))
-        return ReflectanceMap(w=w, mu0=mu0, mu1=mu1)
-    except Exception:  # not landed yet, or a different layout
-        return _standin_map()
+def reflectance_map() -> LobeMaps:
+    """The built-in blade's map (:func:`jkatana.maps.reflectance_map.default_map`)."""
+    m = default_map()
+    return LobeMaps(w=np.asarray(m.w, np.float64), mu0=np.asarray(m.mu0, np.float64),
+                    mu1=np.asarray(m.mu1, np.float64))
 
 
 # ----------------------------------------------------------------------------- cameras
@@ -277,30 +242,24 @@ def default_scene(env: str = "sky", width: int = 800, height: int = 600) -> Inte
 
 def from_render_scene(path) -> InteractiveScene:
     """Load a :mod:`jkatana.render` scene TOML (geometry, map, environment, camera, film, spectral grid)."""
-    from jkatana.render.renderer import _grid, camera_for, load_environment, load_geometry, load_maps
+    from jkatana.render.renderer import camera_for, load_environment, load_geometry, load_maps
     from jkatana.render.scene import load_scene
 
     sc = load_scene(path)
-    grid = _grid(sc)
+    grid = sc.spectral.grid
     geometry = load_geometry(sc)
     if not isinstance(geometry, trimesh.Trimesh):
-        from jkatana.errors import InputError
         raise InputError("the interactive viewer needs a mesh (not an analytic sphere)", path=str(path),
                          field="geometry")
-    maps = load_maps(sc, geometry)
-    maps = maps[0] if isinstance(maps, tuple) else maps
+    maps, _, _ = load_maps(sc, geometry)
     cam = camera_for(sc)
     view = View(look_at(cam.position, cam.look_at, cam.up), np.deg2rad(cam.fov_deg), cam.width, cam.height)
     film = sc.film
-    exposure = film.get("exposure", 1.0)
     return InteractiveScene(
         mesh=geometry, refl_map=np.asarray(maps, np.float64),
         radiance=np.asarray(load_environment(sc, grid), np.float64), grid=grid, view=view,
         target=np.asarray(cam.look_at, np.float64),
-        exposure=float(exposure) if isinstance(exposure, (int, float)) else float("nan"),
-        colourspace=film.get("colourspace", "sRGB"), transfer=film.get("transfer"),
-        env_rotation=np.deg2rad(float(sc.environment.get("rotation_deg", 0.0))),
-        source=sc.material.get("optical_constants", "Fe-Johnson"), name=Path(path).stem)
-
-
-from pathlib import Path  # noqa: E402
+        exposure=float("nan") if film.exposure == "auto" else float(film.exposure),
+        colourspace=film.colourspace, transfer=film.transfer,
+        env_rotation=np.deg2rad(sc.environment.rotation_deg),
+        source=sc.material.optical_constants, name=Path(path).stem)

@@ -34,8 +34,8 @@ class Job:
 
 def plan_batch(scene: Scene, views: int, lights: int) -> list[Job]:
     """Frame jobs; a single frame keeps the scene's output name, a batch adds ``_vNNN_lNNN``."""
-    out = Path(scene.output["directory"])
-    name = scene.output["name"]
+    out = Path(scene.output.directory)
+    name = scene.output.name
     if views == 1 and lights == 1:
         return [Job(0, 1, 0, 1, str(out / name))]
     return [Job(v, views, l, lights, str(out / f"{name}_v{v:03d}_l{l:03d}"))
@@ -81,7 +81,7 @@ def _worker_render(scene_path: str, output_dir: str, job: Job, mode, samples) ->
     from jkatana.render.renderer import _cached_prepare
 
     prep = _cached_prepare(scene_path, mode, samples)
-    prep.scene.output["directory"] = Path(output_dir)
+    prep.scene = prep.scene.with_output_directory(output_dir)
     return _render_job(prep, job)
 
 
@@ -101,7 +101,7 @@ def run_batch_dask(scene_path, scene: Scene, jobs: list[Job], *, mode=None, samp
     client = Client(scheduler or cluster)
     try:
         futures = [client.submit(_worker_render, str(Path(scene_path).resolve()),
-                                 str(Path(scene.output["directory"]).resolve()), j, mode, samples, pure=False)
+                                 str(Path(scene.output.directory).resolve()), j, mode, samples, pure=False)
                    for j in todo]
         for fut in tqdm(as_completed(futures), total=len(futures), desc="frames", unit="frame"):
             results.append(fut.result())

@@ -63,10 +63,10 @@ def demo_run(args: argparse.Namespace) -> int:
     t1 = time.perf_counter()
     frame = render_view(prep)
     t2 = time.perf_counter()
-    stem = Path(scene.output["directory"]) / scene.output["name"]
+    stem = Path(scene.output.directory) / scene.output.name
     paths = write_outputs(prep, frame, stem, {"jkatana_cold_start_s": round(t2 - t_start, 2)})
     t3 = time.perf_counter()
-    w, h = scene.camera["resolution"]
+    w, h = scene.camera.resolution
     p = prep.plan
     print(f"jkatana demo: built-in blade, Hosek–Wilkie sky, {p.mode} mode, {p.samples} spp, {w}×{h}, "
           f"{prep.grid.size} bands, {frame.stats['pixels_shaded']} blade pixels")
@@ -101,7 +101,7 @@ def render_run(args: argparse.Namespace) -> int:
         raise InputError("--views and --lights must be ≥ 1", field="--views" if args.views < 1 else "--lights")
     scene = load_scene(args.scene)
     if args.output:
-        scene.output["directory"] = Path(args.output)
+        scene = scene.with_output_directory(args.output)
     jobs = plan_batch(scene, args.views, args.lights)
     if args.dask or args.scheduler:
         results = run_batch_dask(args.scene, scene, jobs, mode=args.mode, samples=args.samples,

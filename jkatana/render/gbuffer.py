@@ -10,12 +10,14 @@ benchmarks) gets an exact G-buffer.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 import trimesh
 
 from jkatana.errors import InputError
 from jkatana.render.camera import Camera
+from jkatana.render.scene import Occluder
 
 
 @dataclasses.dataclass
@@ -204,23 +206,23 @@ class Occluders:
         return dist
 
 
-def occluder_mesh(specs: list[dict]) -> trimesh.Trimesh | None:
+def occluder_mesh(specs: Sequence[Occluder]) -> trimesh.Trimesh | None:
     """One mesh from the scene's ``[[occluders]]`` (box, sphere or mesh file, each with a translation)."""
     parts = []
     for i, s in enumerate(specs):
-        if s["kind"] == "box":
-            m = trimesh.creation.box(extents=s["extents"])
-        elif s["kind"] == "sphere":
-            m = trimesh.creation.icosphere(subdivisions=4, radius=s["radius"])
+        if s.kind == "box":
+            m = trimesh.creation.box(extents=s.extents)
+        elif s.kind == "sphere":
+            m = trimesh.creation.icosphere(subdivisions=4, radius=s.radius)
         else:
             try:
-                m = trimesh.load(s["mesh"], force="mesh", process=False)
+                m = trimesh.load(s.mesh, force="mesh", process=False)
             except Exception as err:  # trimesh raises many types for bad files
-                raise InputError(f"not a readable mesh ({err})", path=s["mesh"], field=f"occluders[{i}].mesh") from None
+                raise InputError(f"not a readable mesh ({err})", path=s.mesh, field=f"occluders[{i}].mesh") from None
             if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
-                raise InputError("no triangles", path=s["mesh"], field=f"occluders[{i}].mesh")
-            m = trimesh.Trimesh(m.vertices * s["scale"], m.faces, process=False)
-        m.apply_translation(s["center"])
+                raise InputError("no triangles", path=s.mesh, field=f"occluders[{i}].mesh")
+            m = trimesh.Trimesh(m.vertices * s.scale, m.faces, process=False)
+        m.apply_translation(s.center)
         parts.append(m)
     if not parts:
         return None

@@ -50,33 +50,26 @@ class Prepared:
     occluders: object = None   # gbuffer.Occluders, or None: no visibility rays
 
 
-def _grid(scene: Scene) -> WavelengthGrid:
-    s = scene.spectral
-    try:
-        return WavelengthGrid(s["start"], s["stop"], s["step"])
-    except (ValueError, InputError) as err:
-        raise InputError(str(err), path=scene.path, field="spectral") from None
-
-
 def load_geometry(scene: Scene):
+    """The scene's geometry: ``("sphere", center, radius)`` or a trimesh mesh with per-vertex UVs."""
     g = scene.geometry
-    if g["kind"] == "sphere":
-        return ("sphere", g["center"], g["radius"])
-    if g["mesh"] == "builtin:katana":
+    if g.kind == "sphere":
+        return ("sphere", g.center, g.radius)
+    if g.mesh == "builtin:katana":
         from jkatana.shape.katana import default_blade
 
         return default_blade()
     import trimesh
 
     try:
-        mesh = trimesh.load(g["mesh"], force="mesh", process=False)
+        mesh = trimesh.load(g.mesh, force="mesh", process=False)
     except Exception as err:  # trimesh raises many types for bad files
-        raise InputError(f"not a readable mesh ({err})", path=g["mesh"], field="geometry.mesh") from None
+        raise InputError(f"not a readable mesh ({err})", path=g.mesh, field="geometry.mesh") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise InputError("no triangles", path=g["mesh"], field="geometry.mesh")
+        raise InputError("no triangles", path=g.mesh, field="geometry.mesh")
     uv = getattr(mesh.visual, "uv", None)
     if uv is None or len(uv) != len(mesh.vertices):
-        raise InputError("mesh has no per-vertex UVs (needed for the reflectance map)", path=g["mesh"],
+        raise InputError("mesh has no per-vertex UVs (needed for the reflectance map)", path=g.mesh,
                          field="geometry.mesh")
     return mesh
 
@@ -84,25 +77,26 @@ def load_geometry(scene: Scene):
 def load_maps(scene: Scene, geometry) -> tuple[np.ndarray, float, float]:
     """``(maps (H, W, 3) of w, μ0, μ1; χ; β)`` with region parameter files applied."""
     mat = scene.material
-    if mat["map"] is None:
-        u = mat["uniform"]
-        maps = np.array([[[u["w"], u["mu0"], u["mu1"]]]], np.float32).repeat(2, 0).repeat(2, 1)
+    if mat.map is None:
+        u = mat.uniform
+        maps = np.array([[[u.w, u.mu0, u.mu1]]], np.float32).repeat(2, 0).repeat(2, 1)
         chi, beta = 79000.0, 43000.0
     else:
         from jkatana.maps.reflectance_map import default_map, read_map
 
-        rmap = default_map() if mat["map"] == "builtin" else read_map(mat["map"])
-        _check_map_size(rmap.shape, geometry, mat["map"])
+        rmap = default_map() if mat.map == "builtin" else read_map(mat.map)
+        _check_map_size(rmap.shape, geometry, mat.map)
         maps = np.stack([rmap.w, rmap.mu0, rmap.mu1], -1).astype(np.float32)
         chi, beta = float(np.median(rmap.chi)), float(np.median(rmap.beta))
-    for region, ch, scale_name in (("hiraji", 1, "chi"), ("hamon", 2, "beta")):
-        if mat[region] is None:
+    for region, ch in (("hiraji", 1), ("hamon", 2)):
+        region_file = getattr(mat, region)
+        if region_file is None:
             continue
         from jkatana.fit.params import read_params
 
-        p = read_params(mat[region])
+        p = read_params(region_file)
         if p.model != region:
-            raise InputError(f"is a {p.model!r} parameter file, expected {region!r}", path=mat[region],
+            raise InputError(f"is a {p.model!r} parameter file, expected {region!r}", path=region_file,
                              field=f"material.{region}")
         # keep the map's spatial modulation (hada), rescaled to the fitted μ
         base = maps[..., ch]
@@ -145,21 +139,21 @@ def _check_map_size(shape, geometry, where):
 
 
 def load_environment(scene: Scene, grid: WavelengthGrid) -> np.ndarray:
+    """The scene's environment as ``(H, W, wl)`` float32 spectral radiance on ``grid``."""
     e = scene.environment
-    if e["type"] == "sky":
+    if e.type == "sky":
         from jkatana.light.sky import hosek_wilkie_sky
 
-        env = hosek_wilkie_sky(e["elevation_deg"], e["azimuth_deg"], e["turbidity"], e["albedo"],
-                               e["resolution"], grid, sun=e["sun"])
+        env = hosek_wilkie_sky(e.elevation_deg, e.azimuth_deg, e.turbidity, e.albedo, e.resolution, grid,
+                               sun=e.sun)
         return np.asarray(env.radiance, np.float32)
-    if e["type"] in ("exr", "hdr"):
+    if e.type in ("exr", "hdr"):
         from jkatana.light.envmap import load_envmap
 
-        env = load_envmap(e["path"], grid, upsampling=e["upsampling"], scale=e["scale"],
-                          colourspace=e["colourspace"])
+        env = load_envmap(e.path, grid, upsampling=e.upsampling, scale=e.scale, colourspace=e.colourspace)
         return np.asarray(env.radiance, np.float32)
-    H, W = e["resolution"]
-    return np.full((H, W, grid.size), e["radiance"], np.float32)
+    H, W = e.resolution
+    return np.full((H, W, grid.size), e.radiance, np.float32)
 
 
 def rotation_y(deg: float) -> np.ndarray:
@@ -174,8 +168,8 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
             rank: int | None = None, env_radiance: np.ndarray | None = None) -> Prepared:
     """Load the scene's assets and decide the shading plan (effects on demand)."""
     t0 = time.perf_counter()
-    grid = _grid(scene)
-    dtype = jnp.float64 if scene.render["precision"] == "float64" else jnp.float32
+    grid = scene.spectral.grid
+    dtype = jnp.float64 if scene.render.precision == "float64" else jnp.float32
     if dtype == jnp.float64 and not jax.config.jax_enable_x64:
         jax.config.update("jax_enable_x64", True)
     geometry = load_geometry(scene)
@@ -183,22 +177,22 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     from jkatana.spectral.optical_constants import load as load_oc
 
     try:
-        n, k = load_oc(scene.material["optical_constants"]).on_grid(grid)
+        n, k = load_oc(scene.material.optical_constants).on_grid(grid)
     except InputError as err:
         raise InputError(str(err), field="material.optical_constants") from None
     mat = Material(fresnel_table(jnp.asarray(n, dtype), jnp.asarray(k, dtype)), jnp.asarray(chi, dtype),
                    jnp.asarray(beta, dtype))
-    mode = mode or scene.render["mode"]
-    samples = samples or scene.render["samples"]
+    mode = mode or scene.render.mode
+    samples = samples or scene.render.samples
     radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
-    env_rank = (rank or scene.render["rank"]) if mode == "lowrank" else None
+    env_rank = (rank or scene.render.rank) if mode == "lowrank" else None
     mus = ()
     if mode == "prefiltered":
         lo = max(float(np.min(maps[..., 1:])), 1e-3)
         hi = max(float(np.max(maps[..., 1:])), lo * 1.01)
         mus = tuple(np.geomspace(lo, hi, 4))
     env, factored, resid = build_environment(radiance, rank=env_rank,
-                                             rotation=rotation_y(scene.environment["rotation_deg"]),
+                                             rotation=rotation_y(scene.environment.rotation_deg),
                                              prefilter_mus=mus, dtype=dtype, grid=grid)
     # effects on demand: decided here, on the host, from the data
     w = maps[..., 0]
@@ -209,14 +203,14 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     if scene.lights:
         from jkatana.spectral.colorimetry import illuminant
 
-        vec = np.array([lt["vector"] for lt in scene.lights], np.float64)
-        kind = np.array([0.0 if lt["type"] == "point" else 1.0 for lt in scene.lights])
-        spec = np.stack([illuminant(lt["spectrum"], grid) / 100.0 * lt["intensity"] for lt in scene.lights])
+        vec = np.array([lt.vector for lt in scene.lights], np.float64)
+        kind = np.array([0.0 if lt.type == "point" else 1.0 for lt in scene.lights])
+        spec = np.stack([illuminant(lt.spectrum, grid) / 100.0 * lt.intensity for lt in scene.lights])
         lights = Light(jnp.asarray(vec, dtype), jnp.asarray(kind, dtype), jnp.asarray(spec, dtype))
     plan = Plan(mode=mode, samples=int(samples), hiraji=hiraji, hamon=hamon, mirror=mirror,
                 env_sampling=True, factored=factored, lights=len(scene.lights),
-                calibration=scene.material["calibration"],
-                spectral=bool(scene.output["spectral"]) and not factored,
+                calibration=scene.material.calibration,
+                spectral=scene.output.spectral and not factored,
                 visibility=bool(scene.occluders))
     occluders = None
     if scene.occluders:
@@ -232,15 +226,15 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
 def camera_for(scene: Scene, view: int = 0, views: int = 1) -> Camera:
     """The scene's camera; with ``views > 1`` the ``view``-th of ``views`` azimuths evenly around the target."""
     c = scene.camera
-    w, h = c["resolution"]
-    roll = math.radians(c["roll_deg"])
-    if c["type"] == "orbit":
-        az = c["azimuth_deg"] + 360.0 * view / views
-        cam = Camera.orbit(c["target"], c["distance"], az, c["elevation_deg"], fov_deg=c["fov_deg"],
+    w, h = c.resolution
+    roll = math.radians(c.roll_deg)
+    if c.type == "orbit":
+        az = c.azimuth_deg + 360.0 * view / views
+        cam = Camera.orbit(c.target, c.distance, az, c.elevation_deg, fov_deg=c.fov_deg,
                            width=w, height=h, up=(0.0, 1.0, 0.0))
     else:
-        pos = np.subtract(c["position"], c["look_at"]) @ rotation_y(-360.0 * view / views).T + c["look_at"]
-        cam = Camera(tuple(pos), c["look_at"], c["up"], c["fov_deg"], w, h)
+        pos = np.subtract(c.position, c.look_at) @ rotation_y(-360.0 * view / views).T + c.look_at
+        cam = Camera(tuple(pos), c.look_at, c.up, c.fov_deg, w, h)
     if roll:
         right, up, _ = cam.frame()
         new_up = math.cos(roll) * up + math.sin(roll) * right
@@ -260,15 +254,15 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
     scene = prep.scene
     env = prep.env
     if lights > 1 or light:
-        rot = rotation_y(scene.environment["rotation_deg"] + 360.0 * light / lights)
+        rot = rotation_y(scene.environment.rotation_deg + 360.0 * light / lights)
         env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rot, prep.dtype))
     cam = camera_for(scene, view, views)
-    s = scene.render["seed"] if seed is None else seed
+    s = scene.render.seed if seed is None else seed
     ss = int(supersample or 1)
     if ss > 1:
         cam = dataclasses.replace(cam, width=cam.width * ss, height=cam.height * ss)
     f = render_frame(prep.plan, prep.material, env, prep.lights, prep.geometry, cam, prep.maps, prep.cmf,
-                     seed=s + 7919 * view + 104729 * light, dtype=prep.dtype, chunk=scene.render["chunk"],
+                     seed=s + 7919 * view + 104729 * light, dtype=prep.dtype, chunk=scene.render.chunk,
                      occluders=prep.occluders, supersample=ss)
     if ss == 1:
         return f
@@ -282,7 +276,7 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
 
 
 def exposure_for(prep: Prepared, frame: Frame) -> float:
-    e = prep.scene.film["exposure"]
+    e = prep.scene.film.exposure
     if e != "auto":
         return float(e)
     if frame.mask.any():
@@ -322,7 +316,7 @@ def write_outputs(prep: Prepared, frame: Frame, stem: Path, extra: dict | None =
     ex = exposure_for(prep, frame)
     meta = metadata(prep, frame, ex, extra)
     film = prep.scene.film
-    rgb = display(frame.xyz, film["colourspace"], film["transfer"], exposure=ex)
+    rgb = display(frame.xyz, film.colourspace, film.transfer, exposure=ex)
     paths = {}
     if frame.spectra is not None:
         paths["spectral"] = write_spectral_exr(stem.with_name(stem.name + "_spectral.exr"), frame.spectra,

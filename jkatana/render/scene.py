@@ -71,6 +71,13 @@ to the scene file)::
     directory = "out"
     name = "frame"
     spectral = false                 # also write a spectral EXR (Fichet et al. 2021 layout)
+
+Every section is a frozen dataclass, validated once by :func:`scene_from_dict`:
+types are strict (a string is not a boolean, a float is not an integer), numbers
+finite, ranges and sizes bounded so that a scene cannot ask for more memory than
+a render can hold (:data:`LIMITS`). :meth:`Scene.to_toml_text` writes the
+validated scene back as TOML (defaults filled in, paths resolved); reading that
+text gives the same scene.
 """
 
 from __future__ import annotations
@@ -81,36 +88,261 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+import tomli_w
+
 from jkatana.errors import InputError
+from jkatana.spectral.grid import WavelengthGrid
 
 SECTIONS = ("scene", "geometry", "material", "environment", "lights", "occluders", "camera", "spectral",
             "render", "film", "output")
 ENV_TYPES = ("sky", "exr", "hdr", "constant")
 RENDER_MODES = ("reference", "paper", "prefiltered", "lowrank")
 
+#: Upper bounds on what a scene may ask for. The camera and environment sides keep one frame's
+#: buffers (G-buffer, XYZ, optional spectra) and the environment's float64 spectral radiance and
+#: sampling tables within a few GiB; 1 nm over the CIE 1931 observer's 360–830 nm domain is the
+#: finest grid the colour matching functions are tabulated on (CIE 015:2018).
+LIMITS = {
+    "camera_side": 8192,        # pixels per side
+    "env_side": 4096,           # texels per side of a sky or constant environment
+    "env_values": 1 << 28,      # texels × wavelengths of the environment (2 GiB as float64)
+    "wavelengths": 471,         # 360–830 nm at 1 nm
+    "samples": 1 << 16,         # samples per pixel
+    "chunk": 1 << 20,           # pixels shaded per device call
+    "seed": (1 << 31) - 1,
+}
+WAVELENGTH_RANGE = (360.0, 830.0)  # nm, the CIE 1931 2° colour matching functions' domain
 
-@dataclasses.dataclass
+
+def _plain(v):
+    """A value as TOML writes it (paths as strings, tuples as arrays)."""
+    if isinstance(v, Path):
+        return str(v)
+    if isinstance(v, tuple):
+        return [_plain(x) for x in v]
+    return v
+
+
+def _table(obj, *, skip=()) -> dict:
+    """A section's schema table: its fields less ``skip`` and those that are ``None``."""
+    return {f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+            if f.name not in skip and getattr(obj, f.name) is not None}
+
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclasses.dataclass(frozen=True)
+class Geometry:
+    """What is rendered: a triangle mesh with UVs (``"builtin:katana"`` or a file), or an analytic sphere."""
+
+    kind: str                    # "mesh" | "sphere"
+    mesh: Path | str | None = None
+    center: Vec3 | None = None   # sphere
+    radius: float | None = None  # sphere
+
+    def to_dict(self) -> dict:
+        if self.kind == "sphere":
+            return {"sphere": {"center": list(self.center), "radius": self.radius}}
+        return {"mesh": _plain(self.mesh)}
+
+
+@dataclasses.dataclass(frozen=True)
+class Uniform:
+    """A spatially uniform reflectance map: hamon weight ``w`` and lobe widths ``mu0``, ``mu1`` (rad)."""
+
+    w: float
+    mu0: float
+    mu1: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Material:
+    """The blade's reflectance: a map (or a uniform one), region parameter files, optical constants."""
+
+    optical_constants: str
+    map: Path | str | None          # "builtin", a map EXR, or None with `uniform`
+    uniform: Uniform | None = None
+    hiraji: Path | None = None
+    hamon: Path | None = None
+    calibration: float | None = None
+
+    def to_dict(self) -> dict:
+        d = _table(self, skip=("uniform",))
+        if self.uniform is not None:
+            d.update(dataclasses.asdict(self.uniform))
+        return d
+
+
+@dataclasses.dataclass(frozen=True)
+class Environment:
+    """Distant illumination: a Hosek–Wilkie sky, an HDR/EXR file, or a constant grey radiance.
+
+    Only the fields of the chosen ``type`` are set; the others are ``None``.
+    """
+
+    type: str
+    rotation_deg: float = 0.0
+    elevation_deg: float | None = None   # sky
+    azimuth_deg: float | None = None
+    turbidity: float | None = None
+    albedo: float | None = None
+    sun: bool | None = None
+    resolution: tuple[int, int] | None = None  # sky, constant: (rows, columns)
+    path: Path | None = None             # exr/hdr
+    upsampling: str | None = None
+    scale: float | None = None
+    colourspace: str | None = None
+    radiance: float | None = None        # constant
+
+    def to_dict(self) -> dict:
+        return _table(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class Light:
+    """A point light (``vector`` = position, m) or a directional one (``vector`` = direction to the light)."""
+
+    type: str
+    vector: Vec3
+    spectrum: str | float = "D65"
+    intensity: float = 1.0
+
+    def to_dict(self) -> dict:
+        return {"type": self.type, "position" if self.type == "point" else "direction": list(self.vector),
+                "spectrum": self.spectrum, "intensity": self.intensity}
+
+
+@dataclasses.dataclass(frozen=True)
+class Occluder:
+    """Black geometry that blocks light: a box (``extents``), a sphere (``radius``) or a mesh file."""
+
+    kind: str                    # "box" | "sphere" | "mesh"
+    center: Vec3 = (0.0, 0.0, 0.0)
+    extents: Vec3 | None = None
+    radius: float | None = None
+    mesh: Path | None = None
+    scale: float | None = None
+
+    def to_dict(self) -> dict:
+        d: dict[str, Any] = {"center": list(self.center)}
+        if self.kind == "box":
+            d["box"] = list(self.extents)
+        elif self.kind == "sphere":
+            d["sphere"] = self.radius
+        else:
+            d.update(mesh=str(self.mesh), scale=self.scale)
+        return d
+
+
+@dataclasses.dataclass(frozen=True)
+class Camera:
+    """A pinhole camera: ``"orbit"`` about a target or ``"lookat"``; ``resolution`` is (width, height)."""
+
+    type: str
+    fov_deg: float
+    resolution: tuple[int, int]
+    roll_deg: float = 0.0
+    target: Vec3 | None = None       # orbit
+    distance: float | None = None
+    azimuth_deg: float | None = None
+    elevation_deg: float | None = None
+    position: Vec3 | None = None     # lookat
+    look_at: Vec3 | None = None
+    up: Vec3 | None = None
+
+    def to_dict(self) -> dict:
+        return _table(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class Spectral:
+    """The wavelength grid (nm) every spectrum of the render is sampled on."""
+
+    start: float = 400.0
+    stop: float = 700.0
+    step: float = 5.0
+
+    @property
+    def grid(self) -> WavelengthGrid:
+        return WavelengthGrid(self.start, self.stop, self.step)
+
+    def to_dict(self) -> dict:
+        return _table(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class Render:
+    """How to integrate: the mode, samples per pixel, low-rank environment rank, seed, precision, chunk."""
+
+    mode: str = "reference"
+    samples: int = 64
+    rank: int = 3
+    seed: int = 0
+    precision: str = "float32"
+    chunk: int = 16384
+
+    def to_dict(self) -> dict:
+        return _table(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class Film:
+    """XYZ → display: the RGB colourspace, its transfer (name, ``"linear"`` or a gamma), the exposure."""
+
+    colourspace: str = "sRGB"
+    transfer: str | float | None = None
+    exposure: str | float = "auto"
+
+    def to_dict(self) -> dict:
+        return _table(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class Output:
+    """Where frames go: ``directory/name.{exr,png}`` and, with ``spectral``, ``name_spectral.exr``."""
+
+    directory: Path
+    name: str = "frame"
+    spectral: bool = False
+
+    def to_dict(self) -> dict:
+        return _table(self)
+
+
+@dataclasses.dataclass(frozen=True)
 class Scene:
-    """A validated scene: plain values (paths resolved, nothing loaded yet)."""
+    """A validated scene: one typed section per TOML table (paths resolved, nothing loaded yet)."""
 
     path: Path | None
-    geometry: dict
-    material: dict
-    environment: dict
-    lights: list
-    camera: dict
-    spectral: dict
-    render: dict
-    film: dict
-    output: dict
-    raw: dict = dataclasses.field(repr=False, default_factory=dict)
-    occluders: list = dataclasses.field(default_factory=list)
+    geometry: Geometry
+    material: Material
+    environment: Environment
+    lights: tuple[Light, ...]
+    camera: Camera
+    spectral: Spectral
+    render: Render
+    film: Film
+    output: Output
+    occluders: tuple[Occluder, ...] = ()
+
+    def with_output_directory(self, directory: str | Path) -> "Scene":
+        """The same scene writing into ``directory``."""
+        return dataclasses.replace(self, output=dataclasses.replace(self.output, directory=Path(directory)))
+
+    def to_dict(self) -> dict:
+        """The scene in the file schema (defaults filled in, paths absolute where the file gave a path)."""
+        d = {name: getattr(self, name).to_dict() for name in
+             ("geometry", "material", "environment", "camera", "spectral", "render", "film", "output")}
+        if self.lights:
+            d["lights"] = [lt.to_dict() for lt in self.lights]
+        if self.occluders:
+            d["occluders"] = [oc.to_dict() for oc in self.occluders]
+        return d
 
     def to_toml_text(self) -> str:
-        """The scene's raw TOML as a compact JSON string (stored with every output)."""
-        import json
-
-        return json.dumps(self.raw, default=str, sort_keys=True)
+        """The validated scene as TOML text (stored with every output; :func:`scene_from_dict` reads it back)."""
+        return tomli_w.dumps(self.to_dict())
 
 
 class _Section:
@@ -121,44 +353,60 @@ class _Section:
             raise InputError(f"must be a table, got {type(table).__name__}", path=path, field=name)
         self.name, self.t, self.path, self.used = name, table, path, set()
 
-    def _err(self, key, msg):
+    def err(self, key, msg):
         return InputError(msg, path=self.path, field=f"{self.name}.{key}")
 
     def get(self, key, default=None):
         self.used.add(key)
         return self.t.get(key, default)
 
-    def number(self, key, default=None, *, lo=None, hi=None, positive=False, integer=False):
+    def number(self, key, default=None, *, lo=None, hi=None, positive=False, open_range=None):
+        """A finite real (TOML integer or float; never a boolean), optionally bounded."""
         v = self.get(key, default)
         if v is None:
-            raise self._err(key, "is required")
+            raise self.err(key, "is required")
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise self._err(key, f"must be a finite number, got {v!r}")
-        if integer and int(v) != v:
-            raise self._err(key, f"must be an integer, got {v!r}")
+            raise self.err(key, f"must be a finite number, got {v!r}")
         if positive and not v > 0:
-            raise self._err(key, f"must be > 0, got {v!r}")
+            raise self.err(key, f"must be > 0, got {v!r}")
         if lo is not None and v < lo or hi is not None and v > hi:
-            raise self._err(key, f"must lie in [{lo}, {hi}], got {v!r}")
-        return int(v) if integer else float(v)
+            raise self.err(key, f"must lie in [{lo}, {hi}], got {v!r}")
+        if open_range is not None and not open_range[0] < v < open_range[1]:
+            raise self.err(key, f"must lie in ({open_range[0]}, {open_range[1]}), got {v!r}")
+        return float(v)
+
+    def integer(self, key, default, *, lo, hi):
+        """A TOML integer (not a float, not a boolean) in ``[lo, hi]``."""
+        v = self.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.err(key, f"must be an integer, got {v!r}")
+        if not lo <= v <= hi:
+            raise self.err(key, f"must lie in [{lo}, {hi}], got {v!r}")
+        return int(v)
+
+    def boolean(self, key, default):
+        v = self.get(key, default)
+        if not isinstance(v, bool):
+            raise self.err(key, f"must be true or false, got {v!r}")
+        return v
 
     def vector(self, key, n, default=None):
         v = self.get(key, default)
         if v is None:
-            raise self._err(key, "is required")
+            raise self.err(key, "is required")
         if (not isinstance(v, (list, tuple)) or len(v) != n
                 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
-            raise self._err(key, f"must be a list of {n} finite numbers, got {v!r}")
+            raise self.err(key, f"must be a list of {n} finite numbers, got {v!r}")
         return tuple(float(x) for x in v)
 
     def string(self, key, default=None, choices=None):
         v = self.get(key, default)
         if v is None:
-            raise self._err(key, "is required")
+            raise self.err(key, "is required")
         if not isinstance(v, str):
-            raise self._err(key, f"must be a string, got {v!r}")
+            raise self.err(key, f"must be a string, got {v!r}")
         if choices is not None and v.lower() not in choices:
-            raise self._err(key, f"must be one of {list(choices)}, got {v!r}")
+            raise self.err(key, f"must be one of {list(choices)}, got {v!r}")
         return v.lower() if choices is not None else v
 
     def file(self, key, default=None, *, builtin=()):
@@ -172,10 +420,22 @@ class _Section:
             raise InputError("file not found", path=p, field=f"{self.name}.{key}")
         return p
 
+    def resolution(self, key, default, *, hi):
+        """Two positive integers, each at most ``hi``."""
+        v = self.get(key, list(default))
+        if (not isinstance(v, (list, tuple)) or len(v) != 2
+                or not all(isinstance(x, int) and not isinstance(x, bool) for x in v)):
+            raise self.err(key, f"must be two integers, got {v!r}")
+        if min(v) < 1:
+            raise self.err(key, f"zero-area image {list(v)}: both sizes must be ≥ 1")
+        if max(v) > hi:
+            raise self.err(key, f"must be at most {hi} per side, got {list(v)}")
+        return (int(v[0]), int(v[1]))
+
     def check_unknown(self):
         unknown = sorted(set(self.t) - self.used)
         if unknown:
-            raise self._err(unknown[0], f"unknown key (known: {sorted(self.used)})")
+            raise self.err(unknown[0], f"unknown key (known: {sorted(self.used)})")
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -184,7 +444,7 @@ def load_scene(path: str | Path) -> Scene:
     if not path.is_file():
         raise InputError("scene file not found", path=path)
     try:
-        raw = tomllib.loads(path.read_text())
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as err:
         raise InputError(f"malformed TOML ({err})", path=path) from None
     except UnicodeDecodeError as err:
@@ -193,156 +453,211 @@ def load_scene(path: str | Path) -> Scene:
 
 
 def scene_from_dict(raw: dict, path: Path | None = None) -> Scene:
-    """Validate a scene given as a dict (the parsed TOML)."""
+    """Validate a scene given as a dict (the parsed TOML); ``path`` anchors relative file names."""
+    if not isinstance(raw, dict):
+        raise InputError("a scene must be a table", path=path)
     for key in raw:
         if key not in SECTIONS:
             raise InputError(f"unknown section (known: {list(SECTIONS)})", path=path, field=key)
+    if not isinstance(raw.get("scene", {}), dict):
+        raise InputError("must be a table", path=path, field="scene")
+    spectral = _spectral(raw, path)
+    render = _render(raw, path, spectral)
+    environment = _environment(raw, path, spectral)
+    if render.mode == "lowrank" and environment.resolution is not None:
+        texels = environment.resolution[0] * environment.resolution[1]
+        if render.rank > texels:
+            raise InputError(f"must be at most the environment's {texels} texels in lowrank mode, got {render.rank}",
+                             path=path, field="render.rank")
+    return Scene(path, _geometry(raw, path), _material(raw, path), environment, _lights(raw, path, spectral),
+                 _camera(raw, path), spectral, render, _film(raw, path), _output(raw, path),
+                 _occluders(raw.get("occluders", []), path))
 
+
+def _geometry(raw, path) -> Geometry:
     g = _Section("geometry", raw.get("geometry", {}), path)
     if "sphere" in g.t:
         s = _Section("geometry.sphere", g.get("sphere"), path)
-        geometry = {"kind": "sphere", "center": s.vector("center", 3, [0.0, 0.0, 0.0]),
-                    "radius": s.number("radius", 1.0, positive=True)}
+        geometry = Geometry("sphere", center=s.vector("center", 3, [0.0, 0.0, 0.0]),
+                            radius=s.number("radius", 1.0, positive=True))
         s.check_unknown()
     else:
-        geometry = {"kind": "mesh", "mesh": g.file("mesh", "builtin:katana", builtin=("builtin:katana",))}
+        geometry = Geometry("mesh", mesh=g.file("mesh", "builtin:katana", builtin=("builtin:katana",)))
     g.check_unknown()
+    return geometry
 
+
+def _material(raw, path) -> Material:
     m = _Section("material", raw.get("material", {}), path)
-    material: dict = {"optical_constants": m.string("optical_constants", "Fe-Johnson")}
+    oc = m.string("optical_constants", "Fe-Johnson")
+    uniform, mapfile = None, None
     if any(k in m.t for k in ("w", "mu0", "mu1")) and "map" not in m.t:
-        material["map"] = None
-        material["uniform"] = {"w": m.number("w", 1.0, lo=0.0, hi=1.0),
-                               "mu0": m.number("mu0", 0.05, lo=0.0, hi=1.5),
-                               "mu1": m.number("mu1", 0.05, lo=1e-4, hi=1.5)}
+        uniform = Uniform(w=m.number("w", 1.0, lo=0.0, hi=1.0), mu0=m.number("mu0", 0.05, lo=0.0, hi=1.5),
+                          mu1=m.number("mu1", 0.05, lo=1e-4, hi=1.5))
     else:
-        material["map"] = m.file("map", "builtin", builtin=("builtin",))
-    for region in ("hiraji", "hamon"):
-        material[region] = m.file(region) if region in m.t else None
-    material["calibration"] = m.number("calibration", positive=True) if "calibration" in m.t else None
+        mapfile = m.file("map", "builtin", builtin=("builtin",))
+    regions = {region: m.file(region) if region in m.t else None for region in ("hiraji", "hamon")}
+    calibration = m.number("calibration", positive=True) if "calibration" in m.t else None
     m.check_unknown()
-    oc = material["optical_constants"]
     if oc.endswith((".yml", ".yaml")):
         p = Path(oc) if Path(oc).is_absolute() or path is None else path.parent / oc
         if not p.is_file():
             raise InputError("file not found", path=p, field="material.optical_constants")
-        material["optical_constants"] = str(p)
+        oc = str(p)
+    return Material(oc, mapfile, uniform, regions["hiraji"], regions["hamon"], calibration)
 
+
+def _environment(raw, path, spectral: Spectral) -> Environment:
     e = _Section("environment", raw.get("environment", {}), path)
     etype = e.string("type", "sky", choices=ENV_TYPES)
-    environment: dict = {"type": etype, "rotation_deg": e.number("rotation_deg", 0.0)}
+    rotation = e.number("rotation_deg", 0.0)
     if etype == "sky":
-        environment.update(elevation_deg=e.number("elevation_deg", 30.0, lo=0.0, hi=90.0),
-                           azimuth_deg=e.number("azimuth_deg", 180.0),
-                           turbidity=e.number("turbidity", 3.0, lo=1.0, hi=10.0),
-                           albedo=e.number("albedo", 0.1, lo=0.0, hi=1.0),
-                           resolution=_resolution(e, "resolution", (256, 512)),
-                           sun=bool(e.get("sun", True)))
+        env = Environment(etype, rotation, elevation_deg=e.number("elevation_deg", 30.0, lo=0.0, hi=90.0),
+                          azimuth_deg=e.number("azimuth_deg", 180.0),
+                          turbidity=e.number("turbidity", 3.0, lo=1.0, hi=10.0),
+                          albedo=e.number("albedo", 0.1, lo=0.0, hi=1.0),
+                          sun=e.boolean("sun", True),
+                          resolution=e.resolution("resolution", (256, 512), hi=LIMITS["env_side"]))
     elif etype in ("exr", "hdr"):
-        environment.update(path=e.file("path"), upsampling=e.string("upsampling", "Jakob 2019"),
-                           scale=e.number("scale", 1.0, positive=True),
-                           colourspace=e.string("colourspace", "sRGB"))
-    else:
-        environment.update(radiance=e.number("radiance", 1.0, positive=True),
-                           resolution=_resolution(e, "resolution", (16, 32)))
-    e.check_unknown()
+        from jkatana.light.upsampling import UPSAMPLING_METHODS
 
-    lights = []
+        env = Environment(etype, rotation, path=e.file("path"),
+                          upsampling=e.string("upsampling", "Jakob 2019"),
+                          scale=e.number("scale", 1.0, positive=True),
+                          colourspace=e.string("colourspace", "sRGB"))
+        if env.upsampling not in UPSAMPLING_METHODS:
+            raise e.err("upsampling", f"must be one of {sorted(UPSAMPLING_METHODS)}, got {env.upsampling!r}")
+        _check_colourspace(env.colourspace, path, "environment.colourspace")
+    else:
+        env = Environment(etype, rotation, radiance=e.number("radiance", 1.0, positive=True),
+                          resolution=e.resolution("resolution", (16, 32), hi=LIMITS["env_side"]))
+    e.check_unknown()
+    if env.resolution is not None:
+        values = env.resolution[0] * env.resolution[1] * spectral.grid.size
+        if values > LIMITS["env_values"]:
+            raise e.err("resolution", f"{list(env.resolution)} texels × {spectral.grid.size} wavelengths = "
+                                      f"{values * 8 / 2**30:.1f} GiB of float64 radiance; at most "
+                                      f"{LIMITS['env_values'] * 8 / 2**30:.0f} GiB")
+    return env
+
+
+def _lights(raw, path, spectral: Spectral) -> tuple[Light, ...]:
+    from jkatana.spectral.colorimetry import illuminant
+
     raw_lights = raw.get("lights", [])
     if not isinstance(raw_lights, list):
         raise InputError("must be an array of tables ([[lights]])", path=path, field="lights")
+    lights = []
     for i, lt in enumerate(raw_lights):
         s = _Section(f"lights[{i}]", lt, path)
         kind = s.string("type", "point", choices=("point", "directional"))
         vec = s.vector("position" if kind == "point" else "direction", 3)
         if kind == "directional" and math.hypot(*vec) == 0:
-            raise InputError("must not be the zero vector", path=path, field=f"lights[{i}].direction")
+            raise s.err("direction", "must not be the zero vector")
         spec = s.get("spectrum", "D65")
-        if not isinstance(spec, (str, int, float)) or isinstance(spec, bool):
-            raise InputError(f"must be an illuminant name or a CCT, got {spec!r}", path=path,
-                             field=f"lights[{i}].spectrum")
-        lights.append({"type": kind, "vector": vec, "spectrum": spec,
-                       "intensity": s.number("intensity", 1.0, positive=True)})
+        if isinstance(spec, bool) or not isinstance(spec, (str, int, float)):
+            raise s.err("spectrum", f"must be an illuminant name or a CCT, got {spec!r}")
+        spec = spec if isinstance(spec, str) else float(spec)
+        try:
+            illuminant(spec, spectral.grid)
+        except InputError as err:
+            raise s.err("spectrum", str(err).split(": ", 1)[-1]) from None
+        lights.append(Light(kind, vec, spec, s.number("intensity", 1.0, positive=True)))
         s.check_unknown()
+    return tuple(lights)
 
-    occluders = _occluders(raw.get("occluders", []), path)
 
+def _camera(raw, path) -> Camera:
     c = _Section("camera", raw.get("camera", {}), path)
     ctype = c.string("type", "orbit", choices=("orbit", "lookat"))
-    camera: dict = {"type": ctype, "fov_deg": c.number("fov_deg", 30.0),
-                    "resolution": _resolution(c, "resolution", (800, 600), allow_zero=True),
-                    "roll_deg": c.number("roll_deg", 0.0)}
-    if not 0 < camera["fov_deg"] < 180:
-        raise InputError(f"must lie in (0, 180), got {camera['fov_deg']}", path=path, field="camera.fov_deg")
-    if min(camera["resolution"]) < 1:
-        raise InputError(f"zero-area image {camera['resolution']}", path=path, field="camera.resolution")
+    common = dict(fov_deg=c.number("fov_deg", 30.0, open_range=(0.0, 180.0)),
+                  resolution=c.resolution("resolution", (800, 600), hi=LIMITS["camera_side"]),
+                  roll_deg=c.number("roll_deg", 0.0))
     if ctype == "orbit":
-        camera.update(target=c.vector("target", 3, [0.45, -0.022, 0.0]),
-                      distance=c.number("distance", 0.3, positive=True),
-                      azimuth_deg=c.number("azimuth_deg", 20.0),
-                      elevation_deg=c.number("elevation_deg", -40.0, lo=-89.9, hi=89.9))
+        cam = Camera(ctype, **common, target=c.vector("target", 3, [0.45, -0.022, 0.0]),
+                     distance=c.number("distance", 0.3, positive=True),
+                     azimuth_deg=c.number("azimuth_deg", 20.0),
+                     elevation_deg=c.number("elevation_deg", -40.0, lo=-89.9, hi=89.9))
     else:
-        camera.update(position=c.vector("position", 3), look_at=c.vector("look_at", 3),
-                      up=c.vector("up", 3, [0.0, 1.0, 0.0]))
+        cam = Camera(ctype, **common, position=c.vector("position", 3), look_at=c.vector("look_at", 3),
+                     up=c.vector("up", 3, [0.0, 1.0, 0.0]))
     c.check_unknown()
+    return cam
 
+
+def _spectral(raw, path) -> Spectral:
     sp = _Section("spectral", raw.get("spectral", {}), path)
-    spectral = {"start": sp.number("start", 400.0), "stop": sp.number("stop", 700.0),
-                "step": sp.number("step", 5.0, positive=True)}
-    if spectral["stop"] <= spectral["start"]:
-        raise InputError("must be greater than spectral.start", path=path, field="spectral.stop")
+    lo, hi = WAVELENGTH_RANGE
+    s = Spectral(sp.number("start", 400.0, lo=lo, hi=hi), sp.number("stop", 700.0, lo=lo, hi=hi),
+                 sp.number("step", 5.0, positive=True))
     sp.check_unknown()
+    if s.stop <= s.start:
+        raise sp.err("stop", "must be greater than spectral.start")
+    count = (s.stop - s.start) / s.step
+    if count + 1 > LIMITS["wavelengths"] + 1e-9:
+        raise sp.err("step", f"{count + 1:.0f} wavelengths; at most {LIMITS['wavelengths']} (1 nm over "
+                             f"{lo:g}–{hi:g} nm)")
+    try:
+        s.grid
+    except InputError as err:
+        raise sp.err("step", str(err).split(": ", 1)[-1]) from None
+    return s
 
+
+def _render(raw, path, spectral: Spectral) -> Render:
     r = _Section("render", raw.get("render", {}), path)
-    render = {"mode": r.string("mode", "reference", choices=RENDER_MODES),
-              "samples": r.number("samples", 64, integer=True, lo=1, hi=1 << 16),
-              "rank": r.number("rank", 3, integer=True, lo=1, hi=64),
-              "seed": r.number("seed", 0, integer=True, lo=0),
-              "precision": r.string("precision", "float32", choices=("float32", "float64")),
-              "chunk": r.number("chunk", 16384, integer=True, lo=256)}
+    render = Render(mode=r.string("mode", "reference", choices=RENDER_MODES),
+                    samples=r.integer("samples", 64, lo=1, hi=LIMITS["samples"]),
+                    rank=r.integer("rank", 3, lo=1, hi=spectral.grid.size),
+                    seed=r.integer("seed", 0, lo=0, hi=LIMITS["seed"]),
+                    precision=r.string("precision", "float32", choices=("float32", "float64")),
+                    chunk=r.integer("chunk", 16384, lo=256, hi=LIMITS["chunk"]))
     r.check_unknown()
+    return render
 
+
+def _check_colourspace(name, path, field):
+    from jkatana.spectral.colorimetry import colourspace
+
+    try:
+        colourspace(name)
+    except InputError as err:
+        raise InputError(str(err).split(": ", 1)[-1], path=path, field=field) from None
+
+
+def _film(raw, path) -> Film:
     f = _Section("film", raw.get("film", {}), path)
-    film = {"colourspace": f.string("colourspace", "sRGB")}
+    colourspace = f.string("colourspace", "sRGB")
     transfer = f.get("transfer", None)
     if transfer is not None and not (isinstance(transfer, str) or
                                      (isinstance(transfer, (int, float)) and not isinstance(transfer, bool)
-                                      and transfer > 0)):
-        raise InputError(f"must be a colourspace name, 'linear' or a gamma > 0, got {transfer!r}",
-                         path=path, field="film.transfer")
-    film["transfer"] = transfer
+                                      and math.isfinite(transfer) and transfer > 0)):
+        raise f.err("transfer", f"must be a colourspace name, 'linear' or a gamma > 0, got {transfer!r}")
     exposure = f.get("exposure", "auto")
     if not (exposure == "auto" or (isinstance(exposure, (int, float)) and not isinstance(exposure, bool)
-                                   and exposure > 0)):
-        raise InputError(f"must be 'auto' or a number > 0, got {exposure!r}", path=path, field="film.exposure")
-    film["exposure"] = exposure
+                                   and math.isfinite(exposure) and exposure > 0)):
+        raise f.err("exposure", f"must be 'auto' or a number > 0, got {exposure!r}")
     f.check_unknown()
-    from jkatana.spectral.colorimetry import colourspace as _cs
-
-    for key, name in (("colourspace", film["colourspace"]), ("transfer", transfer)):
+    for key, name in (("colourspace", colourspace), ("transfer", transfer)):
         if isinstance(name, str) and name.lower() != "linear":
-            try:
-                _cs(name)
-            except InputError as err:
-                raise InputError(str(err).split(": ", 1)[-1], path=path, field=f"film.{key}") from None
+            _check_colourspace(name, path, f"film.{key}")
+    return Film(colourspace, transfer if isinstance(transfer, str) or transfer is None else float(transfer),
+                exposure if exposure == "auto" else float(exposure))
 
+
+def _output(raw, path) -> Output:
     o = _Section("output", raw.get("output", {}), path)
     out_dir = Path(o.string("directory", "out")).expanduser()
     if not out_dir.is_absolute() and path is not None:
         out_dir = path.parent / out_dir
-    output = {"directory": out_dir, "name": o.string("name", "frame"), "spectral": bool(o.get("spectral", False))}
-    if "/" in output["name"] or not output["name"]:
-        raise InputError(f"must be a plain file stem, got {output['name']!r}", path=path, field="output.name")
+    output = Output(out_dir, o.string("name", "frame"), o.boolean("spectral", False))
+    if "/" in output.name or "\\" in output.name or output.name.strip(".") == "" or "\0" in output.name:
+        raise o.err("name", f"must be a plain file stem, got {output.name!r}")
     o.check_unknown()
-
-    sc = raw.get("scene", {})
-    if not isinstance(sc, dict):
-        raise InputError("must be a table", path=path, field="scene")
-    return Scene(path, geometry, material, environment, lights, camera, spectral, render, film, output, raw,
-                 occluders=occluders)
+    return output
 
 
-def _occluders(raw_occ, path) -> list[dict]:
+def _occluders(raw_occ, path) -> tuple[Occluder, ...]:
     """``[[occluders]]``: each exactly one of ``box`` (extents), ``sphere`` (radius), ``mesh`` (file)."""
     if not isinstance(raw_occ, list):
         raise InputError("must be an array of tables ([[occluders]])", path=path, field="occluders")
@@ -353,30 +668,19 @@ def _occluders(raw_occ, path) -> list[dict]:
         if len(kinds) != 1:
             raise InputError(f"needs exactly one of box, sphere, mesh (got {kinds or 'none'})", path=path,
                              field=f"occluders[{i}]")
-        spec: dict = {"kind": kinds[0], "center": s.vector("center", 3, [0.0, 0.0, 0.0])}
+        center = s.vector("center", 3, [0.0, 0.0, 0.0])
         if kinds[0] == "box":
             ext = s.vector("box", 3)
             if min(ext) <= 0:
-                raise s._err("box", f"extents must be > 0, got {list(ext)}")
-            spec["extents"] = ext
+                raise s.err("box", f"extents must be > 0, got {list(ext)}")
+            occ = Occluder("box", center, extents=ext)
         elif kinds[0] == "sphere":
-            spec["radius"] = s.number("sphere", positive=True)
+            occ = Occluder("sphere", center, radius=s.number("sphere", positive=True))
         else:
-            spec["mesh"] = s.file("mesh")
-            spec["scale"] = s.number("scale", 1.0, positive=True)
+            occ = Occluder("mesh", center, mesh=s.file("mesh"), scale=s.number("scale", 1.0, positive=True))
         s.check_unknown()
-        out.append(spec)
-    return out
-
-
-def _resolution(sec: _Section, key: str, default, allow_zero=False):
-    v = sec.get(key, list(default))
-    if (not isinstance(v, (list, tuple)) or len(v) != 2
-            or not all(isinstance(x, int) and not isinstance(x, bool) for x in v) or min(v) < 0):
-        raise sec._err(key, f"must be two non-negative integers, got {v!r}")
-    if not allow_zero and min(v) < 1:
-        raise sec._err(key, f"must be positive, got {v!r}")
-    return (int(v[0]), int(v[1]))
+        out.append(occ)
+    return tuple(out)
 
 
 def default_scene() -> Scene:
