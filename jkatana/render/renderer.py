@@ -139,7 +139,14 @@ def _check_map_size(shape, geometry, where):
 
 
 def load_environment(scene: Scene, grid: WavelengthGrid) -> np.ndarray:
-    """The scene's environment as ``(H, W, wl)`` float32 spectral radiance on ``grid``."""
+    """The scene's environment as ``(H, W, wl)`` float32 spectral radiance on ``grid``
+    (through the environment cache, :mod:`jkatana.light.cache`)."""
+    from jkatana.light.cache import cached_radiance, radiance_key
+
+    return cached_radiance(radiance_key(scene.environment, grid), lambda: _build_radiance(scene, grid))
+
+
+def _build_radiance(scene: Scene, grid: WavelengthGrid) -> np.ndarray:
     e = scene.environment
     if e.type == "sky":
         from jkatana.light.sky import hosek_wilkie_sky
@@ -180,20 +187,33 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
         n, k = load_oc(scene.material.optical_constants).on_grid(grid)
     except InputError as err:
         raise InputError(str(err), field="material.optical_constants") from None
-    mat = Material(fresnel_table(jnp.asarray(n, dtype), jnp.asarray(k, dtype)), jnp.asarray(chi, dtype),
-                   jnp.asarray(beta, dtype))
+    from jkatana.light.cache import cached_tree, fresnel_key
+
+    table = cached_tree(fresnel_key(n, k, dtype), lambda: fresnel_table(jnp.asarray(n, dtype), jnp.asarray(k, dtype)),
+                        kind="fresnel")
+    mat = Material(jnp.asarray(table, dtype), jnp.asarray(chi, dtype), jnp.asarray(beta, dtype))
     mode = mode or scene.render.mode
     samples = samples or scene.render.samples
-    radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
     env_rank = (rank or scene.render.rank) if mode == "lowrank" else None
     mus = ()
     if mode == "prefiltered":
         lo = max(float(np.min(maps[..., 1:])), 1e-3)
         hi = max(float(np.max(maps[..., 1:])), lo * 1.01)
         mus = tuple(np.geomspace(lo, hi, 4))
-    env, factored, resid = build_environment(radiance, rank=env_rank,
-                                             rotation=rotation_y(scene.environment.rotation_deg),
-                                             prefilter_mus=mus, dtype=dtype, grid=grid)
+    # environment and its tables built once per content (jkatana.light.cache); rotation set afterwards
+    from jkatana.light.cache import environment_key, radiance_key
+
+    rad_key = radiance_key(scene.environment, grid) if env_radiance is None else None
+    env_key = None if rad_key is None else environment_key(rad_key, rank=env_rank, prefilter_mus=mus,
+                                                           prefilter_resolution=128, dtype=dtype)
+
+    def build():
+        radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
+        return build_environment(radiance, rank=env_rank, prefilter_mus=mus, prefilter_resolution=128,
+                                 dtype=dtype, grid=grid)
+
+    env, factored, resid = cached_tree(env_key, build)
+    env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rotation_y(scene.environment.rotation_deg), dtype))
     # effects on demand: decided here, on the host, from the data
     w = maps[..., 0]
     hiraji = bool((w > 0).any())
@@ -218,7 +238,7 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
 
         occluders = Occluders(occluder_mesh(scene.occluders))
     env_info = {"channels": int(env.channels.shape[-1]), "factored": factored, "rank_residual": resid,
-                "grey": bool(factored and env_rank is None), "resolution": list(radiance.shape[:2])}
+                "grey": bool(factored and env_rank is None), "resolution": list(env.channels.shape[:2])}
     return Prepared(scene, grid, dtype, geometry, maps, mat, env, env_info, lights, plan,
                     film_weights(grid), time.perf_counter() - t0, occluders)
 
