@@ -70,6 +70,23 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_scene_warnings() -> None:
+    """Scene warnings (:class:`jkatana.render.check.SceneWarning`) print as one line, like input errors."""
+    import warnings
+
+    if getattr(warnings.formatwarning, "_jkatana", False):
+        return
+    default = warnings.formatwarning
+
+    def fmt(message, category, filename, lineno, line=None):
+        if category.__name__ == "SceneWarning":
+            return f"jkatana: warning: {message}\n"
+        return default(message, category, filename, lineno, line)
+
+    fmt._jkatana = True
+    warnings.formatwarning = fmt
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     only = argv[0] if argv and argv[0] in COMMANDS else None
@@ -78,6 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
+    _one_line_scene_warnings()
     module, prefix = _load(args.command)
     if module is None:
         print(f"jkatana: the command {args.command!r} is not available in this build", file=sys.stderr)

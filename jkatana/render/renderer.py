@@ -51,7 +51,8 @@ class Prepared:
 
 
 def load_geometry(scene: Scene):
-    """The scene's geometry: ``("sphere", center, radius)`` or a trimesh mesh with per-vertex UVs."""
+    """The scene's geometry: ``("sphere", center, radius)`` or a trimesh mesh with per-vertex UVs
+    (constant UVs for a mesh without them under a uniform material; refused under a map)."""
     g = scene.geometry
     if g.kind == "sphere":
         return ("sphere", g.center, g.radius)
@@ -69,8 +70,12 @@ def load_geometry(scene: Scene):
         raise InputError("no triangles", path=g.mesh, field="geometry.mesh")
     uv = getattr(mesh.visual, "uv", None)
     if uv is None or len(uv) != len(mesh.vertices):
-        raise InputError("mesh has no per-vertex UVs (needed for the reflectance map)", path=g.mesh,
-                         field="geometry.mesh")
+        if scene.material.map is not None:
+            raise InputError("mesh has no per-vertex UVs, which the reflectance map needs: make them with "
+                             "`jkatana shape MESH --uv blade` (or `--uv xatlas`), or give a uniform material "
+                             "(w, mu0, mu1) instead of a map", path=g.mesh, field="geometry.mesh")
+        # a uniform material reads the same value everywhere: any UVs do
+        mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((len(mesh.vertices), 2)))
     return mesh
 
 
@@ -277,6 +282,9 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
         rot = rotation_y(scene.environment.rotation_deg + 360.0 * light / lights)
         env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rot, prep.dtype))
     cam = camera_for(scene, view, views)
+    from jkatana.render.check import warn_scene
+
+    warn_scene(prep.geometry, cam)  # camera inside the object, wrong scale, empty frame: one line
     s = scene.render.seed if seed is None else seed
     ss = int(supersample or 1)
     if ss > 1:
