@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import os
+
+import numpy as np
 import subprocess
 import sys
 import time
@@ -67,13 +69,34 @@ def _load(args):
         sc.view = S.closeup_view(sc.mesh, sc.view.width, sc.view.height)
     if args.exposure is not None:
         sc.exposure = args.exposure
-    if sc.exposure != sc.exposure:  # NaN: "auto"
+    sc.auto_exposure = sc.exposure != sc.exposure  # NaN: "auto"
+    if sc.auto_exposure:  # a first guess; frames then set it by the rule `render` uses (calibrate_exposure)
         sc.exposure = auto_exposure(sc.radiance, sc.grid)
     return sc
 
 
+def calibrate_exposure(renderer, state, scene, sc, rounds: int = 6) -> float:
+    """Set ``state.exposure`` by the rule `render` applies to its frames
+    (:func:`jkatana.render.film.scene_exposure`: the blade's mean displayed luminance, clipped at white,
+    at :data:`~jkatana.render.film.OBJECT_KEY`), measured on the GL frame of the starting view: each round
+    renders it, decodes the 8-bit display RGB (:func:`~jkatana.render.film.xyz_from_display`), takes the
+    blade pixels' mean (the depth mask) and scales the exposure by key / mean; the displayed mean is
+    increasing and concave in the exposure, so the steps settle within a few rounds."""
+    from jkatana.render.film import OBJECT_KEY, xyz_from_display
+
+    for _ in range(rounds):
+        img = renderer.render(scene, mask=True)
+        mask = renderer.last_mask
+        if not mask.any():
+            break
+        shown = float(np.mean(xyz_from_display(img, sc.colourspace, sc.transfer)[..., 1][mask]))
+        state.exposure = float(state.exposure * OBJECT_KEY / max(shown, 1e-6))
+    return state.exposure
+
+
 def auto_exposure(radiance, grid, key: float = 0.85, percentile: float = 99.5) -> float:
-    """Exposure putting the environment's bright end (Y at ``percentile``) at ``key``/F̄ (F̄ ≈ 0.55 for iron)."""
+    """First guess of the exposure before a frame exists: the environment's bright end (Y at ``percentile``)
+    at ``key``/F̄ (F̄ ≈ 0.55 for iron)."""
     import numpy as np
 
     from jkatana.render.film import film_weights
@@ -119,6 +142,9 @@ def _offscreen(args) -> int:
     times = []
     scene = glrender.build_scene(sc.mesh, sc.view)
     cam = next(iter(scene.camera_nodes))
+    if sc.auto_exposure and r._r._renderer.deferred:
+        print(f"[view] exposure {calibrate_exposure(r, st, scene, sc):.4g} (the rule `render` uses: "
+              "jkatana.render.film.scene_exposure)", file=sys.stderr)
     for k, v in enumerate(tqdm(sc.orbit(args.frames), desc="frames", file=sys.stderr)):
         scene.set_pose(cam, v.pose)
         t = time.perf_counter()
@@ -127,9 +153,12 @@ def _offscreen(args) -> int:
         with atomic_path(out / f"frame_{k:04d}.png") as tmp:
             Image.fromarray(img).save(tmp, format="PNG")
     r.delete()
-    steady = sorted(times[1:] or times)[len(times[1:] or times) // 2]
-    print(f"jkatana view: {len(times)} frames {sc.view.width}×{sc.view.height} → {out}/frame_*.png; "
-          f"median {steady * 1e3:.1f} ms/frame (after the first; incl. read-back), "
+    if len(times) > 1:
+        steady = sorted(times[1:])[(len(times) - 1) // 2]
+        timing = f"median {steady * 1e3:.1f} ms/frame over {len(times) - 1} frames after the first (incl. read-back)"
+    else:
+        timing = f"one frame in {times[0] * 1e3:.1f} ms (the first frame includes setup; no steady rate measured)"
+    print(f"jkatana view: {len(times)} frames {sc.view.width}×{sc.view.height} → {out}/frame_*.png; {timing}, "
           f"platform {os.environ.get('PYOPENGL_PLATFORM')}")
     return 0
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from jkatana.errors import InputError
 from jkatana.render.camera import Camera
-from jkatana.render.film import auto_exposure, display, film_weights, write_png, write_spectral_exr, write_xyz_exr
+from jkatana.render.film import display, scene_exposure, film_weights, write_png, write_spectral_exr, write_xyz_exr
 from jkatana.render.frame import Frame, pixel_blocks, render_frame
 from jkatana.render.scene import Scene
 from jkatana.render.shading import MIRROR_MU, Environment, Light, Material, Plan, build_environment, fresnel_table
@@ -307,9 +307,7 @@ def exposure_for(prep: Prepared, frame: Frame) -> float:
     e = prep.scene.film.exposure
     if e != "auto":
         return float(e)
-    if frame.mask.any():
-        return auto_exposure(frame.xyz, frame.mask, key=0.6, percentile=75.0)
-    return auto_exposure(frame.xyz, None, key=0.18, percentile=50.0)
+    return scene_exposure(frame.xyz, frame.mask)
 
 
 def metadata(prep: Prepared, frame: Frame, exposure: float, extra: dict | None = None) -> dict:
