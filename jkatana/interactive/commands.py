@@ -32,6 +32,8 @@ def view_add_arguments(p: argparse.ArgumentParser) -> None:
                         "3 taps along the plane of incidence with offsets, weights and filter width fitted to "
                         "the lobe per view angle (default; glint views ΔE00 p95 ~2 instead of ~3), 5 binomial "
                         "taps matching the lobe's mean and variance (slowest)")
+    p.add_argument("--flat-background", action="store_true",
+                   help="a flat grey behind the blade instead of the environment (coverage checks, screenshots)")
     p.add_argument("--no-rough", action="store_true", help="mirror-like lobes (skip the roughness blur)")
     p.add_argument("--no-blend", action="store_true", help="hiraji everywhere (ignore the map's w)")
     p.add_argument("--forward", action="store_true",
@@ -117,6 +119,7 @@ def _state(sc, args, glrender):
     st = glrender.ShadingState(baked, sc.refl_map, exposure=sc.exposure, rank=args.rank, rough=not args.no_rough,
                                blend=not args.no_blend, two_tap=args.taps != 1, taps=max(args.taps, 3))
     st.env_rotation = sc.env_rotation
+    st.background = not args.flat_background  # the environment behind the blade, as `render` shows it
     return st
 
 

@@ -148,6 +148,10 @@ class ShadingState:
       moment-matched).
     """
 
+    #: draw the environment behind the blade (deferred path; the `view` command turns it on); off: the
+    #: scene's flat background colour, which tests and benchmarks use to find the blade's pixels
+    background: bool = False
+
     def __init__(self, baked: Baked, refl_map: np.ndarray, *, exposure: float = 1.0, rank: int | None = None,
                  rough: bool = True, blend: bool = True, two_tap: bool = True, taps: int = 3, fit: bool = True):
         self.baked = baked
@@ -593,7 +597,8 @@ class SampleCountRenderer(Renderer):
         GL.glBindVertexArray(0)
         program._unbind()
         GL.glDisable(GL.GL_SCISSOR_TEST)
-        self._background_pass(scene, w, h)
+        if self._program_cache.state.background:
+            self._background_pass(scene, w, h)
         GL.glDepthFunc(GL.GL_LESS)
         GL.glDepthMask(GL.GL_TRUE)
 

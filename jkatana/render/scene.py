@@ -25,7 +25,8 @@ to the scene file)::
     resolution = [256, 512]
     # path = "sky.exr"; upsampling = "Jakob 2019"; scale = 1.0   (file)
     # radiance = 1.0                                              (constant)
-    rotation_deg = 0.0               # rotate the environment about +Y
+    rotation_deg = 0.0               # rotate the environment about +Y: + moves features clockwise seen
+                                     # from above (compass azimuth a → a + rotation_deg; README picture)
 
     [[lights]]                       # optional, any number
     type = "point"                   # or "directional"
@@ -56,7 +57,8 @@ to the scene file)::
     step = 5.0
 
     [render]
-    mode = "reference"               # reference | paper | prefiltered | lowrank
+    mode = "reference"               # reference | paper | prefiltered | lowrank; paper = the paper's
+                                     # 30 jittered lobe rays: misses compact bright sources (a sun's glint)
     samples = 64
     rank = 3                         # lowrank mode
     seed = 0
