@@ -27,7 +27,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from jkatana.errors import InputError
+from jkatana.errors import InputError, SceneWarning
 from jkatana.io.interrupt import hold_if_exiting
 
 # name -> (module, attribute prefix). The prefix lets one module hold several
@@ -96,6 +96,20 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
                                 "default: what the machine has available)")
     return parser
 
+def _one_line_scene_warnings() -> None:
+    """Scene warnings (:class:`jkatana.errors.SceneWarning`) print as one line, like input errors."""
+    if getattr(warnings.formatwarning, "_jkatana", False):
+        return
+    default = warnings.formatwarning
+
+    def fmt(message, category, filename, lineno, line=None):
+        if issubclass(category, SceneWarning):
+            return f"jkatana: warning: {message}\n"
+        return default(message, category, filename, lineno, line)
+
+    fmt._jkatana = True
+    warnings.formatwarning = fmt
+
 
 def _one_line(err: BaseException) -> str:
     """An OS or decoding error as one line naming the file."""
@@ -128,6 +142,7 @@ def main(argv: list[str] | None = None, *, handle_signals: bool | None = None) -
         install(command or "")
     if not sys.warnoptions and not os.environ.get("PYTHONWARNINGS"):
         warnings.simplefilter("ignore")
+        warnings.simplefilter("always", SceneWarning)  # a scene warning is a message for the user
     for a in argv:
         if "\x00" in a:
             print(f"jkatana{' ' + command if command else ''}: error: an argument contains a NUL byte "
@@ -137,6 +152,7 @@ def main(argv: list[str] | None = None, *, handle_signals: bool | None = None) -
         print("jkatana bench: error: the benchmark suite runs from a source checkout (benchmarks/ beside "
               "jkatana/); there is none beside this installation", file=sys.stderr)
         return 2
+    _one_line_scene_warnings()
     parser = build_parser(command)
     args = parser.parse_args(argv)
     if args.command is None:

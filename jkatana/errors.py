@@ -24,3 +24,7 @@ class InputError(ValueError):
             where.append(f"field {field!r}")
         self.path, self.row, self.field = path, row, field
         super().__init__((": ".join([", ".join(where), message])) if where else message)
+
+
+class SceneWarning(UserWarning):
+    """The scene renders, but very likely not what was meant (one line: cause and fix)."""

@@ -347,7 +347,8 @@ def test_windowed_viewer_under_xvfb(glr, tmp_path):
     if shutil.which("Xvfb") is None:  # pragma: no cover
         pytest.skip("Xvfb not installed (Debian package xvfb)")
     shot = tmp_path / "window.png"
-    res = run_in_xvfb(["--resolution", "320", "240", "--screenshot", str(shot)], timeout=300, size=(320, 240))
+    res = run_in_xvfb(["--resolution", "320", "240", "--flat-background", "--screenshot", str(shot)], timeout=300,
+                      size=(320, 240))
     assert res.returncode == 0, res.stderr[-2000:]
     assert "window 320×240, deferred shading" in res.stderr, res.stderr[-2000:]
     from PIL import Image
@@ -399,7 +400,8 @@ def test_viewer_measures_its_frame_rate_under_xvfb(tmp_path):
         pytest.skip("Xvfb not installed (Debian package xvfb)")
     shot = tmp_path / "drag.png"
     res = run_in_xvfb(["--resolution", "320", "240", "--measure-fps", "10", "--taps", "1", "--rank", "2",
-                       "--drag-scale", "0.5", "--screenshot", str(shot)], timeout=300, size=(320, 240))
+                       "--drag-scale", "0.5", "--flat-background", "--screenshot", str(shot)], timeout=300,
+                      size=(320, 240))
     assert res.returncode == 0, res.stderr[-2000:]
     m = re.search(r"measured (\d+) frames 320×240 \(deferred, shaded at 0.50× resolution\): median interval "
                   r"([\d.]+) ms = ([\d.]+) fps", res.stderr)

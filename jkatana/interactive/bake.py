@@ -16,10 +16,12 @@ from :mod:`jkatana.models` and :mod:`jkatana.spectral`:
    weighting of eq. (6) and L̃_μ the environment convolved with the lobe
    kernel of the paper's facet distribution D(φ, μ) = exp(−ln2 φ²/μ²) at
    normal incidence (the reflected direction is 2φ from the mirror direction,
-   so K(α) = D(α/2, μ)/cos(α/2), normalised). The convolution is exact on the
+   so K(α) = D(α/2, μ)/cos(α/2), normalised). The convolution is exact on an
    equirectangular grid (FFT along longitude: the kernel depends only on the
-   two latitudes and the longitude difference). One layer per μ level,
-   log-spaced.
+   two latitudes and the longitude difference), done for each μ level on the
+   source box-downsampled to ≥ 2 texels per μ (:func:`level_shape`) and
+   resampled bilinearly to the source's size for the shader. One layer per μ
+   level, log-spaced.
 3. **Lobe lookup table** A_r(cos θv, μ) = Σ_λ b_r(λ) ∫ f_r cos θi dω_i for
    the hiraji and hamon models exactly as :meth:`Hiraji.brdf_cos` and
    :meth:`Hamon.brdf_cos` define them (normalised, uncalibrated convention),
@@ -99,36 +101,113 @@ def texel_directions(height: int, width: int) -> np.ndarray:
                                         -np.sin(theta) * np.cos(phi)), axis=-1)
 
 
-def _kernel(cos_alpha, mu, n_table: int = 8192):
-    """Prefilter kernel of the paper's lobe at normal incidence: D(α/2, μ)/cos(α/2), 0 beyond 90° facet tilt.
+def _kernel_table(mu, n_table: int = 8192):
+    """The prefilter kernel D(α/2, μ)/cos(α/2) tabulated on x = sin²(α/2) ∈ [0, sin²(top/2)], top = min(12 μ, π).
 
-    D is evaluated by :func:`jkatana.models.gaussian_facet` on a dense table of
-    α ∈ [0, min(12 μ, π)] (D(6μ) < 1e-10) and interpolated.
+    D is evaluated by :func:`jkatana.models.gaussian_facet` (D(6μ) < 1e-10, so
+    the kernel is 0 beyond ``top``). In x the kernel is smooth at α = 0
+    (≈ exp(−ln2·x/μ²)), so a uniform table interpolates it without an arccos.
     """
     top = min(12.0 * mu, np.pi)
-    alpha = np.linspace(0.0, top, n_table)
-    half = alpha / 2.0
-    d = np.asarray(gaussian_facet(jnp.asarray(half), jnp.asarray(mu, jnp.asarray(half).dtype)), np.float64)
-    table = d / np.maximum(np.cos(half), 1e-6)
-    a = np.arccos(np.clip(cos_alpha, -1.0, 1.0))
-    return np.where(a <= top, np.interp(a, alpha, table), 0.0)
+    x = np.linspace(0.0, np.sin(top / 2) ** 2, n_table)
+    half = np.arcsin(np.sqrt(x))
+    d = np.asarray(_facet_jit(jnp.asarray(half), jnp.asarray(mu, jnp.asarray(half).dtype)), np.float64)
+    return x, d / np.maximum(np.cos(half), 1e-6)
+
+
+_facet_jit = jax.jit(gaussian_facet)
+
+
+def _kernel(cos_alpha, mu, n_table: int = 8192, table=None):
+    """Prefilter kernel of the paper's lobe at normal incidence: D(α/2, μ)/cos(α/2), 0 beyond 12 μ
+    (interpolated in :func:`_kernel_table`'s table)."""
+    x, k = _kernel_table(mu, n_table) if table is None else table
+    s2 = 0.5 * (1.0 - np.clip(cos_alpha, -1.0, 1.0))
+    inside = s2 <= x[-1]
+    out = np.zeros(np.shape(s2))
+    out[inside] = np.interp(s2[inside], x, k)  # a narrow lobe covers few of the pairs: interpolate those
+    return out
+
+
+def _box2(img: np.ndarray) -> np.ndarray:
+    """Halve an equirectangular image in both axes, each 2×2 block averaged with its rows' solid angles."""
+    H, W = img.shape[:2]
+    edges = np.linspace(0.0, np.pi, H + 1)
+    w = np.cos(edges[:-1]) - np.cos(edges[1:])
+    num = (img * w[:, None, None]).reshape(H // 2, 2, W // 2, 2, -1).sum((1, 3))
+    return num / (2.0 * w.reshape(H // 2, 2).sum(1)[:, None, None])
+
+
+def level_shape(mu: float, shape: tuple[int, int], texels_per_mu: float = 2.0) -> tuple[int, int]:
+    """The resolution a level of width ``mu`` is convolved at: the source halved while a texel
+    (π/H rad tall) stays ≤ μ/``texels_per_mu`` (the lobe's half-maximum radius in the reflected direction
+    is 2μ, so ≥ 4 texels span it)."""
+    H, W = shape
+    while H % 2 == 0 and W % 2 == 0 and np.pi / (H // 2) <= mu / texels_per_mu:
+        H, W = H // 2, W // 2
+    return H, W
+
+
+def prefilter_level(image: np.ndarray, mu: float, *, texels_per_mu: float = 2.0, chunk: int = 32) -> np.ndarray:
+    """Convolve an equirectangular image ``(H, W, C)`` with the lobe kernel of width ``mu`` at
+    :func:`level_shape`'s resolution (returned at that resolution).
+
+    Exact on that grid: the kernel depends only on the two latitudes and the
+    longitude difference, so each output row is a sum over input rows of
+    circular convolutions along longitude, done by FFT (scipy.fft, float64,
+    all cores). Output rows go in chunks and only input rows within the
+    kernel's reach (12 μ) enter, so memory and time scale with
+    rows × reach × width instead of rows² × width.
+    """
+    import scipy.fft as sfft
+
+    img = np.asarray(image, np.float64)
+    h, w = level_shape(mu, img.shape[:2], texels_per_mu)
+    while img.shape[0] > h:
+        img = _box2(img)
+    theta = (np.arange(h) + 0.5) / h * np.pi
+    edges = np.linspace(0.0, np.pi, h + 1)
+    d_omega = (2.0 * np.pi / w) * (np.cos(edges[:-1]) - np.cos(edges[1:]))
+    cos_dlon = np.cos(2.0 * np.pi * np.arange(w) / w)
+    table = _kernel_table(mu)
+    reach = int(np.ceil(min(12.0 * mu, np.pi) / (np.pi / h))) + 1
+    spec = sfft.rfft(img, axis=1, workers=-1)                                         # (h, F, C)
+    out = np.empty(img.shape, np.float64)
+    for o0 in range(0, h, chunk):
+        o1 = min(h, o0 + chunk)
+        i0, i1 = max(0, o0 - reach), min(h, o1 + reach)
+        to, ti = theta[o0:o1], theta[i0:i1]
+        cos_a = (np.cos(to)[:, None, None] * np.cos(ti)[None, :, None]
+                 + np.sin(to)[:, None, None] * np.sin(ti)[None, :, None] * cos_dlon)
+        K = _kernel(cos_a, mu, table=table) * d_omega[None, i0:i1, None]           # (no, ni, w)
+        K /= K.sum(axis=(1, 2), keepdims=True)
+        Kf = sfft.rfft(K, axis=-1, workers=-1)                                        # (no, ni, F)
+        r = np.matmul(Kf.transpose(2, 0, 1), spec[i0:i1].transpose(1, 0, 2))         # (F, no, C)
+        out[o0:o1] = sfft.irfft(r.transpose(1, 0, 2), n=w, axis=1, workers=-1)
+    return out
+
+
+def upsample(level: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Bilinear resampling of an equirectangular ``(h, w, C)`` level to ``(height, width, C)``
+    (texel centres; longitude wraps, latitude clamps at the poles)."""
+    h, w = level.shape[:2]
+    if (h, w) == (height, width):
+        return np.asarray(level)
+    y = np.clip((np.arange(height) + 0.5) * h / height - 0.5, 0.0, h - 1.0)
+    j0 = np.minimum(np.floor(y).astype(int), max(h - 2, 0))
+    fy = (y - j0)[:, None, None].astype(level.dtype)
+    rows = level[j0] * (1 - fy) + level[np.minimum(j0 + 1, h - 1)] * fy                # (height, w, C)
+    x = (np.arange(width) + 0.5) * w / width - 0.5
+    i0 = np.floor(x).astype(int)
+    fx = (x - i0)[None, :, None].astype(level.dtype)
+    return rows[:, i0 % w] * (1 - fx) + rows[:, (i0 + 1) % w] * fx
 
 
 def prefilter(image: np.ndarray, mu: float) -> np.ndarray:
-    """Convolve an equirectangular image ``(H, W, C)`` with the lobe kernel of width ``mu`` (exact, FFT in longitude)."""
+    """Convolve an equirectangular image ``(H, W, C)`` with the lobe kernel of width ``mu``, returned at
+    the image's resolution (:func:`prefilter_level`, then :func:`upsample`)."""
     H, W = image.shape[:2]
-    theta = (np.arange(H) + 0.5) / H * np.pi
-    edges = np.linspace(0.0, np.pi, H + 1)
-    d_omega = (2.0 * np.pi / W) * (np.cos(edges[:-1]) - np.cos(edges[1:]))          # (H,)
-    dlon = 2.0 * np.pi * np.arange(W) / W
-    cos_a = (np.cos(theta)[:, None, None] * np.cos(theta)[None, :, None]
-             + np.sin(theta)[:, None, None] * np.sin(theta)[None, :, None] * np.cos(dlon))
-    K = _kernel(cos_a, mu) * d_omega[None, :, None]                                  # (Ho, Hi, W)
-    K /= K.sum(axis=(1, 2), keepdims=True)
-    Kf = np.fft.rfft(K, axis=-1)                                                     # (Ho, Hi, F)
-    If = np.fft.rfft(image, axis=1)                                                  # (Hi, F, C)
-    out = np.fft.irfft(np.matmul(Kf.transpose(2, 0, 1), If.transpose(1, 0, 2)).transpose(1, 0, 2), n=W, axis=1)
-    return out.astype(np.float64)
+    return upsample(prefilter_level(image, mu), H, W)
 
 
 def halfvector_quadrature(mu, n_phi: int = 32, n_psi: int = 48, extent: float = 4.5):
@@ -487,6 +566,29 @@ def _cached_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None):
     return taps, l1, ok
 
 
+def _cached_material_tables(conductor: Conductor, rank: int, mus, cache_dir=None):
+    """``(b, fresnel_err, lut, spread)``: :func:`fresnel_basis` and :func:`lobe_lut`, which depend on the
+    conductor, the rank and the μ levels but not on the environment, cached beside the tap fit (seconds of
+    JAX compilation that a new environment need not pay again). Looked up first among the tables shipped
+    with the package (iron at the default grid, rank 3 and levels: :func:`write_shipped_tap_table`), then in
+    the user cache. Key: :func:`tap_fit_key`'s inputs, the rank and the source of the two functions."""
+    import hashlib
+    import inspect
+
+    h = hashlib.sha256(tap_fit_key(conductor, mus, 64).encode() + repr(rank).encode())
+    for f in (fresnel_basis, lobe_lut, _lut_column, lobe_integral, halfvector_quadrature):
+        h.update(inspect.getsource(f).encode())
+    name = f"material-{h.hexdigest()[:24]}.npz"
+    for path in (SHIPPED_TAPS / name, _cache_root(cache_dir) / name):
+        if path.exists():
+            with np.load(path) as z:
+                return z["b"], float(z["err"]), z["lut"], z["spread"]
+    _, _, b, err = fresnel_basis(conductor, rank)
+    _, lut, spread = lobe_lut(conductor, b, mus)
+    _save_npz(path, b=b, err=np.float64(err), lut=lut, spread=spread)
+    return b, err, lut, spread
+
+
 def write_shipped_tap_table(source: str = "Fe-Johnson", grid: WavelengthGrid = DEFAULT_GRID) -> Path:
     """Fit the taps for ``source`` at the default μ levels and write them to the package's data folder
     (run after changing the fitting code: ``python -c "from jkatana.interactive.bake import
@@ -498,11 +600,28 @@ def write_shipped_tap_table(source: str = "Fe-Johnson", grid: WavelengthGrid = D
     conductor = Conductor.from_table(source, grid, dtype=jnp.float64)
     key = tap_fit_key(conductor, MU_LEVELS, 64)
     _, taps, l1, ok = tap_fit(conductor, MU_LEVELS, n_cos=64)
-    for old in SHIPPED_TAPS.glob("taps-*.npz"):
+    for old in [*SHIPPED_TAPS.glob("taps-*.npz"), *SHIPPED_TAPS.glob("material-*.npz")]:
         old.unlink()
     path = SHIPPED_TAPS / f"taps-{key}.npz"
     _save_npz(path, taps=taps, l1=l1, ok=ok)
+    write_shipped_material_table(source, grid)
     return path
+
+
+def write_shipped_material_table(source: str = "Fe-Johnson", grid: WavelengthGrid = DEFAULT_GRID,
+                                 rank: int = 3) -> Path:
+    """Compute :func:`_cached_material_tables` for ``source`` at the default levels into the package's
+    data folder (float64, as the shipped tap table)."""
+    jax.config.update("jax_enable_x64", True)
+    conductor = Conductor.from_table(source, grid, dtype=jnp.float64)
+    for old in SHIPPED_TAPS.glob("material-*.npz"):
+        old.unlink()
+    with __import__("tempfile").TemporaryDirectory() as tmp:
+        _cached_material_tables(conductor, rank, MU_LEVELS, tmp)
+        made = next((Path(tmp) / "interactive").glob("material-*.npz"))
+        target = SHIPPED_TAPS / made.name
+        _save_npz(target, **dict(np.load(made)))
+    return target
 
 
 def transfer_table(transfer="sRGB", n: int = 2048) -> np.ndarray:
@@ -512,12 +631,17 @@ def transfer_table(transfer="sRGB", n: int = 2048) -> np.ndarray:
 
 
 def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, rank: int = 3, mus=MU_LEVELS,
-                colourspace: str = "sRGB", transfer=None, source: str = "Fe-Johnson", cache_dir=None) -> Baked:
+                colourspace: str = "sRGB", transfer=None, source: str = "Fe-Johnson", cache_dir=None,
+                progress: bool = False) -> Baked:
     """:func:`bake` with an on-disk cache (``$JKATANA_CACHE`` or ``~/.cache/jkatana``/interactive).
 
     The key hashes every input (radiance bytes, grid, rank, μ levels, display
     transform, optical-constant source) and this module's source, so a change
-    to the baking code invalidates it.
+    to the baking code invalidates it. The entry keeps each prefiltered level
+    at its own resolution (:func:`level_shape`) in float16 scaled by the
+    level's largest magnitude (relative precision 2⁻¹¹), resampled to the
+    source's size on load: tens of MB for a 1k map instead of hundreds.
+    `progress` shows a progress bar over the μ levels while baking.
     """
     import hashlib
 
@@ -527,15 +651,22 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
                  Path(__file__).read_bytes()):
         h.update(part)
     path = _cache_root(cache_dir) / f"baked-{h.hexdigest()[:24]}.npz"
+    H, W = radiance.shape[:2]
     if path.exists():
         with np.load(path) as z:
-            fields = {f.name: z[f.name] for f in dataclasses.fields(Baked)}
-        return Baked(**{**fields, "fresnel_err": float(fields["fresnel_err"]),
+            fields = {f.name: z[f.name] for f in dataclasses.fields(Baked) if f.name != "env"}
+            levels = [z[f"level{k}"].astype(np.float32) * np.float32(z["level_scale"][k]) for k in range(len(mus))]
+        env = np.stack([upsample(lv, H, W) for lv in levels]).reshape(len(mus), H, W, rank, 3)
+        return Baked(**{**fields, "env": env.transpose(0, 3, 1, 2, 4), "fresnel_err": float(fields["fresnel_err"]),
                         "colourspace": str(fields["colourspace"])})
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
-    baked = bake(radiance, grid, conductor=Conductor.from_table(source, grid, dtype=dt), rank=rank, mus=mus,
-                 colourspace=colourspace, transfer=transfer, cache_dir=cache_dir)
-    _save_npz(path, **{k: np.asarray(v) for k, v in dataclasses.asdict(baked).items()})
+    baked, levels = _bake(np.asarray(radiance, np.float64), grid,
+                          conductor=Conductor.from_table(source, grid, dtype=dt), rank=rank, mus=mus,
+                          colourspace=colourspace, transfer=transfer, cache_dir=cache_dir, progress=progress)
+    scale = np.array([max(float(np.abs(lv).max()), 1e-30) / 60000.0 for lv in levels])
+    small = {f"level{k}": (lv / scale[k]).astype(np.float16) for k, lv in enumerate(levels)}
+    _save_npz(path, level_scale=scale, **small,
+              **{k: np.asarray(v) for k, v in dataclasses.asdict(baked).items() if k != "env"})
     return baked
 
 
@@ -559,15 +690,27 @@ def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor
     if conductor is None:
         conductor = Conductor.from_table("Fe-Johnson", grid, dtype=jnp.float64 if jax.config.jax_enable_x64
                                          else jnp.float32)
-    _, _, b, err = fresnel_basis(conductor, rank)
+    baked, _ = _bake(radiance, grid, conductor=conductor, rank=rank, mus=mus, colourspace=colourspace,
+                     transfer=transfer, cache_dir=cache_dir)
+    return baked
+
+
+def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_dir, progress: bool = False):
+    """:func:`bake`, also returning the prefiltered levels at their own resolutions (what the cache keeps)."""
+    from tqdm import tqdm
+
+    b, err, lut, spread = _cached_material_tables(conductor, rank, mus, cache_dir)
     W = film_weights(grid)            # (wl, 3); k = 1/∫ȳ dλ as jkatana.render: flat radiance 1 → Y = 1
-    proj = np.einsum("hwl,rl,lc->hwrc", radiance, b, W).reshape(*radiance.shape[:2], rank * 3)
-    env = np.stack([prefilter(proj, float(mu)) for mu in mus])                      # (n_mu, H, W, r*3)
-    env = env.reshape(len(mus), *radiance.shape[:2], rank, 3).transpose(0, 3, 1, 2, 4)
-    _, lut, spread = lobe_lut(conductor, b, mus)
+    H, Wd = radiance.shape[:2]
+    proj = np.einsum("hwl,rl,lc->hwrc", radiance, b, W, optimize=True).reshape(H, Wd, rank * 3)
+    bar = tqdm(mus, desc="baking the environment (μ levels)", unit="level", disable=not progress,
+               file=__import__("sys").stderr)
+    levels = [prefilter_level(proj, float(mu)) for mu in bar]
+    env = np.stack([upsample(lv.astype(np.float32), H, Wd) for lv in levels])        # (n_mu, H, W, r*3)
+    env = env.reshape(len(mus), H, Wd, rank, 3).transpose(0, 3, 1, 2, 4)
     taps, tap_l1, tap_ok = _cached_tap_fit(conductor, mus, lut.shape[2], cache_dir)
     taps = resolved_taps(taps, spread, mus, radiance.shape[0])
     return Baked(env=env, lut=lut, spread=spread, taps=taps, tap_l1=tap_l1, tap_ok=tap_ok, mus=np.asarray(mus, np.float64), b=b, fresnel_err=err,
                  xyz_to_rgb=xyz_to_rgb_matrix(colourspace),
                  transfer=transfer_table(colourspace if transfer is None else transfer),
-                 colourspace=colourspace)
+                 colourspace=colourspace), levels

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import os
+
+import numpy as np
 import subprocess
 import sys
 import time
@@ -30,6 +32,8 @@ def view_add_arguments(p: argparse.ArgumentParser) -> None:
                         "3 taps along the plane of incidence with offsets, weights and filter width fitted to "
                         "the lobe per view angle (default; glint views ΔE00 p95 ~2 instead of ~3), 5 binomial "
                         "taps matching the lobe's mean and variance (slowest)")
+    p.add_argument("--flat-background", action="store_true",
+                   help="a flat grey behind the blade instead of the environment (coverage checks, screenshots)")
     p.add_argument("--no-rough", action="store_true", help="mirror-like lobes (skip the roughness blur)")
     p.add_argument("--no-blend", action="store_true", help="hiraji everywhere (ignore the map's w)")
     p.add_argument("--forward", action="store_true",
@@ -67,13 +71,34 @@ def _load(args):
         sc.view = S.closeup_view(sc.mesh, sc.view.width, sc.view.height)
     if args.exposure is not None:
         sc.exposure = args.exposure
-    if sc.exposure != sc.exposure:  # NaN: "auto"
+    sc.auto_exposure = sc.exposure != sc.exposure  # NaN: "auto"
+    if sc.auto_exposure:  # a first guess; frames then set it by the rule `render` uses (calibrate_exposure)
         sc.exposure = auto_exposure(sc.radiance, sc.grid)
     return sc
 
 
+def calibrate_exposure(renderer, state, scene, sc, rounds: int = 6) -> float:
+    """Set ``state.exposure`` by the rule `render` applies to its frames
+    (:func:`jkatana.render.film.scene_exposure`: the blade's mean displayed luminance, clipped at white,
+    at :data:`~jkatana.render.film.OBJECT_KEY`), measured on the GL frame of the starting view: each round
+    renders it, decodes the 8-bit display RGB (:func:`~jkatana.render.film.xyz_from_display`), takes the
+    blade pixels' mean (the depth mask) and scales the exposure by key / mean; the displayed mean is
+    increasing and concave in the exposure, so the steps settle within a few rounds."""
+    from jkatana.render.film import OBJECT_KEY, xyz_from_display
+
+    for _ in range(rounds):
+        img = renderer.render(scene, mask=True)
+        mask = renderer.last_mask
+        if not mask.any():
+            break
+        shown = float(np.mean(xyz_from_display(img, sc.colourspace, sc.transfer)[..., 1][mask]))
+        state.exposure = float(state.exposure * OBJECT_KEY / max(shown, 1e-6))
+    return state.exposure
+
+
 def auto_exposure(radiance, grid, key: float = 0.85, percentile: float = 99.5) -> float:
-    """Exposure putting the environment's bright end (Y at ``percentile``) at ``key``/F̄ (F̄ ≈ 0.55 for iron)."""
+    """First guess of the exposure before a frame exists: the environment's bright end (Y at ``percentile``)
+    at ``key``/F̄ (F̄ ≈ 0.55 for iron)."""
     import numpy as np
 
     from jkatana.render.film import film_weights
@@ -87,13 +112,14 @@ def _state(sc, args, glrender):
 
     t = time.perf_counter()
     baked = cached_bake(sc.radiance, sc.grid, rank=max(args.rank, 3), colourspace=sc.colourspace,
-                        transfer=sc.transfer, source=sc.source)
+                        transfer=sc.transfer, source=sc.source, progress=True)
     print(f"[view] tables baked/loaded in {time.perf_counter() - t:.1f} s (rank {baked.rank}, "
           f"{len(baked.mus)} μ levels, Fresnel rank-{baked.rank} max rel. error {baked.fresnel_err:.1e})",
           file=sys.stderr)
     st = glrender.ShadingState(baked, sc.refl_map, exposure=sc.exposure, rank=args.rank, rough=not args.no_rough,
                                blend=not args.no_blend, two_tap=args.taps != 1, taps=max(args.taps, 3))
     st.env_rotation = sc.env_rotation
+    st.background = not args.flat_background  # the environment behind the blade, as `render` shows it
     return st
 
 
@@ -119,6 +145,9 @@ def _offscreen(args) -> int:
     times = []
     scene = glrender.build_scene(sc.mesh, sc.view)
     cam = next(iter(scene.camera_nodes))
+    if sc.auto_exposure and r._r._renderer.deferred:
+        print(f"[view] exposure {calibrate_exposure(r, st, scene, sc):.4g} (the rule `render` uses: "
+              "jkatana.render.film.scene_exposure)", file=sys.stderr)
     for k, v in enumerate(tqdm(sc.orbit(args.frames), desc="frames", file=sys.stderr)):
         scene.set_pose(cam, v.pose)
         t = time.perf_counter()
@@ -127,9 +156,12 @@ def _offscreen(args) -> int:
         with atomic_path(out / f"frame_{k:04d}.png") as tmp:
             Image.fromarray(img).save(tmp, format="PNG")
     r.delete()
-    steady = sorted(times[1:] or times)[len(times[1:] or times) // 2]
-    print(f"jkatana view: {len(times)} frames {sc.view.width}×{sc.view.height} → {out}/frame_*.png; "
-          f"median {steady * 1e3:.1f} ms/frame (after the first; incl. read-back), "
+    if len(times) > 1:
+        steady = sorted(times[1:])[(len(times) - 1) // 2]
+        timing = f"median {steady * 1e3:.1f} ms/frame over {len(times) - 1} frames after the first (incl. read-back)"
+    else:
+        timing = f"one frame in {times[0] * 1e3:.1f} ms (the first frame includes setup; no steady rate measured)"
+    print(f"jkatana view: {len(times)} frames {sc.view.width}×{sc.view.height} → {out}/frame_*.png; {timing}, "
           f"platform {os.environ.get('PYOPENGL_PLATFORM')}")
     return 0
 

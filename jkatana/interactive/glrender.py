@@ -72,7 +72,7 @@ from jkatana.interactive.bake import MAX_RANK, Baked  # noqa: E402
 
 SHADER_DIR = Path(__file__).parent / "shaders"
 _PYRENDER_SHADERS = Path(pyrender.__file__).parent / "shaders"
-_OWN = {"mesh.vert", "mesh.frag", "gbuffer.frag", "deferred.vert", "deferred.frag"}
+_OWN = {"mesh.vert", "mesh.frag", "gbuffer.frag", "deferred.vert", "deferred.frag", "background.frag"}
 _UNIT0 = 8
 
 #: Uniforms the fragment shader must expose (checked after linking).
@@ -147,6 +147,10 @@ class ShadingState:
       miss the lobe's skew: ~10 % too dark on a sun inside the oblique hamon lobe; `taps=5` is always
       moment-matched).
     """
+
+    #: draw the environment behind the blade (deferred path; the `view` command turns it on); off: the
+    #: scene's flat background colour, which tests and benchmarks use to find the blade's pixels
+    background: bool = False
 
     def __init__(self, baked: Baked, refl_map: np.ndarray, *, exposure: float = 1.0, rank: int | None = None,
                  rough: bool = True, blend: bool = True, two_tap: bool = True, taps: int = 3, fit: bool = True):
@@ -334,6 +338,17 @@ class BakedProgram(ShaderProgram):
         GL.glUniform1f(loc(pid, "jk_n_transfer"), float(len(b.transfer)))
 
 
+class BackgroundProgram(BakedProgram):
+    """``background.frag``: the environment where no mesh was drawn. It reads the environment textures
+    and the display transform only, so the lobe table, map and roughness uniforms are optimised away."""
+
+    def check_uniforms(self):
+        need = ["jk_inv_vp", "jk_viewport", "jk_bg_coef", "jk_env_rot", "jk_exposure", "jk_xyz_to_rgb"]
+        missing = [u for u in need if GL.glGetUniformLocation(self._program_id, u) == -1]
+        if missing:
+            raise RuntimeError(f"shader {self.fragment_shader} lacks uniforms {missing} (misspelt or unused)")
+
+
 class BakedProgramCache(ShaderProgramCache):
     """Serves jkatana's ``mesh.vert``/``mesh.frag`` (with the state's defines); pyrender's shaders otherwise."""
 
@@ -367,6 +382,9 @@ class BakedProgramCache(ShaderProgramCache):
             else:
                 program = BakedProgram(str(SHADER_DIR / vertex_shader), str(SHADER_DIR / fragment_shader),
                                        defines=defines)
+                if fragment_shader == "background.frag":
+                    program = BackgroundProgram(str(SHADER_DIR / vertex_shader),
+                                                str(SHADER_DIR / fragment_shader), defines=defines)
                 program.state = self.state
                 if fragment_shader == "deferred.frag":
                     program.gbuffer = {"jk_g0": 0, "jk_g1": 0}
@@ -579,8 +597,34 @@ class SampleCountRenderer(Renderer):
         GL.glBindVertexArray(0)
         program._unbind()
         GL.glDisable(GL.GL_SCISSOR_TEST)
+        if self._program_cache.state.background:
+            self._background_pass(scene, w, h)
         GL.glDepthFunc(GL.GL_LESS)
         GL.glDepthMask(GL.GL_TRUE)
+
+    def _background_pass(self, scene, w, h):
+        """The environment behind the blade: ``background.frag`` on the far plane wherever the G-buffer
+        pass left depth at 1 (``GL_LEQUAL``), as the reference renderer shows it for missed rays."""
+        program = self._program_cache.get_program("deferred.vert", "background.frag")
+        if not program._in_context():
+            program._add_to_context()
+        GL.glDepthFunc(GL.GL_LEQUAL)
+        program._bind()
+        pid = program._program_id
+        V, P = self._get_camera_matrices(scene)
+        inv_vp = np.linalg.inv(np.asarray(P, np.float64) @ np.asarray(V, np.float64)).astype(np.float32)
+        GL.glUniformMatrix4fv(GL.glGetUniformLocation(pid, "jk_inv_vp"), 1, GL.GL_TRUE, inv_vp)
+        GL.glUniform2f(GL.glGetUniformLocation(pid, "jk_viewport"), float(w), float(h))
+        coef = np.zeros(4, np.float32)
+        b = np.asarray(self._program_cache.state.baked.b, np.float64)
+        coef[:len(b)] = b.sum(axis=1)  # the flat spectrum 1 on the orthonormal basis
+        GL.glUniform4fv(GL.glGetUniformLocation(pid, "jk_bg_coef"), 1, coef)
+        GL.glUniform3fv(GL.glGetUniformLocation(pid, "cam_pos"), 1,
+                        np.asarray(scene.get_pose(scene.main_camera_node)[:3, 3], np.float32))
+        GL.glBindVertexArray(program._vao_id)
+        GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
+        GL.glBindVertexArray(0)
+        program._unbind()
 
     def _read_main_framebuffer(self, scene, flags):
         """Forward offscreen frames: resolve the (MSAA) colour into :attr:`_main_fb` and read back colour

@@ -75,7 +75,8 @@ def check_render_memory(scene, *, samples=None, devices=None, max_memory=None) -
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=("reference", "paper", "prefiltered", "lowrank"), default=None,
-                   help="shading mode (default: the scene's)")
+                   help="shading mode (default: the scene's); paper: the paper's 30 jittered lobe rays without "
+                        "environment sampling, which miss compact bright sources (a sun's glint can vanish)")
     p.add_argument("--samples", type=int, default=None, help="samples per pixel (default: the scene's)")
     p.add_argument("--devices", type=int, default=None, help="host devices to split pixels over (default: cores)")
 

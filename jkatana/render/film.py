@@ -39,6 +39,59 @@ def auto_exposure(xyz: np.ndarray, mask: np.ndarray | None = None, key: float = 
     return key / ref if ref > 0 else 1.0
 
 
+#: The one automatic-exposure rule of ``render`` and ``view``: the exposure at which the object's mean
+#: displayed luminance — each pixel's exposed Y clipped at white, as the display shows it — is
+#: OBJECT_KEY (linear, before the transfer). Clipping at white keeps a glint on a few pixels from
+#: setting the exposure; a frame without object pixels: the median of the whole frame to middle grey.
+OBJECT_KEY = 0.35
+FRAME_PERCENTILE, FRAME_KEY = 50.0, 0.18
+
+
+def displayed_mean(Y: np.ndarray, exposure: float) -> float:
+    """Mean of ``min(exposure · Y, 1)``: the object's mean luminance as the display shows it."""
+    return float(np.mean(np.minimum(exposure * np.asarray(Y, np.float64), 1.0)))
+
+
+def scene_exposure(xyz: np.ndarray, mask: np.ndarray | None) -> float:
+    """The automatic exposure of a frame ``(H, W, 3)`` XYZ whose object pixels are ``mask``:
+    :func:`displayed_mean` = :data:`OBJECT_KEY` (bisection in log exposure; the mean is increasing in it).
+
+    ``render`` applies it to its XYZ frame; ``view`` measures the displayed mean on its GL frames
+    (:func:`xyz_from_display`) and steps to the same target, so both show the same scene alike.
+    """
+    if mask is None or not np.any(mask):
+        return auto_exposure(xyz, None, key=FRAME_KEY, percentile=FRAME_PERCENTILE)
+    Y = np.asarray(xyz[..., 1])[mask]
+    Y = Y[np.isfinite(Y) & (Y > 0)]
+    if Y.size == 0:
+        return 1.0
+    # at lo every pixel shows ≤ key (mean ≤ key); at hi every pixel is white (mean 1 ≥ key)
+    lo, hi = np.log(OBJECT_KEY / np.max(Y)), np.log(1.0 / np.min(Y)) + 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if displayed_mean(Y, np.exp(mid)) < OBJECT_KEY else (lo, mid)
+    return float(np.exp(0.5 * (lo + hi)))
+
+
+def xyz_from_display(rgb8: np.ndarray, colourspace: str = "sRGB", transfer: str | float | None = None,
+                     exposure: float = 1.0) -> np.ndarray:
+    """Inverse of :func:`display` for an 8-bit frame: display RGB → XYZ (divided by ``exposure``).
+
+    Clipped channels stay clipped (1.0): decode frames exposed so that the
+    object's bright end is below white.
+    """
+    v = np.asarray(rgb8, np.float64) / 255.0
+    transfer = colourspace if transfer is None else transfer
+    if isinstance(transfer, (int, float)):
+        lin = np.power(v, float(transfer))
+    elif str(transfer).lower() == "linear":
+        lin = v
+    else:
+        lin = np.asarray(_colourspace(str(transfer)).cctf_decoding(v), np.float64)
+    m = np.asarray(_colourspace(colourspace).matrix_RGB_to_XYZ, np.float64)
+    return (lin @ m.T) / exposure
+
+
 def display(xyz: np.ndarray, colourspace: str = "sRGB", transfer: str | float | None = None,
             exposure: float = 1.0) -> np.ndarray:
     """``(H, W, 3)`` XYZ → display-encoded RGB in [0, 1]."""

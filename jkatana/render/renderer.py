@@ -24,7 +24,7 @@ import numpy as np
 
 from jkatana.errors import InputError
 from jkatana.render.camera import Camera
-from jkatana.render.film import auto_exposure, display, film_weights, write_png, write_spectral_exr, write_xyz_exr
+from jkatana.render.film import display, scene_exposure, film_weights, write_png, write_spectral_exr, write_xyz_exr
 from jkatana.render.frame import Frame, pixel_blocks, render_frame
 from jkatana.render.scene import LIMITS, RENDER_MODES, Scene
 from jkatana.render.shading import MIRROR_MU, Environment, Light, Material, Plan, build_environment, fresnel_table
@@ -51,7 +51,8 @@ class Prepared:
 
 
 def load_geometry(scene: Scene):
-    """The scene's geometry: ``("sphere", center, radius)`` or a trimesh mesh with per-vertex UVs."""
+    """The scene's geometry: ``("sphere", center, radius)`` or a trimesh mesh with per-vertex UVs
+    (constant UVs for a mesh without them under a uniform material; refused under a map)."""
     g = scene.geometry
     if g.kind == "sphere":
         return ("sphere", g.center, g.radius)
@@ -69,8 +70,12 @@ def load_geometry(scene: Scene):
         raise InputError("no triangles", path=g.mesh, field="geometry.mesh")
     uv = getattr(mesh.visual, "uv", None)
     if uv is None or len(uv) != len(mesh.vertices):
-        raise InputError("mesh has no per-vertex UVs (needed for the reflectance map)", path=g.mesh,
-                         field="geometry.mesh")
+        if scene.material.map is not None:
+            raise InputError("mesh has no per-vertex UVs, which the reflectance map needs: make them with "
+                             "`jkatana shape MESH --uv blade` (or `--uv xatlas`), or give a uniform material "
+                             "(w, mu0, mu1) instead of a map", path=g.mesh, field="geometry.mesh")
+        # a uniform material reads the same value everywhere: any UVs do
+        mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((len(mesh.vertices), 2)))
     return mesh
 
 
@@ -139,7 +144,14 @@ def _check_map_size(shape, geometry, where):
 
 
 def load_environment(scene: Scene, grid: WavelengthGrid) -> np.ndarray:
-    """The scene's environment as ``(H, W, wl)`` float32 spectral radiance on ``grid``."""
+    """The scene's environment as ``(H, W, wl)`` float32 spectral radiance on ``grid``
+    (through the environment cache, :mod:`jkatana.light.cache`)."""
+    from jkatana.light.cache import cached_radiance, radiance_key
+
+    return cached_radiance(radiance_key(scene.environment, grid), lambda: _build_radiance(scene, grid))
+
+
+def _build_radiance(scene: Scene, grid: WavelengthGrid) -> np.ndarray:
     e = scene.environment
     if e.type == "sky":
         from jkatana.light.sky import hosek_wilkie_sky
@@ -190,18 +202,31 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
         n, k = load_oc(scene.material.optical_constants).on_grid(grid)
     except InputError as err:
         raise InputError(str(err), field="material.optical_constants") from None
-    mat = Material(fresnel_table(jnp.asarray(n, dtype), jnp.asarray(k, dtype)), jnp.asarray(chi, dtype),
-                   jnp.asarray(beta, dtype))
-    radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
+    from jkatana.light.cache import cached_tree, fresnel_key
+
+    table = cached_tree(fresnel_key(n, k, dtype), lambda: fresnel_table(jnp.asarray(n, dtype), jnp.asarray(k, dtype)),
+                        kind="fresnel")
+    mat = Material(jnp.asarray(table, dtype), jnp.asarray(chi, dtype), jnp.asarray(beta, dtype))
     env_rank = (scene.render.rank if rank is None else rank) if mode == "lowrank" else None
     mus = ()
     if mode == "prefiltered":
         lo = max(float(np.min(maps[..., 1:])), 1e-3)
         hi = max(float(np.max(maps[..., 1:])), lo * 1.01)
         mus = tuple(np.geomspace(lo, hi, 4))
-    env, factored, resid = build_environment(radiance, rank=env_rank,
-                                             rotation=rotation_y(scene.environment.rotation_deg),
-                                             prefilter_mus=mus, dtype=dtype, grid=grid)
+    # environment and its tables built once per content (jkatana.light.cache); rotation set afterwards
+    from jkatana.light.cache import environment_key, radiance_key
+
+    rad_key = radiance_key(scene.environment, grid) if env_radiance is None else None
+    env_key = None if rad_key is None else environment_key(rad_key, rank=env_rank, prefilter_mus=mus,
+                                                           prefilter_resolution=128, dtype=dtype)
+
+    def build():
+        radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
+        return build_environment(radiance, rank=env_rank, prefilter_mus=mus, prefilter_resolution=128,
+                                 dtype=dtype, grid=grid)
+
+    env, factored, resid = cached_tree(env_key, build)
+    env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rotation_y(scene.environment.rotation_deg), dtype))
     # effects on demand: decided here, on the host, from the data
     w = maps[..., 0]
     hiraji = bool((w > 0).any())
@@ -226,7 +251,7 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
 
         occluders = Occluders(occluder_mesh(scene.occluders))
     env_info = {"channels": int(env.channels.shape[-1]), "factored": factored, "rank_residual": resid,
-                "grey": bool(factored and env_rank is None), "resolution": list(radiance.shape[:2])}
+                "grey": bool(factored and env_rank is None), "resolution": list(env.channels.shape[:2])}
     return Prepared(scene, grid, dtype, geometry, maps, mat, env, env_info, lights, plan,
                     film_weights(grid), time.perf_counter() - t0, occluders)
 
@@ -265,6 +290,9 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
         rot = rotation_y(scene.environment.rotation_deg + 360.0 * light / lights)
         env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rot, prep.dtype))
     cam = camera_for(scene, view, views)
+    from jkatana.render.check import warn_scene
+
+    warn_scene(prep.geometry, cam)  # camera inside the object, wrong scale, empty frame: one line
     s = scene.render.seed if seed is None else seed
     ss = int(supersample or 1)
     if ss > 1:
@@ -290,9 +318,7 @@ def exposure_for(prep: Prepared, frame: Frame) -> float:
     e = prep.scene.film.exposure
     if e != "auto":
         return float(e)
-    if frame.mask.any():
-        return auto_exposure(frame.xyz, frame.mask, key=0.6, percentile=75.0)
-    return auto_exposure(frame.xyz, None, key=0.18, percentile=50.0)
+    return scene_exposure(frame.xyz, frame.mask)
 
 
 def metadata(prep: Prepared, frame: Frame, exposure: float, extra: dict | None = None) -> dict:

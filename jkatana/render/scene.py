@@ -25,7 +25,8 @@ to the scene file)::
     resolution = [256, 512]
     # path = "sky.exr"; upsampling = "Jakob 2019"; scale = 1.0   (file)
     # radiance = 1.0                                              (constant)
-    rotation_deg = 0.0               # rotate the environment about +Y
+    rotation_deg = 0.0               # rotate the environment about +Y: + moves features clockwise seen
+                                     # from above (compass azimuth a → a + rotation_deg; README picture)
 
     [[lights]]                       # optional, any number
     type = "point"                   # or "directional"
@@ -56,7 +57,8 @@ to the scene file)::
     step = 5.0
 
     [render]
-    mode = "reference"               # reference | paper | prefiltered | lowrank
+    mode = "reference"               # reference | paper | prefiltered | lowrank; paper = the paper's
+                                     # 30 jittered lobe rays: misses compact bright sources (a sun's glint)
     samples = 64
     rank = 3                         # lowrank mode
     seed = 0
@@ -699,8 +701,8 @@ def default_scene() -> Scene:
 #: where that angle is smallest (~3 μ0), while the sun sits at ~1.4 μ1 (median 0.28 rad) of the
 #: built-in hamon's wider lobe (μ1 ≈ 0.2 rad, see default_map), which therefore glows as a soft
 #: warm band (with the sun switched off the hamon is no brighter than the ji).
-#: tests/test_render_demo.py checks these angles. Exposure is automatic: the 75th percentile of
-#: the blade pixels' Y maps to 0.6 (jkatana.render.renderer.exposure_for).
+#: tests/test_render_demo.py checks these angles. Exposure is automatic: the blade's mean displayed
+#: luminance (clipped at white) is 0.35 (jkatana.render.film.scene_exposure, shared with `view`).
 DEMO_SCENE: dict = {
     "geometry": {"mesh": "builtin:katana"},
     "material": {"map": "builtin", "optical_constants": "Fe-Johnson"},

@@ -1,32 +1,118 @@
-"""CLI of the shape stage: ``jkatana shape`` (scans → merged, Bezier-smoothed mesh)."""
+"""CLI of the shape stage: ``jkatana shape``.
+
+Any mesh (a user's scan) → metres, blade frame, cleaned, with UVs
+(:mod:`jkatana.shape.mesh`); or, chosen explicitly, the built-in katana
+(``--blade``), its simulated scan (``--simulate``), a fit of range sections
+to the built-in katana's outline (``--katana-fit``) or a height field over one
+view (``--height-field``).
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-SHAPE_HELP = "Scan(s) → registered, merged, Bezier-smoothed blade mesh with UVs (PLY/GLB)."
+SHAPE_HELP = ("Any mesh (OBJ/PLY/GLB/STL) → metres, blade frame, cleaned, with UVs; or the built-in katana "
+              "(--blade, --simulate, --katana-fit).")
+
+SHAPE_EPILOG = """\
+A mesh file (the default): the units are guessed from its size and stated (OBJ, PLY and STL carry
+none; --units sets them); a blade-like mesh (one axis at least 5x the others) is turned into the
+built-in blade's frame (length along +X, tip at +X, back/mune toward +Y, edge/ha toward -Y, flats
+facing +-Z, machi at the origin) unless --keep-frame; vertices are merged, degenerate faces dropped
+and small holes closed; --smooth N runs N Taubin iterations that hold creases; UVs are the blade's
+(u along, v across, the same on both flats) or a general xatlas unwrap (--uv). A report
+(<output>_shape.json) and a preview (<output>_preview.png) are written beside the mesh.
+
+The built-in katana's reconstruction (--katana-fit, --simulate) assumes a blade with the built-in
+katana's outline in its frame and refuses scans that do not fit it.
+"""
 
 
 def shape_add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scans", nargs="*", help="range sections in order (PLY, OBJ, XYZ); or --simulate")
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = SHAPE_EPILOG
+    p.add_argument("scans", nargs="*",
+                   help="a mesh file (OBJ, PLY, GLB, STL); with --katana-fit or --height-field range "
+                        "sections in order (PLY, OBJ, XYZ)")
     p.add_argument("-o", "--output", required=True, help="output mesh (.ply, .glb or .obj)")
-    p.add_argument("--simulate", action="store_true",
-                   help="scan the built-in blade with the simulated 640×480 scanner")
-    p.add_argument("--blade", action="store_true",
+    g = p.add_argument_group("any mesh")
+    g.add_argument("--units", default="auto", choices=("auto", "m", "dm", "cm", "mm", "in"),
+                   help="units of the file's numbers (default: guessed from the size and reported)")
+    g.add_argument("--keep-frame", action="store_true",
+                   help="keep the file's axes (default: a blade-like mesh goes into the blade frame)")
+    g.add_argument("--uv", default="auto", choices=("auto", "blade", "xatlas", "none"),
+                   help="UVs: blade (u along, v across, per side), xatlas (general unwrap), none; "
+                        "auto = blade for a blade, else xatlas")
+    g.add_argument("--smooth", type=int, default=0, metavar="N",
+                   help="N iterations of Taubin smoothing that hold creases (default 0: none)")
+    g.add_argument("--crease-deg", type=float, default=20.0,
+                   help="dihedral angle above which an edge is a crease: sharp normals, held by --smooth")
+    g.add_argument("--no-clean", action="store_true",
+                   help="do not merge vertices, drop degenerate faces or fill holes")
+    g.add_argument("--max-hole-edges", type=int, default=32,
+                   help="close boundary loops of at most this many edges")
+    g.add_argument("--preview", help="preview PNG (default <output>_preview.png)")
+    g.add_argument("--report", help="report JSON (default <output>_shape.json)")
+    g.add_argument("--credit", default="",
+                   help="attribution printed on the preview (e.g. a CC BY scan's author and licence)")
+    k = p.add_argument_group("the built-in katana (explicit)")
+    k.add_argument("--blade", action="store_true",
                    help="write the parametric built-in blade itself (no scanning)")
-    p.add_argument("--scan-resolution", type=int, nargs=2, default=(640, 480), metavar=("W", "H"))
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--degree", type=int, default=3)
-    p.add_argument("--patches", type=int, nargs=2, default=(40, 6), metavar=("ALONG", "ACROSS"))
-    p.add_argument("--smoothness", type=float, default=1e-5)
-    p.add_argument("--max-points", type=int, default=400000,
+    k.add_argument("--simulate", action="store_true",
+                   help="scan the built-in blade with the simulated 640×480 scanner and fit it")
+    k.add_argument("--katana-fit", action="store_true",
+                   help="fit range sections of a blade with the built-in katana's outline, in its frame")
+    k.add_argument("--height-field", action="store_true",
+                   help="fit one height field over the sections' principal plane (a single view)")
+    k.add_argument("--scan-resolution", type=int, nargs=2, default=(640, 480), metavar=("W", "H"))
+    k.add_argument("--seed", type=int, default=0)
+    k.add_argument("--degree", type=int, default=3)
+    k.add_argument("--patches", type=int, nargs=2, default=(40, 6), metavar=("ALONG", "ACROSS"))
+    k.add_argument("--smoothness", type=float, default=1e-5)
+    k.add_argument("--max-points", type=int, default=400000,
                    help="random subset of the merged points used by the fit")
-    p.add_argument("--height-field", action="store_true",
-                   help="scans are not a katana: fit one height field over their principal plane")
+
+
+def _shape_any_mesh(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from jkatana.errors import InputError
+    from jkatana.io.atomic import write_text
+    from jkatana.shape.katana import export_blade
+    from jkatana.shape.mesh import prepare_mesh, preview_png, read_mesh
+
+    if len(args.scans) != 1:
+        raise InputError(f"give one mesh file, got {len(args.scans)} (several range sections: "
+                         "--katana-fit or --height-field)", field="scans")
+    src = Path(args.scans[0])
+    if src.suffix.lower() in (".xyz", ".txt", ".csv", ".pts"):
+        from jkatana.shape.scans import read_scan
+
+        read_scan(src)  # names a bad file first
+        raise InputError("a point list has no faces: give a mesh, or --katana-fit / --height-field",
+                         path=src)
+    mesh, rep = prepare_mesh(read_mesh(src), source=src.name, suffix=src.suffix,
+                             units=args.units, frame="keep" if args.keep_frame else "auto",
+                             clean=not args.no_clean, smooth=args.smooth, crease_deg=args.crease_deg,
+                             uv=args.uv, max_hole_edges=args.max_hole_edges)
+    out = Path(args.output)
+    export_blade(mesh, out)
+    stem = out.with_suffix("")
+    preview = Path(args.preview) if args.preview else stem.with_name(stem.name + "_preview.png")
+    report = Path(args.report) if args.report else stem.with_name(stem.name + "_shape.json")
+    preview_png(mesh, preview, title=f"{src.name} ({rep.units} → m)", credit=args.credit)
+    write_text(report, json.dumps({**rep.__dict__, "output": str(out), "preview": str(preview)}, indent=1))
+    for line in rep.lines():
+        print(line, file=sys.stderr)
+    print(f"wrote {out}, {report}, {preview}", file=sys.stderr)
+    return 0
 
 
 def shape_run(args: argparse.Namespace) -> int:
+    if not (args.blade or args.simulate or args.katana_fit or args.height_field):
+        return _shape_any_mesh(args)
     import jax
 
     jax.config.update("jax_enable_x64", True)

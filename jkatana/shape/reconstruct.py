@@ -41,7 +41,8 @@ def reconstruct_blade(points: np.ndarray, spec: KatanaSpec = KatanaSpec(), *, de
 
     **Arguments:**
 
-    - `points`: (N, 3) registered scan points in the blade frame (metres).
+    - `points`: (N, 3) registered scan points in the blade frame (metres); refused
+      (:class:`InputError`) unless 90 % of them lie within the outline and thickness of `spec`.
     - `spec`: the blade's outline measures (for the UV parameterisation).
     - `degree`, `patches`: Bezier degree and patch count (along u, across v
       between the creases; the v breaks always include the roof foot and the shinogi).
@@ -55,6 +56,14 @@ def reconstruct_blade(points: np.ndarray, spec: KatanaSpec = KatanaSpec(), *, de
         raise InputError("points contain NaN or infinite values", field="points")
     uv = blade_uv(spec, pts[:, :2])
     inside = (uv[:, 0] >= 0) & (uv[:, 0] <= 1) & (uv[:, 1] >= -0.02) & (uv[:, 1] <= 1.02)
+    thin = np.abs(pts[:, 2]) <= spec.kasane
+    fits = float(np.mean(inside & thin))
+    if fits < 0.9:
+        ext = " × ".join(f"{e:.3g}" for e in np.ptp(pts, axis=0))
+        raise InputError(f"only {100 * fits:.0f}% of the scan points lie within the built-in katana's "
+                         f"outline (scan extents {ext} m; the katana is {spec.nagasa:g} m along +X, edge "
+                         f"toward −Y, flats ±Z): not a fit. For any mesh run `jkatana shape MESH` "
+                         f"without --katana-fit", field="points")
     roof = spec.mune_height / (0.5 * (spec.motohaba + spec.sakihaba))
     vb = [0.0, roof, spec.shinogi_position]
     vb += list(np.linspace(spec.shinogi_position, 1.0, max(2, patches[1]) + 1)[1:])
