@@ -17,8 +17,9 @@ On the CIE-Y luminance ``Y`` of every texel and the exact texel solid angles
 2. bright texels are grouped into 8-connected regions, connected across the
    ``u = 0/1`` seam of the map;
 3. a region is a compact source when its solid angle is at most
-   ``max_solid_angle`` (default 5e-3 sr, a cap of 2.3° radius: ten times the
-   area of the sun's disc, the solar aureole included) **and** it holds at
+   ``max_solid_angle`` (default 5e-3 sr, a cap of 2.3° radius, some 70 times
+   the sun's disc: room for the partly covered texels and the glare around
+   a sun in a 1k map, ≈ 130 of its texels) **and** it holds at
    least ``min_power_fraction`` (default 1 %) of the map's luminous power
    ``Σ Y Ω``. At most ``max_sources`` regions, most powerful first.
 
@@ -59,13 +60,16 @@ coordinates ``(ψ, φ)`` about the lobe's centre R (the mirror direction of
 V), with the cap's boundary treated exactly:
 
 - azimuth φ: if R is inside the cap, the whole circle with the midpoint rule
-  (exponentially convergent for the smooth periodic integrand); otherwise
-  the arc ``|φ| ≤ β`` that meets the cap, ``sin β = sin r / sin δ``
+  (exponentially convergent for the smooth periodic integrand) in the
+  elliptic angle η, ``tan(φ − φ_p) = c tan η`` about the plane of incidence
+  φ_p, which gives every node an equal share of a lobe narrowed by ``c``
+  (below), with ``c`` relaxed towards 1 as the lobe widens past the cap;
+  otherwise the arc ``|φ| ≤ β`` that meets the cap, ``sin β = sin r / sin δ``
   (δ = ∠(R, C)), with GL nodes in τ for ``φ = β sin τ``, which removes the
   square-root end behaviour of the chord length;
 - along each azimuth the cap occupies ``ψ ∈ [ψ₀ − w, ψ₀ + w]`` (clipped at
   0), from the right spherical triangle through the cap centre C
-  (Napier's rules, e.g. Todhunter 1886, *Spherical Trigonometry*, §62):
+  (Napier's rules; e.g. Todhunter 1886, *Spherical Trigonometry*):
   ``sin d = sin δ sin φ``, ``tan ψ₀ = tan δ cos φ``, ``cos w = cos r / cos d``
   (evaluated in half-angle form, accurate for sub-degree caps in float32);
 - radially the substitution ``u = ψ²/(2σ²)`` and GL nodes in
@@ -81,8 +85,15 @@ V), with the cap's boundary treated exactly:
 
 Gauss–Legendre nodes: Golub & Welsch (1969), "Calculation of Gauss
 quadrature rules", Math. Comp. 23, via :func:`numpy.polynomial.legendre.leggauss`.
-The rule's error against a dense quadrature is pinned in
-``tests/test_light_sun.py``.
+
+Error bound of the default rule (4 radial × 16 azimuthal nodes, 64 BRDF
+evaluations), relative to the value with the cap centred on R, for the
+paper's lobe at μ = 0.001…0.3, incidence 0–69°, the sun's 0.255° cap, pinned
+against a dense quadrature in ``tests/test_light_sun.py``: ≤ 2e-2 where the
+cap's edge crosses a lobe narrower than the cap (the antialiasing of the
+glint's outline: there the integrand has a near-step in φ that the rule
+resolves only to its node spacing), ≤ 1e-3 everywhere else. More azimuths
+shrink the edge error.
 """
 
 from __future__ import annotations
@@ -195,13 +206,10 @@ def _label_wrapped(mask: np.ndarray) -> tuple[np.ndarray, int]:
 
 
 def _dilate(mask: np.ndarray, k: int) -> np.ndarray:
-    """Binary dilation by ``k`` texels (3×3 steps), wrapping in ``u``, not across the poles."""
-    m = mask.copy()
-    for _ in range(k):
-        m = m | np.roll(m, 1, axis=1) | np.roll(m, -1, axis=1)
-        m[1:] |= m[:-1].copy()
-        m[:-1] |= m[1:].copy()
-    return m
+    """Binary dilation by a (2k+1)² square, wrapping in ``u``, clamped at the poles."""
+    from scipy.ndimage import maximum_filter
+
+    return maximum_filter(mask, size=2 * k + 1, mode=("nearest", "wrap"))
 
 
 @dataclass(frozen=True)
@@ -370,7 +378,7 @@ def _perpendicular(R):
 
 
 def cap_nodes(R: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, sigma, *, normal=None,
-              n_radial: int = 4, n_azimuth: int = 8) -> tuple[Float[Array, "*b A Q 3"], Float[Array, "*b A Q"]]:
+              n_radial: int = 4, n_azimuth: int = 16) -> tuple[Float[Array, "*b A Q 3"], Float[Array, "*b A Q"]]:
     """Directions and weights of the cap rule about a lobe centre (module docstring).
 
     ``Σ w g(L) ≈ ∫_cap g dω`` for ``g`` a lobe of width ``sigma`` about ``R``.
@@ -459,7 +467,7 @@ def cap_nodes(R: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, sigma, *
 
 
 def cap_integral(brdf_cos: Callable, V: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, sigma, *,
-                 n_radial: int = 4, n_azimuth: int = 8) -> Float[Array, "*b wl"]:
+                 n_radial: int = 4, n_azimuth: int = 16) -> Float[Array, "*b wl"]:
     """``∫_cap f_r(L, V) cos θ_L dω`` for a reflection lobe about the mirror direction of V.
 
     **Arguments:**
@@ -496,7 +504,7 @@ def reflected_cap_radiance(cap: SunCap, brdf_cos: Callable, V_local: Float[Array
 
 
 def cap_coverage(R: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, width, *, n_radial: int = 4,
-                 n_azimuth: int = 8) -> Float[Array, "*b"]:
+                 n_azimuth: int = 16) -> Float[Array, "*b"]:
     """Fraction of a normalised Gaussian footprint of ``width`` (rad) about ``R`` inside the cap.
 
     The antialiased indicator ``[R inside the cap]`` of a perfect mirror:
