@@ -14,6 +14,7 @@ from jkatana.light.sampling import frame_from_normal, to_world
 from jkatana.light.sun import (
     cap_coverage,
     cap_integral,
+    cap_point_integral,
     gaussian_lobe_sigma,
     reflected_cap_radiance,
     split_compact_sources,
@@ -293,3 +294,18 @@ def test_reflected_cap_radiance_matches_cap_integral_in_world_frame():
     got = np.asarray(reflected_cap_radiance(cap, f, jnp.asarray(V_local), frame, gaussian_lobe_sigma(mu)))
     ref = np.asarray(cap.radiance) * dense_cap(f, V_local, np.asarray(frame) @ s, float(cap.radius))
     np.testing.assert_allclose(got, ref, rtol=1e-3, atol=1e-9 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("mu", [0.03, 0.1, 0.3])
+def test_point_light_limit_for_wide_lobes(mu):
+    """σ ≫ r: the cap as a point light is within ½ (r/σ)² of the rule (relative to the on-centre value)."""
+    f = lobe(mu)
+    sig = float(gaussian_lobe_sigma(mu))
+    V = np.array([math.sin(0.6), 0.0, math.cos(0.6)])
+    R = V * np.array([-1.0, -1.0, 1.0])
+    on = np.abs(np.asarray(cap_integral(f, jnp.asarray(V), jnp.asarray(R), SUN_R, sig))).max()
+    for off in (0.0, 0.5, 1.0, 2.0):
+        C = rotate(R, np.array([0.0, 1.0, 0.0]), off * sig)
+        rule = np.asarray(cap_integral(f, jnp.asarray(V), jnp.asarray(C), SUN_R, sig))
+        point = np.asarray(cap_point_integral(f, jnp.asarray(V), jnp.asarray(C), SUN_R))
+        assert np.abs(point - rule).max() / on <= 0.5 * (SUN_R / sig) ** 2, off

@@ -40,6 +40,7 @@ from jkatana.light.sun import (
     SunSplit as SunSplit,
     cap_coverage as cap_coverage,
     cap_integral as cap_integral,
+    cap_point_integral as cap_point_integral,
     find_compact_sources as find_compact_sources,
     gaussian_lobe_sigma as gaussian_lobe_sigma,
     reflected_cap_radiance as reflected_cap_radiance,

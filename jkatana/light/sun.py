@@ -483,6 +483,12 @@ def cap_integral(brdf_cos: Callable, V: Float[Array, "*b 3"], C: Float[Array, "*
 
     Multiply by :attr:`SunCap.radiance` for the reflected radiance
     (:func:`reflected_cap_radiance`). Pure JAX, jittable over pixels.
+
+    Cost: ``n_radial × n_azimuth`` BRDF evaluations per point. The Fresnel
+    factor varies by at most ``|dF/dθ| · r`` over the cap, so a renderer may
+    pass the lobe alone (a trailing axis of 1) and multiply by ``F`` at the
+    cap's centre; where the lobe is much wider than the cap,
+    :func:`cap_point_integral` needs one evaluation.
     """
     V = jnp.asarray(V)
     R = V * jnp.asarray([-1.0, -1.0, 1.0], V.dtype)
@@ -490,6 +496,21 @@ def cap_integral(brdf_cos: Callable, V: Float[Array, "*b 3"], C: Float[Array, "*
                      n_radial=n_radial, n_azimuth=n_azimuth)
     f = brdf_cos(L, jnp.broadcast_to(V[..., None, None, :], L.shape))
     return jnp.einsum("...aq,...aql->...l", w.astype(f.dtype), f)
+
+
+def cap_point_integral(brdf_cos: Callable, V: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius
+                       ) -> Float[Array, "*b wl"]:
+    """The cap as a point light: ``f_r(C, V) cos θ_C · Ω_cap``, one BRDF evaluation.
+
+    The midpoint rule of :func:`cap_integral`'s integral: for a lobe of width
+    σ much wider than the cap its relative error is of order ``(r/σ)²`` (the
+    lobe's curvature across the cap), so a renderer can use it wherever
+    ``σ ≫ r`` and keep :func:`cap_integral` for the glints.
+    """
+    V = jnp.asarray(V)
+    C = normalize(jnp.asarray(C, V.dtype))
+    omega = 4.0 * jnp.pi * jnp.sin(0.5 * jnp.asarray(radius, V.dtype)) ** 2
+    return brdf_cos(C, jnp.broadcast_to(V, C.shape)) * omega[..., None]
 
 
 def reflected_cap_radiance(cap: SunCap, brdf_cos: Callable, V_local: Float[Array, "*b 3"],
