@@ -1,4 +1,5 @@
-"""Lighting: spectral environment maps, RGB upsampling, the Hosek–Wilkie sky, sampling, prefiltering.
+"""Lighting: spectral environment maps, RGB upsampling, the Hosek–Wilkie sky, sampling, prefiltering,
+compact sources (suns) split off as cap lights.
 
 See :mod:`jkatana.light.envmap` for the orientation convention (Y up, image
 centre looks along −Z, row 0 = zenith).
@@ -33,6 +34,18 @@ from jkatana.light.sky import (
     hosek_wilkie_sky as hosek_wilkie_sky,
     sun_direction as sun_direction,
     sun_position as sun_position,
+)
+from jkatana.light.sun import (
+    SunCap as SunCap,
+    SunSplit as SunSplit,
+    cap_coverage as cap_coverage,
+    cap_integral as cap_integral,
+    cap_point_integral as cap_point_integral,
+    find_compact_sources as find_compact_sources,
+    gaussian_lobe_sigma as gaussian_lobe_sigma,
+    reflected_cap_radiance as reflected_cap_radiance,
+    split_compact_sources as split_compact_sources,
+    split_sky_sun as split_sky_sun,
 )
 from jkatana.light.spectral_exr import read_spectral_exr as read_spectral_exr, write_spectral_exr as write_spectral_exr
 from jkatana.light.upsampling import (
