@@ -312,9 +312,8 @@ def render_view(prep: Prepared, view: int = 0, views: int = 1, light: int = 0, l
 
 
 def exposure_for(prep: Prepared, frame: Frame) -> float:
-    """The film's exposure, or with ``"auto"`` the key-value exposure of
-    :func:`~jkatana.render.film.auto_exposure` (blade pixels' 75th-percentile Y → 0.6; a frame
-    without blade pixels: median Y → 0.18, the photographic mid-grey)."""
+    """The film's exposure, or with ``"auto"`` the rule :func:`~jkatana.render.film.scene_exposure`
+    shares with the interactive viewer."""
     e = prep.scene.film.exposure
     if e != "auto":
         return float(e)
