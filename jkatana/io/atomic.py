@@ -37,11 +37,21 @@ def file_mode() -> int:
     return 0o666 & ~_UMASK
 
 
+_CLOSED = False
+
+
 def remove_live() -> None:
-    """Remove every temporary still being written (interrupt clean-up)."""
+    """Interrupt clean-up: remove every temporary still being written, and create no new one.
+
+    After the first call, :func:`atomic_path` blocks instead of creating a
+    temporary (the process is about to exit). The paths stay listed, so a
+    second call removes a temporary that a writer re-created by opening its
+    path after the first removal.
+    """
+    global _CLOSED
     with _LOCK:
+        _CLOSED = True
         paths = list(LIVE)
-        LIVE.clear()
     for p in paths:
         with contextlib.suppress(OSError):
             p.unlink()
@@ -58,12 +68,17 @@ def atomic_path(path: str | Path, *, suffix: str | None = None) -> Iterator[Path
     path = Path(path)
     mode = file_mode()
     path.parent.mkdir(parents=True, exist_ok=True)
-    with _LOCK:  # created and listed at once: an interrupt in between would leave it behind
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix or path.suffix or ".tmp",
-                                   dir=path.parent)
-        os.close(fd)
-        tmp_path = Path(tmp)
-        LIVE.add(tmp_path)
+    tmp_path = None
+    while tmp_path is None:
+        with _LOCK:  # created and listed at once: an interrupt in between would leave it behind
+            if not _CLOSED:
+                fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix or path.suffix or ".tmp",
+                                           dir=path.parent)
+                os.close(fd)
+                tmp_path = Path(tmp)
+                LIVE.add(tmp_path)
+        if tmp_path is None:  # exiting after an interrupt: write nothing more
+            threading.Event().wait(1.0)
     try:
         yield tmp_path
         os.chmod(tmp_path, mode)
