@@ -201,7 +201,7 @@ def _check(args) -> None:
 
     number(args.frames, "--frames", lo=1, hi=100000, integer=True)
     number(args.measure_fps, "--measure-fps", lo=0, hi=100000, integer=True)
-    number(args.refresh, "--refresh", lo=0, lo_open=True, hi=1000)
+    number(args.refresh, "--refresh", lo=0, lo_open=True, hi=1e6)
     number(args.exposure, "--exposure", lo=0, lo_open=True)
     number(args.msaa, "--msaa", lo=0, hi=16, integer=True)
     if args.resolution:

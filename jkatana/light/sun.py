@@ -521,7 +521,8 @@ def reflected_cap_radiance(cap: SunCap, brdf_cos: Callable, V_local: Float[Array
     `rule`: ``n_radial``, ``n_azimuth`` of :func:`cap_integral`.
     """
     C = jnp.einsum("...ij,j->...i", frame, cap.direction.astype(frame.dtype))
-    return cap.radiance * cap_integral(brdf_cos, V_local, C, cap.radius, sigma, **rule)
+    integral = cap_integral(brdf_cos, V_local, C, cap.radius, sigma, **rule)
+    return jnp.asarray(cap.radiance, integral.dtype) * integral
 
 
 def cap_coverage(R: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, width, *, n_radial: int = 4,

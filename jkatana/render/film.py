@@ -69,7 +69,7 @@ def scene_exposure(xyz: np.ndarray, mask: np.ndarray | None) -> float:
     lo, hi = np.log(OBJECT_KEY / np.max(Y)), np.log(1.0 / np.min(Y)) + 1.0
     for _ in range(60):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if displayed_mean(Y, np.exp(mid)) < OBJECT_KEY else (lo, mid)
+        lo, hi = (mid, hi) if displayed_mean(Y, float(np.exp(mid))) < OBJECT_KEY else (lo, mid)
     return float(np.exp(0.5 * (lo + hi)))
 
 

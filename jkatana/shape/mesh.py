@@ -229,7 +229,7 @@ def principal_extents(mesh: trimesh.Trimesh) -> np.ndarray:
 def is_blade_like(extents_sorted) -> bool:
     """One axis ≥ 5× the next and the thinnest ≤ ½ of the middle one: a blade's proportions."""
     a, b, c = sorted(extents_sorted, reverse=True)
-    return a >= 5 * b and c <= 0.5 * b
+    return bool(a >= 5 * b and c <= 0.5 * b)
 
 
 def _end_width(p: np.ndarray, at_max: bool, frac: float = 0.06) -> float:
