@@ -507,6 +507,8 @@ class Mixture(Lobe):
         """Facet normal of the part ``uc`` picks."""
         use1 = uc < self.weight
         a, b = self.first, self.second
+        if isinstance(a, _GaussianBase) and isinstance(b, _GaussianBase):  # one Rayleigh sampler, two widths
+            return _rayleigh_h(jnp.where(use1, a.mu, b.mu), u)
         if type(a) is type(b) and jax.tree.structure(a) == jax.tree.structure(b):
             sel = jax.tree.map(lambda x, y: jnp.where(use1, x, y), a, b)
             return sel.sample_h(u)
