@@ -21,13 +21,9 @@ from jkatana.light.prefilter import (
 )
 from jkatana.light.sampling import (
     EnvSampler as EnvSampler,
-    beckmann_pdf as beckmann_pdf,
     frame_from_normal as frame_from_normal,
-    gaussian_lobe_pdf as gaussian_lobe_pdf,
     mis_weight as mis_weight,
     reflected_radiance as reflected_radiance,
-    sample_beckmann as sample_beckmann,
-    sample_gaussian_lobe as sample_gaussian_lobe,
 )
 from jkatana.light.sky import (
     hosek_wilkie_sky as hosek_wilkie_sky,

@@ -32,42 +32,23 @@ static (trace-time) choices recorded in a :class:`Plan`:
   folded into a (cos θ, rank, XYZ) table. A grey environment is exactly rank 1:
   the renderer detects it and always runs one band (:func:`env_basis`).
 
-Per-sample cost and variance of the MIS modes (measured on the rough iron
-sphere of :mod:`jkatana.render.mitsuba_check`, 95 bands, CPU time per sample
-so that the shared machine's load cancels; ``benchmarks/bench_render.py``):
+Sampling design of the MIS modes:
 
+- the lobes are the objects of :mod:`jkatana.models.lobes` (value, sampler
+  and pdf together): hiraji :class:`~jkatana.models.lobes.Gaussian`, hamon
+  :class:`~jkatana.models.lobes.GaussianVCavity` (or
+  :class:`~jkatana.models.lobes.Beckmann` for the Mitsuba comparison), blended
+  and sampled as a :class:`~jkatana.models.lobes.Mixture` with weights w, 1 − w;
 - the Fresnel factor is folded into the environment (:func:`fold_fresnel`,
-  ``Plan.fresnel_rank``; rank 5 for iron on 360–830 nm at |ΔF| ≤ 1e-5): a
-  15-channel lookup per sample instead of 95 bands, ~1.5× less time per
-  sample, ΔE2000 2e-4 against the full-spectral frame with the same samples;
-- per-pixel points are a 3D Sobol sequence with random digital shifts, the
-  environment warp taking 2 of them (:meth:`EnvSampler.sample_uniform2`):
-  at 32 MIS pairs ΔE 3.26 → 2.58 against the previous R7 + Cranley–Patterson
-  points with a 4-uniform warp (variance −37 %), same cost;
+  ``Plan.fresnel_rank``): per sample a ``3R``-channel lookup instead of one per
+  wavelength, exact up to the rank of F(cos θ, λ);
+- per-pixel points are a 3D Sobol sequence (Joe & Kuo 2008) with random
+  digital shifts (Owen 2003), the environment warp taking 2 of them
+  (:meth:`~jkatana.light.sampling.EnvSampler.sample_uniform2`), so that each
+  strategy sees a well-stratified 2D set;
 - one point set per output pixel across its subpixels (``Plan.subpixels``,
-  :class:`PixelIds`, ``render_frame(..., supersample=s)``; subpixel ``q`` of
-  ``S`` takes points ``q·N … q·N + N − 1`` of the pixel's ``S·N``-point Sobol
-  sequence under the pixel's digital shift, so the union is one (0, m, 2)-net):
-  rough iron sphere 128², 2×2 subpixels, noise ΔE2000(seed 1, seed 2)/√2,
-  independent subpixel sets → one per pixel at 16 / 32 / 64 / 128 / 512 samples
-  per pixel: 3.30 → 2.77, 2.11 → 1.67, 1.40 → 0.92, 0.81 → 0.54, 0.258 → 0.197;
-  frame time 0.79× (128) and 0.69× (512) of before (medians of 4 interleaved
-  runs, load 3–4; likely cache locality: neighbouring subpixels now draw
-  neighbouring points). At equal time (log–log interpolation of the old curve)
-  ~0.56× the time for the same noise. At 692² (32 spp × 4): 0.809 → 0.518, frame
-  19.3 → 16.5 s (medians of 2, load 3.3–3.8). ``SUBPIXEL_ORDER = "interleave"``
-  (points ``q, q + S, …``): same noise (0.56 at 128), slower in single runs.
-  The blade scene of the renderer has no subpixels, so it is unchanged; its
-  16-spp ΔE of 1.19 (vs 0.89 with R7 points) is the Sobol sequence's: 4.3 % of
-  pixels have ΔE > 5 at 8 and 16 spp and none at 32 (ΔE 0.20 vs R7's 0.67;
-  64: 0.14 vs 0.40; the median is lower than R7's at every count), measured
-  at 200×150 against 256 spp;
-- tried and not kept: guide tables for the CDF searches (111 vs 62 ns CPU
-  per warp: the extra gathers cost more than the saved search steps); a
-  low-rank environment instead of the Fresnel fold (rank 8: 1.27× faster but
-  ΔE 0.01 of bias, rank 12: 1.08×); lobe-only sampling (half the cost per
-  sample but at equal time ΔE 2.36 vs MIS 1.51); a (2, 2, C) block gather for
-  the bilinear lookup (20 % faster in isolation; moot after the fold).
+  :class:`PixelIds`): subpixel ``q`` of ``S`` takes points ``q·N … q·N + N − 1``
+  of the pixel's ``S·N``-point sequence, so the union is one (0, m, 2)-net.
 
 Effects on demand (all decided on the host before tracing, so a switched-off
 effect is absent from the compiled program): no hamon pixels → no
@@ -94,22 +75,11 @@ from jaxtyping import Array, Float
 
 from jkatana.light.envmap import EnvMap, direction_to_uv, uv_to_direction
 from jkatana.light.sampling import EnvSampler
-from jkatana.models import Hamon, Hiraji
 from jkatana.models.fresnel import fresnel_conductor
-from jkatana.models.geometry import facet_angle, half_vector_cos
+from jkatana.models.geometry import tangent_frame, to_local, to_world
+from jkatana.models.lobes import Beckmann, Gaussian, GaussianVCavity, Mixture, reflect
+from jkatana.models.microfacet import gaussian_facet, gaussian_normalisation
 
-LN2 = math.log(2.0)
-
-
-def _kronecker_alpha(d: int) -> tuple[float, ...]:
-    """Roberts (2018) R_d sequence: α_j = φ_d^(−j), φ_d the real root of x^(d+1) = x + 1."""
-    x = 2.0
-    for _ in range(64):
-        x = (1.0 + x) ** (1.0 / (d + 1))
-    return tuple((x ** -(j + 1)) % 1.0 for j in range(d))
-
-
-_R7 = _kronecker_alpha(7)
 
 
 @functools.lru_cache(maxsize=64)
@@ -133,22 +103,8 @@ MIRROR_MU = 1e-4
 #: Cosine samples of the Fresnel table (linear interpolation error < 1e-6 for iron).
 FRESNEL_TABLE = 1024
 MODES = ("reference", "paper", "prefiltered", "lowrank")
-#: Per-pixel sample sequence of the ``"reference"``/``"lowrank"`` modes: ``"sobol"`` (3D Sobol points with a
-#: per-pixel random digital shift per strategy; the environment warp takes 2 of them) or ``"r7"``
-#: (Roberts' R7 Kronecker sequence with one Cranley–Patterson rotation per pixel, the environment
-#: warp taking 4 dimensions — the previous sampler, kept for the benchmark's comparison).
-SEQUENCE = "sobol"
-#: Which points of a pixel's ``S·N``-point sequence subpixel ``s`` takes (``Plan.subpixels = S > 1``, ``N``
-#: samples): ``"block"`` — indices ``s·N … s·N + N − 1`` (for Sobol and ``N`` a power of two each block is
-#: itself a (0, m, 2)-net and the union the full prefix, a (0, m + log2 S, 2)-net) or ``"interleave"`` —
-#: indices ``s, s + S, s + 2S, …`` (the union is the same prefix; each subpixel's own set is confined to
-#: one stratum of the first dimension).
-SUBPIXEL_ORDER = "block"
 #: Largest |F − F_R| (absolute reflectance) accepted for a rank-R Fresnel table (:func:`fresnel_rank_for`).
 FRESNEL_RANK_TOL = 1e-5
-#: Texel weight of the environment density (:meth:`jkatana.light.sampling.EnvSampler.build`'s
-#: ``bilinear``): ``"max"`` (3×3 neighbourhood maximum) or ``True`` (exact bilinear integral).
-ENV_DENSITY = "max"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,7 +141,8 @@ class Plan:
     - `subpixels`: ``S`` G-buffer samples (subpixels) per output pixel. With
       ``S > 1`` and :class:`PixelIds` passed to :func:`shade`, the MIS modes draw
       ONE per-pixel point set of ``S × samples`` points and give each subpixel
-      its share (:data:`SUBPIXEL_ORDER`), so that the union over a pixel's
+      its share (subpixel ``q`` takes points ``q·N … q·N + N − 1`` of the pixel's
+      ``S·N``-point Sobol sequence under the pixel's digital shift), so that the union over a pixel's
       subpixels is one well-stratified set instead of ``S`` independently
       shifted ones. Without ids (or ``S = 1``) every G-buffer sample is its own pixel.
     """
@@ -349,7 +306,8 @@ def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5
 
 
 def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation=None,
-                      prefilter_mus=(), prefilter_resolution: int = 128, dtype=jnp.float32, grid=None):
+                      prefilter_mus=(), prefilter_resolution: int = 128, dtype=jnp.float32, grid=None,
+                      env_density="max"):
     """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
 
     Environment sampling is :class:`jkatana.light.sampling.EnvSampler` (the light
@@ -357,7 +315,9 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     the texel's luminance being the integral of the *bilinear* radiance the
     lookups return (so ``radiance / pdf`` stays bounded next to a one-texel
     sun), uniform in solid angle inside a texel — Pharr, Jakob & Humphreys,
-    *PBRT* 4th ed., §A.5 and §12.5.
+    *PBRT* 4th ed., §A.5 and §12.5. ``env_density`` is the texel weight
+    (:meth:`~jkatana.light.sampling.EnvSampler.build`'s ``bilinear``): ``"max"``
+    (3×3 neighbourhood maximum) or ``True`` (exact bilinear integral).
 
     **Returns:** ``(environment, factored, rel_residual)``.
     """
@@ -368,7 +328,7 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     coeffs, basis, factored, resid = env_basis(radiance, rank)
     if grid is None:  # the density only steers sampling: an unknown grid borrows the default range
         grid = DEFAULT_GRID if nwl == DEFAULT_GRID.size else type(DEFAULT_GRID).with_count(DEFAULT_GRID.start, DEFAULT_GRID.stop, nwl)
-    sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=ENV_DENSITY)
+    sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=env_density)
     rot = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
     mus = tuple(sorted(float(m) for m in prefilter_mus))
     pre = ()
@@ -386,17 +346,6 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     env = Environment(jnp.asarray(coeffs, dtype), jnp.asarray(basis, dtype), jnp.asarray(rot, dtype), sampler,
                       pre, jnp.asarray(np.asarray(mus, np.float64), dtype))
     return env, factored, resid
-
-
-def sample_environment(env: Environment, u):
-    """Directions from the environment's density for uniforms ``u (P, 4)``: ``(d_world, pdf_solid_angle)``."""
-    d_map, pdf = env.sampler.sample_uniform(u)
-    return d_map @ env.rotation, pdf  # map → world (rotation is orthonormal)
-
-
-def env_pdf_map(env: Environment, d_map):
-    """Solid-angle density of :func:`sample_environment` at map direction ``d_map``."""
-    return env.sampler.pdf(d_map)
 
 
 def env_lookup(env: Environment, d_world):
@@ -429,24 +378,6 @@ def _lookup_prefiltered(env: Environment, mu, R_world):
 # ---------------------------------------------------------------- geometry helpers
 
 
-def _basis(n):
-    """Orthonormal tangent frame (t, b) for unit normals n (Duff et al. 2017, JCGT 6(1))."""
-    sign = jnp.where(n[..., 2] >= 0, 1.0, -1.0).astype(n.dtype)
-    a = -1.0 / (sign + n[..., 2])
-    b = n[..., 0] * n[..., 1] * a
-    t = jnp.stack([1.0 + sign * n[..., 0] ** 2 * a, sign * b, -sign * n[..., 0]], -1)
-    bt = jnp.stack([b, sign + n[..., 1] ** 2 * a, -n[..., 1]], -1)
-    return t, bt
-
-
-def _to_local(v, t, b, n):
-    return jnp.stack([jnp.sum(v * t, -1), jnp.sum(v * b, -1), jnp.sum(v * n, -1)], -1)
-
-
-def _to_world(v, t, b, n):
-    return v[..., 0:1] * t + v[..., 1:2] * b + v[..., 2:3] * n
-
-
 def fresnel_table(n, k, size: int = FRESNEL_TABLE):
     """F(cos θ, λ) on ``size`` cosines uniformly in [0, 1] (exact conductor Fresnel, differentiable in n, k)."""
     c = jnp.linspace(0.0, 1.0, size, dtype=n.dtype)
@@ -463,36 +394,6 @@ def _table_lookup(table, cos):
     return table[i0] * (1 - f) + table[i0 + 1] * f
 
 
-# ---------------------------------------------------------------- lobe sampling
-
-
-def _rayleigh_sample(mu, u1, u2):
-    """Facet normal (local, N = +z) with φ ~ Rayleigh(σ = μ/√(2 ln 2)): density ∝ D(φ, μ) φ."""
-    sigma = jnp.maximum(mu, 1e-7) / math.sqrt(2 * LN2)
-    phi = sigma * jnp.sqrt(-2.0 * jnp.log1p(-jnp.minimum(u1, 1 - 1e-7)))
-    psi = 2 * jnp.pi * u2
-    s = jnp.sin(phi)
-    return jnp.stack([s * jnp.cos(psi), s * jnp.sin(psi), jnp.cos(phi)], -1), phi
-
-
-def _pdf_h(mu, phi):
-    """Solid-angle density of :func:`_rayleigh_sample` at facet angle φ (0 beyond π/2)."""
-    sigma2 = (jnp.maximum(mu, 1e-7) ** 2) / (2 * LN2)
-    d = jnp.exp(-jnp.minimum(phi * phi / (2 * sigma2), 80.0))
-    return jnp.where(phi < jnp.pi / 2, d / (2 * jnp.pi * sigma2) / jnp.sinc(phi / jnp.pi), 0.0)
-
-
-def _pdf_L(mu, L, V):
-    """Density of reflected directions L = reflect(V, h) with h from :func:`_rayleigh_sample`."""
-    phi = facet_angle(L, V)
-    _, cos_th, valid = half_vector_cos(L, V)
-    return jnp.where(valid & (cos_th > 0), _pdf_h(mu, phi) / (4.0 * jnp.maximum(cos_th, 1e-7)), 0.0)
-
-
-def _reflect(V, h):
-    return 2.0 * jnp.sum(V * h, -1, keepdims=True) * h - V
-
-
 # ---------------------------------------------------------------- BRDF (f·cos θi) per region
 
 
@@ -506,8 +407,6 @@ class Material(eqx.Module):
 
 def _norms(plan: Plan, mat: Material, px: Pixels):
     """Per-pixel lobe scales: N(μ) (normalised convention) or χ/K, β/K (calibrated). Hoisted out of the sample loop."""
-    from jkatana.models.microfacet import gaussian_normalisation
-
     if plan.calibration is None:
         n0 = gaussian_normalisation(px.mu0) if (plan.hiraji and not plan.mirror) else None
         n1 = gaussian_normalisation(px.mu1) if plan.hamon else None
@@ -515,58 +414,31 @@ def _norms(plan: Plan, mat: Material, px: Pixels):
     return mat.chi / plan.calibration, mat.beta / plan.calibration
 
 
-def _fcos_scalar(plan: Plan, mat: Material, px: Pixels, L, V, norms):
-    """Scalar parts of f·cos θi (without Fresnel) per lobe with the Fresnel cosine: [(a, cos), ...].
+def _lobes(plan: Plan, px: Pixels, norms):
+    """The sampled lobes of the pixels with their blend weights: ``[(lobe, weight), ...]``.
 
-    Same expressions as :meth:`Hiraji.brdf_cos` / :meth:`Hamon.brdf_cos`,
-    split so that the Fresnel factor comes from a table.
+    Hiraji: :class:`~jkatana.models.lobes.Gaussian` (μ0, weight w) unless it is a
+    perfect mirror; hamon: :class:`~jkatana.models.lobes.GaussianVCavity` (μ1) or,
+    with ``plan.rough_model == "beckmann"``, :class:`~jkatana.models.lobes.Beckmann`
+    (α = μ1), weight 1 − w (Mochizuki et al., eq. 5).
     """
+    normalised = plan.calibration is None
     out = []
     if plan.hiraji and not plan.mirror:
-        cos_i, cos_th, d = Hiraji(mat.chi, px.mu0)._terms(L, V)
-        scale = norms[0] / (4.0 * jnp.maximum(cos_th, 1e-7)) if plan.calibration is None else norms[0]
-        out.append((px.w * scale * d, cos_i))
-    if plan.hamon and plan.rough_model == "beckmann":
-        from jkatana.models.microfacet import beckmann, smith_beckmann
-
-        cos_nh, cos_th, valid = half_vector_cos(L, V)
-        ok = valid & (L[..., 2] > 0) & (V[..., 2] > 0)
-        g = smith_beckmann(V[..., 2], L[..., 2], px.mu1)
-        d = beckmann(cos_nh, px.mu1)
-        fc = jnp.where(ok, d * g / (4.0 * jnp.maximum(V[..., 2], 1e-7)), 0.0)
-        out.append(((1.0 - px.w) * fc, cos_th))
-    elif plan.hamon:
-        cos_th, dg = Hamon(mat.beta, px.mu1)._terms(L, V)
-        scale = norms[1] / 4.0 if plan.calibration is None else norms[1]
-        out.append(((1.0 - px.w) * scale * dg, cos_th))
+        out.append((Gaussian(px.mu0, norms[0], normalised=normalised), px.w))
+    if plan.hamon:
+        rough = (Beckmann(px.mu1) if plan.rough_model == "beckmann"
+                 else GaussianVCavity(px.mu1, norms[1], normalised=normalised))
+        out.append((rough, 1.0 - px.w))
     return out
 
 
-def _beckmann_sample(alpha, u1, u2):
-    """Facet normal from the Beckmann distribution: tan²φ = −α² ln(1 − u1) (Walter et al. 2007, eq. 28)."""
-    t2 = -(alpha**2) * jnp.log1p(-jnp.minimum(u1, 1 - 1e-7))
-    c = 1.0 / jnp.sqrt(1.0 + t2)
-    s = jnp.sqrt(jnp.maximum(1.0 - c * c, 0.0))
-    psi = 2 * jnp.pi * u2
-    return jnp.stack([s * jnp.cos(psi), s * jnp.sin(psi), c], -1)
-
-
-def _pdf_L_beckmann(alpha, L, V):
-    from jkatana.models.microfacet import beckmann
-
-    cos_nh, cos_th, valid = half_vector_cos(L, V)
-    return jnp.where(valid & (cos_th > 0), beckmann(cos_nh, alpha) * cos_nh / (4.0 * jnp.maximum(cos_th, 1e-7)), 0.0)
-
-
-def _lobe_pdf(plan: Plan, px: Pixels, L, V):
-    """Mixture density of the lobe sampler (hiraji w, hamon 1 − w)."""
-    p = 0.0
-    if plan.hiraji and not plan.mirror:
-        p = p + _mix_w(plan, px) * _pdf_L(px.mu0, L, V)
-    if plan.hamon:
-        pdf1 = _pdf_L_beckmann(px.mu1, L, V) if plan.rough_model == "beckmann" else _pdf_L(px.mu1, L, V)
-        p = p + (1.0 - _mix_w(plan, px)) * pdf1
-    return p
+def _sampler(lobes):
+    """One lobe, or the blend of two sampled by its weights (:class:`~jkatana.models.lobes.Mixture`)."""
+    if len(lobes) == 1:
+        return lobes[0][0]
+    (a, w), (b, _) = lobes
+    return Mixture(a, b, w)
 
 
 def _mix_w(plan: Plan, px: Pixels):
@@ -576,6 +448,11 @@ def _mix_w(plan: Plan, px: Pixels):
     if not plan.hamon:
         return jnp.ones_like(px.w)
     return px.w
+
+
+def _fcos_terms(lobes, L, V):
+    """f·cos θi without Fresnel per lobe term, weighted by the blend: ``[(a, Fresnel cosine), ...]``."""
+    return [(w * a, c) for lobe, w in lobes for a, c in lobe.terms(L, V)]
 
 
 # ---------------------------------------------------------------- Fresnel folded into the environment
@@ -648,13 +525,13 @@ def _folded(plan: Plan) -> bool:
 def _frame(px: Pixels):
     """Per-pixel tangent frame and the view direction in it."""
     N = px.normal
-    t, b = _basis(N)
-    return (t, b, N), _to_local(px.view, t, b, N)
+    t, b = tangent_frame(N)
+    return (t, b, N), to_local(px.view, t, b, N)
 
 
 def _mirror_ray(Vl, fr):
     Rl = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
-    return Rl, _to_world(Rl, *fr)
+    return Rl, to_world(Rl, *fr)
 
 
 def _paper_grid(S: int):
@@ -677,8 +554,8 @@ def _paper_ray(plan: Plan, px: Pixels, Vl, fr, key, k):
     psi = 2 * jnp.pi * sv
     s = jnp.sin(phi)
     h = jnp.stack([s * jnp.cos(psi), s * jnp.sin(psi), jnp.cos(phi)], -1)
-    Ll = _reflect(Vl, h)
-    return Ll, _to_world(Ll, *fr), phi, mu
+    Ll = reflect(Vl, h)
+    return Ll, to_world(Ll, *fr), phi, mu
 
 
 def _per_pixel(plan: Plan, ids: PixelIds | None) -> bool:
@@ -686,41 +563,32 @@ def _per_pixel(plan: Plan, ids: PixelIds | None) -> bool:
 
 
 def _mis_offset(key, P, dtype, plan: Plan | None = None, ids: PixelIds | None = None):
-    """Per-pixel randomisation of the sample sequence (:data:`SEQUENCE`): Cranley–Patterson
-    offsets ``(P, 7)`` for R7, random digital shifts ``(P, 5)`` (uint32) for Sobol.
+    """Per-pixel randomisation of the Sobol sample sequence: random digital shifts ``(P, 5)`` (uint32).
 
     With :class:`PixelIds` (and ``plan.subpixels > 1``) the randomisation is drawn per output
     pixel from ``fold_in(key, pixel)``, so all subpixels of a pixel share it wherever they are shaded."""
     if plan is not None and _per_pixel(plan, ids):
         def one(p):
             kp = jax.random.fold_in(key, p)
-            return jax.random.uniform(kp, (7,), dtype) if SEQUENCE == "r7" else jax.random.bits(kp, (5,), jnp.uint32)
+            return jax.random.bits(kp, (5,), jnp.uint32)
 
         return jax.vmap(one)(ids.pixel)
-    if SEQUENCE == "r7":
-        return jax.random.uniform(key, (P, 7), dtype)
     return jax.random.bits(key, (P, 5), jnp.uint32)
 
 
 def _sample_index(plan: Plan, ids: PixelIds | None, k):
     """Index of the k-th sample of each G-buffer sample in its pixel's sequence: ``k`` (scalar), or
-    ``(P,)`` per subpixel (:data:`SUBPIXEL_ORDER`)."""
+    ``(P,)`` per subpixel (subpixel ``s`` takes indices ``s·N … s·N + N − 1``: for ``N`` a power of two each
+    block is a (0, m, 2)-net and their union the full prefix)."""
     if not _per_pixel(plan, ids):
         return k
     sub = ids.subpixel.astype(jnp.int32)
-    if SUBPIXEL_ORDER == "interleave":
-        return sub + plan.subpixels * k
     return sub * plan.samples + k
 
 
 def _uniforms(plan: Plan, offset, k, dtype, ids: PixelIds | None = None):
-    """The k-th point per pixel: ``(mix, lobe u1, lobe u2, env (P, 2) or (P, 4))``."""
+    """The k-th point per pixel: ``(mix, lobe u1, lobe u2, env (P, 2))``."""
     idx = _sample_index(plan, ids, k)
-    if SEQUENCE == "r7":
-        kk = jnp.asarray(idx + 1).astype(dtype)
-        kk = kk[..., None] if kk.ndim else kk
-        r = jnp.mod(offset + kk * jnp.asarray(_R7, dtype), 1.0)
-        return r[:, 0], r[:, 1], r[:, 2], r[:, 3:7]
     n = plan.samples * (plan.subpixels if _per_pixel(plan, ids) else 1)
     t = jnp.asarray(_sobol_table(n))[idx]  # (3,) the same point for every pixel, or (P, 3) per subpixel
     t = jnp.broadcast_to(t, offset.shape[:1] + (3,))
@@ -734,7 +602,7 @@ def _uniforms(plan: Plan, offset, k, dtype, ids: PixelIds | None = None):
 
 def sample_points(plan: Plan, key, n: int, ids: PixelIds | None = None, dtype=jnp.float32):
     """The unit-cube points the MIS modes use: ``(n, plan.samples, 5)`` = (mixture choice, lobe u1, lobe u2,
-    environment u1, u2) per G-buffer sample (Sobol; ``"r7"`` gives 7 columns), for inspection and tests.
+    environment u1, u2) per G-buffer sample (Sobol), for inspection and tests.
 
     Same construction as :func:`shade` with the same ``key`` and ``ids``.
     """
@@ -747,32 +615,18 @@ def sample_points(plan: Plan, key, n: int, ids: PixelIds | None = None, dtype=jn
     return jax.vmap(one, out_axes=1)(jnp.arange(plan.samples))
 
 
-def _mis_rays(plan: Plan, env: Environment, px: Pixels, Vl, fr, offset, k, ids: PixelIds | None = None):
-    """The k-th MIS pair: ``(Ll, Lw)`` from the lobe mixture, ``(Ll2, Lw2, pe2, uv2)`` from the environment
-    (``None`` without environment sampling; ``uv2`` the map coordinates of ``Lw2``, or ``None``)."""
+def _mis_rays(plan: Plan, env: Environment, sampler, Vl, fr, offset, k, ids: PixelIds | None = None):
+    """The k-th MIS pair: ``(Ll, Lw, pdf)`` from the lobe mixture ``sampler``, ``(Ll2, Lw2, pe2, uv2)`` from the
+    environment (``None`` without environment sampling; ``uv2`` the map coordinates of ``Lw2``, or ``None``)."""
     dtype = Vl.dtype
     r0, r1, r2, re = _uniforms(plan, offset, k, dtype, ids)
-    gauss = plan.hiraji and not plan.mirror  # the Gaussian (Rayleigh-warped) facet sampler is needed
-    beck = plan.hamon and plan.rough_model == "beckmann"
-    if gauss or (plan.hamon and not beck):
-        use0 = r0 < _mix_w(plan, px)
-        mu = jnp.where(use0, px.mu0, px.mu1)
-        h, _ = _rayleigh_sample(mu, r1, r2)
-        if beck:
-            h = jnp.where(use0[:, None], h, _beckmann_sample(px.mu1, r1, r2))
-    else:  # Beckmann hamon only: no Rayleigh sample computed and thrown away
-        h = _beckmann_sample(px.mu1, r1, r2)
-    Ll = _reflect(Vl, h)
-    Lw = _to_world(Ll, *fr)
+    Ll, pb = sampler.sample(Vl, jnp.stack([r1, r2], -1), r0)
+    Lw = to_world(Ll, *fr)
     if not plan.env_sampling:
-        return Ll, Lw, None, None, None, None
-    if re.shape[-1] == 4:
-        Lw2, pe2 = sample_environment(env, re)
-        uv2 = None
-    else:
-        d_map, pe2, u2, v2 = env.sampler.sample_uniform2(re)
-        Lw2, uv2 = d_map @ env.rotation, (u2, v2)
-    return Ll, Lw, _to_local(Lw2, *fr), Lw2, pe2, uv2
+        return Ll, Lw, pb, None, None, None, None
+    d_map, pe2, u2, v2 = env.sampler.sample_uniform2(re)
+    Lw2, uv2 = d_map @ env.rotation, (u2, v2)
+    return Ll, Lw, pb, to_local(Lw2, *fr), Lw2, pe2, uv2
 
 
 def _light_ray(lights: Light, j: int, px: Pixels):
@@ -810,9 +664,10 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
         lobe = jax.vmap(lambda k: _paper_ray(plan, px, Vl, fr, key, k)[1], out_axes=1)(ks)
     elif plan.mode in ("reference", "lowrank") and _has_lobe(plan):
         offset = _mis_offset(key, P, dtype, plan, ids)
+        sampler = _sampler(_lobes(plan, px, (1.0, 1.0)))  # sampling needs the widths only
 
         def one(k):
-            _, Lw, _, Lw2, _, _ = _mis_rays(plan, env, px, Vl, fr, offset, k, ids)
+            _, Lw, _, _, Lw2, _, _ = _mis_rays(plan, env, sampler, Vl, fr, offset, k, ids)
             return Lw, (Lw2 if Lw2 is not None else jnp.zeros((P, 3), dtype))
 
         lobe, envd = jax.vmap(one, out_axes=1)(ks)
@@ -855,6 +710,8 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     factored = plan.factored
     folded = _folded(plan)
     norms = _norms(plan, mat, px)
+    lobes = _lobes(plan, px, norms)
+    sampler = _sampler(lobes) if lobes else None
     if folded:
         R = plan.fresnel_rank
         if plan.lights or plan.spectral or mat.ftable.shape[-1] != R or env.channels.shape[-1] != 3 * R:
@@ -878,7 +735,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
 
     def radiance_terms(Ll, Lw, weight, uv=None):
         """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space (``uv``: map coordinates of Lw)."""
-        terms = _fcos_scalar(plan, mat, px, Ll, Vl, norms)
+        terms = _fcos_terms(lobes, Ll, Vl)
         E = env_lookup(env, Lw) if uv is None else bilinear_equirect_uv(env.channels, *uv)  # (P, J)
         total = 0.0
         for a, c in terms:
@@ -910,8 +767,8 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
             acc_, wsum = carry
             k, v = xs
             Ll, Lw, phi, mu = _paper_ray(plan, px, Vl, fr, key, k)
-            gauss = jnp.exp(-LN2 * (phi / jnp.maximum(mu, 1e-7)) ** 2)
-            pdf = _lobe_pdf(plan, px, Ll, Vl)
+            gauss = gaussian_facet(phi, jnp.maximum(mu, 1e-7))
+            pdf = sampler.pdf(Ll, Vl)
             ok = (Ll[:, 2] > 0) & (pdf > 0)
             g = jnp.where(ok, gauss / jnp.where(ok, pdf, 1.0), 0.0)  # Gaussian weight × 1/pdf → throughput
             if v is not None:
@@ -926,8 +783,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
 
         def body(acc_, xs):
             k, v1, v2 = xs
-            Ll, Lw, Ll2, Lw2, pe2, uv2 = _mis_rays(plan, env, px, Vl, fr, offset, k, ids)
-            pb = _lobe_pdf(plan, px, Ll, Vl)
+            Ll, Lw, pb, Ll2, Lw2, pe2, uv2 = _mis_rays(plan, env, sampler, Vl, fr, offset, k, ids)
             uv = env_uv(env, Lw)  # one atan2 pair serves the density and the lookup
             pe = env.sampler.pdf_uv(*uv) if plan.env_sampling else 0.0
             ok = (Ll[:, 2] > 0) & (pb > 0)
@@ -936,7 +792,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
                 wgt = wgt * v1
             acc_ = acc_ + radiance_terms(Ll, Lw, wgt, uv)
             if plan.env_sampling:
-                pb2 = _lobe_pdf(plan, px, Ll2, Vl)
+                pb2 = sampler.pdf(Ll2, Vl)
                 ok2 = (Ll2[:, 2] > 0) & (pe2 > 0)
                 wgt2 = jnp.where(ok2, 1.0 / jnp.where(ok2, pb2 + pe2, 1.0), 0.0)
                 if v2 is not None:
@@ -954,9 +810,9 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
             Lw, falloff, _ = _light_ray(lights, j, px)
             if vis is not None:
                 falloff = falloff * vis.lights[:, j]
-            Ll = _to_local(Lw, *fr)
+            Ll = to_local(Lw, *fr)
             spec = lights.spectrum[j]
-            for a, c in _fcos_scalar(plan, mat, px, Ll, Vl, norms):
+            for a, c in _fcos_terms(lobes, Ll, Vl):
                 Fs = _table_lookup(mat.ftable, c) * spec[None, :]
                 if factored:
                     acc = acc + (a * falloff)[:, None] * (Fs @ cmf)
