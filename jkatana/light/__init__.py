@@ -12,10 +12,9 @@ from jkatana.light.envmap import (
     texel_solid_angles as texel_solid_angles,
     uv_to_direction as uv_to_direction,
 )
+from jkatana.light.fresnel_basis import FresnelBasis as FresnelBasis, fresnel_basis as fresnel_basis
 from jkatana.light.prefilter import (
-    FresnelBasis as FresnelBasis,
     PrefilteredEnv as PrefilteredEnv,
-    fresnel_basis as fresnel_basis,
     prefilter as prefilter,
     project_on_basis as project_on_basis,
 )

@@ -74,6 +74,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jkatana.light.envmap import EnvMap, direction_to_uv, uv_to_direction
+from jkatana.light.fresnel_basis import svd_of_table
 from jkatana.light.sampling import EnvSampler
 from jkatana.models.fresnel import fresnel_conductor
 from jkatana.models.geometry import tangent_frame, to_local, to_world
@@ -461,8 +462,8 @@ def _fcos_terms(lobes, L, V):
 def fresnel_rank_for(ftable, tol: float = FRESNEL_RANK_TOL, max_rank: int = 8, *, _basis_too: bool = False) -> int:
     """Smallest R with max |F − F_R| ≤ ``tol`` over the table (truncated SVD in λ), 0 if none ≤ ``max_rank``.
 
-    F(cos θ, λ) of a conductor is smooth in both arguments: for iron (Johnson &
-    Christy 1974) rank 3 reproduces it to ~1e-6 (see DESIGN.md). Host-side
+    F(cos θ, λ) of a conductor is smooth in both arguments (see DESIGN.md); the
+    SVD is :func:`jkatana.light.fresnel_basis.svd_of_table`'s. Host-side
     (NumPy float64) on a concrete table.
     """
     import hashlib
@@ -471,7 +472,7 @@ def fresnel_rank_for(ftable, tol: float = FRESNEL_RANK_TOL, max_rank: int = 8, *
     key = (hashlib.blake2b(F.tobytes(), digest_size=16).hexdigest(), F.shape, str(F.dtype), tol, max_rank)
     if key not in _RANK_CACHE:  # a per-frame host SVD costs ~1 s on a loaded machine: once per table
         F = F.astype(np.float64)
-        u, s, vt = np.linalg.svd(F, full_matrices=False)
+        u, s, vt = svd_of_table(F)
         _RANK_CACHE[key] = (0, vt)
         for r in range(1, min(max_rank, len(s)) + 1):
             if np.max(np.abs(F - (u[:, :r] * s[:r]) @ vt[:r])) <= tol:
