@@ -63,49 +63,27 @@ optionally as spectra.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
-from jkatana.light.envmap import EnvMap, direction_to_uv, uv_to_direction
-from jkatana.light.fresnel_basis import svd_of_table
-from jkatana.light.sampling import EnvSampler
-from jkatana.models.fresnel import fresnel_conductor
 from jkatana.models.geometry import tangent_frame, to_local, to_world
 from jkatana.models.lobes import Beckmann, Gaussian, GaussianVCavity, Mixture, reflect
 from jkatana.models.microfacet import gaussian_facet, gaussian_normalisation
+# the shader's inputs and helpers live by job in their own modules; re-exported here as the render API
+from jkatana.render.environment import (Environment, background, bilinear_equirect, bilinear_equirect_uv,  # noqa: F401
+                                        build_environment, env_basis, env_lookup, env_uv, lookup_prefiltered,
+                                        unbasis)
+from jkatana.render.fresnel_fold import (FRESNEL_RANK_TOL, FRESNEL_TABLE, Material, fold_fresnel,  # noqa: F401
+                                         fresnel_rank_for, fresnel_table, is_folded, table_lookup)
+from jkatana.render.points import PixelIds, mis_offset, sample_points, uniforms  # noqa: F401
 
-
-
-@functools.lru_cache(maxsize=64)
-def _sobol_table(n: int) -> np.ndarray:
-    """First ``n`` points of the 3D Sobol sequence (Joe & Kuo 2008 directions, scipy.stats.qmc) as uint32.
-
-    Dimensions 0 and 1 form a (0, 2)-sequence: every power-of-two prefix is a
-    (0, m, 2)-net, i.e. one point in every elementary interval of the unit
-    square. The renderer XORs each pixel's points with random bits (a random
-    digital shift, which keeps the net property; Owen 2003, "Quasi-Monte Carlo
-    sampling", SIGGRAPH course notes) — independently for the lobe and the
-    environment strategies, so each gets its own well-stratified 2D set.
-    """
-    from scipy.stats import qmc
-
-    m = 1 << max(n - 1, 0).bit_length()  # a power-of-two prefix (scipy warns otherwise), then the first n
-    pts = qmc.Sobol(d=3, scramble=False).random(m)[:n]
-    return np.asarray(np.round(pts * 2.0**32), np.uint64).astype(np.uint32)
 #: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
 MIRROR_MU = 1e-4
-#: Cosine samples of the Fresnel table (linear interpolation error < 1e-6 for iron).
-FRESNEL_TABLE = 1024
 MODES = ("reference", "paper", "prefiltered", "lowrank")
-#: Largest |F − F_R| (absolute reflectance) accepted for a rank-R Fresnel table (:func:`fresnel_rank_for`).
-FRESNEL_RANK_TOL = 1e-5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -164,30 +142,6 @@ class Plan:
     subpixels: int = 1
 
 
-class Environment(eqx.Module):
-    """Environment lighting as the shader sees it.
-
-    **Fields:**
-
-    - `channels`: ``(H, W, J)``: spectral radiance (J = wavelengths, `basis`
-      unused) or coefficients on a spectral basis.
-    - `basis`: ``(J, wl)`` spectra such that radiance = channels @ basis.
-    - `rotation`: ``(3, 3)`` world → map rotation applied to every lookup.
-    - `sampler`: :class:`jkatana.light.sampling.EnvSampler` of the map (luminance ×
-      solid angle, bilinear-safe), in map coordinates.
-    - `prefiltered`: ``M`` lobe-convolved maps ``(H_m, W_m, J)`` for ``prefilter_mus``
-      (:func:`jkatana.light.prefilter.prefilter`, projected on ``basis``), or ``()``.
-    - `prefilter_mus`: ``(M,)`` μ of each prefiltered level (increasing).
-    """
-
-    channels: Float[Array, "H W J"]
-    basis: Float[Array, "J wl"]
-    rotation: Float[Array, "3 3"]
-    sampler: EnvSampler
-    prefiltered: tuple
-    prefilter_mus: Float[Array, "M"]
-
-
 class Light(NamedTuple):
     """Point (``kind`` 0: position, intensity W sr⁻¹ nm⁻¹) or directional (1: direction to light, irradiance)."""
 
@@ -205,18 +159,6 @@ class Pixels(NamedTuple):
     w: Float[Array, "P"]
     mu0: Float[Array, "P"]
     mu1: Float[Array, "P"]
-
-
-class PixelIds(NamedTuple):
-    """Which output pixel and which of its subpixels each G-buffer sample is (see ``Plan.subpixels``).
-
-    ``pixel (P,)`` uint32: a frame-wide pixel index (the scramble of the pixel's
-    point set is ``jax.random.bits(fold_in(key, pixel))``, so it does not depend on
-    the chunk or device that shades it); ``subpixel (P,)`` int32 in ``[0, S)``.
-    """
-
-    pixel: Array
-    subpixel: Array
 
 
 class Rays(NamedTuple):
@@ -245,165 +187,7 @@ class Visibility(NamedTuple):
     lights: Float[Array, "P n"]
 
 
-# ---------------------------------------------------------------- environment
-
-
-def bilinear_equirect(image: Float[Array, "H W C"], d: Float[Array, "*b 3"]) -> Float[Array, "*b C"]:
-    """Bilinear lookup of an equirectangular ``(H, W, C)`` image in direction ``d``.
-
-    Same convention and filtering as :meth:`jkatana.light.envmap.EnvMap.lookup`
-    (wrap in u, clamp in v), for any number of channels (spectral bands or
-    basis coefficients).
-    """
-    u, v = direction_to_uv(d)
-    return bilinear_equirect_uv(image, u, v)
-
-
-def bilinear_equirect_uv(image: Float[Array, "H W C"], u, v) -> Float[Array, "*b C"]:
-    """:func:`bilinear_equirect` at given equirectangular coordinates ``(u, v)`` (no ``atan2``)."""
-    H, W = image.shape[0], image.shape[1]
-    x = u * W - 0.5
-    y = jnp.clip(v * H - 0.5, 0.0, H - 1.0)
-    x0 = jnp.floor(x)
-    y0 = jnp.floor(y)
-    fx = (x - x0).astype(image.dtype)[..., None]
-    fy = (y - y0).astype(image.dtype)[..., None]
-    i0 = jnp.mod(x0.astype(jnp.int32), W)
-    i1 = jnp.mod(i0 + 1, W)
-    j0 = jnp.clip(y0.astype(jnp.int32), 0, H - 1)
-    j1 = jnp.minimum(j0 + 1, H - 1)
-    top = image[j0, i0] * (1 - fx) + image[j0, i1] * fx
-    bottom = image[j1, i0] * (1 - fx) + image[j1, i1] * fx
-    return top * (1 - fy) + bottom * fy
-
-
-def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5):
-    """Spectral factorisation of an environment: ``radiance ≈ coeffs @ basis``.
-
-    ``rank=None`` keeps the full spectra (identity basis) unless the map is grey
-    (every texel a multiple of one spectrum to ``grey_rtol``), which is exactly
-    rank 1. Otherwise the first ``rank`` right singular vectors of the
-    ``(H·W, wl)`` radiance matrix (principal spectra, Eckart–Young optimal in
-    the least-squares sense).
-
-    **Returns:** ``(coeffs (H, W, J), basis (J, wl), factored: bool, rel_residual)``.
-    """
-    L = np.asarray(radiance, np.float64)
-    H, W, nwl = L.shape
-    flat = L.reshape(-1, nwl)
-    # rank-1 test on a subsample (cheap): the leading singular value carries all the energy
-    step = max(1, flat.shape[0] // 20000)
-    _, s, vt = np.linalg.svd(flat[::step], full_matrices=False)
-    energy = np.sqrt(np.sum(s[1:] ** 2)) / max(s[0], 1e-300)
-    if rank is None and energy > grey_rtol:
-        return L.astype(np.float32), np.eye(nwl, dtype=np.float32), False, 0.0
-    r = 1 if rank is None else int(rank)
-    basis = vt[:r]
-    if basis[0].sum() < 0:
-        basis = -basis
-    coeffs = flat @ basis.T
-    resid = np.linalg.norm(flat - coeffs @ basis) / max(np.linalg.norm(flat), 1e-300)
-    return (coeffs.reshape(H, W, r).astype(np.float32), basis.astype(np.float32), True, float(resid))
-
-
-def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation=None,
-                      prefilter_mus=(), prefilter_resolution: int = 128, dtype=jnp.float32, grid=None,
-                      env_density="max"):
-    """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
-
-    Environment sampling is :class:`jkatana.light.sampling.EnvSampler` (the light
-    stage's): a piecewise-constant density ∝ luminance × solid angle per texel,
-    the texel's luminance being the integral of the *bilinear* radiance the
-    lookups return (so ``radiance / pdf`` stays bounded next to a one-texel
-    sun), uniform in solid angle inside a texel — Pharr, Jakob & Humphreys,
-    *PBRT* 4th ed., §A.5 and §12.5. ``env_density`` is the texel weight
-    (:meth:`~jkatana.light.sampling.EnvSampler.build`'s ``bilinear``): ``"max"``
-    (3×3 neighbourhood maximum) or ``True`` (exact bilinear integral).
-
-    **Returns:** ``(environment, factored, rel_residual)``.
-    """
-    from jkatana.spectral import DEFAULT_GRID
-
-    radiance = np.asarray(radiance, np.float64)
-    H, W, nwl = radiance.shape
-    coeffs, basis, factored, resid = env_basis(radiance, rank)
-    if grid is None:  # the density only steers sampling: an unknown grid borrows the default range
-        grid = DEFAULT_GRID if nwl == DEFAULT_GRID.size else type(DEFAULT_GRID).with_count(DEFAULT_GRID.start, DEFAULT_GRID.stop, nwl)
-    sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=env_density)
-    rot = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
-    mus = tuple(sorted(float(m) for m in prefilter_mus))
-    pre = ()
-    if mus:
-        # the light stage's exact convolution with the lobe kernel, on the source box-downsampled to
-        # at most `prefilter_resolution` columns, then projected on the environment's spectral basis
-        from jkatana.light.prefilter import prefilter as light_prefilter
-
-        src = EnvMap(jnp.asarray(radiance, jnp.float32), grid)
-        while src.width > prefilter_resolution and src.height % 2 == 0 and src.width % 2 == 0:
-            src = src.downsample(2)
-        levels = light_prefilter(src, mus).levels
-        pre = tuple(jnp.asarray(np.asarray(lvl.radiance, np.float64) @ basis.T.astype(np.float64), dtype)
-                    for lvl in levels)
-    env = Environment(jnp.asarray(coeffs, dtype), jnp.asarray(basis, dtype), jnp.asarray(rot, dtype), sampler,
-                      pre, jnp.asarray(np.asarray(mus, np.float64), dtype))
-    return env, factored, resid
-
-
-def env_lookup(env: Environment, d_world):
-    """Environment channels in world direction ``d_world`` (rotation applied)."""
-    return bilinear_equirect(env.channels, d_world @ env.rotation.T)
-
-
-def env_uv(env: Environment, d_world):
-    """Map coordinates ``(u, v)`` of world direction ``d_world`` (one ``direction_to_uv`` for lookup and pdf)."""
-    return direction_to_uv(d_world @ env.rotation.T)
-
-
-def _lookup_prefiltered(env: Environment, mu, R_world):
-    """Prefiltered channels toward ``R_world`` for per-pixel ``mu``: bilinear in each level, linear
-    in log μ between levels, clamped to the tabulated range (as
-    :meth:`jkatana.light.prefilter.PrefilteredEnv.lookup`, in the environment's channel space)."""
-    d = R_world @ env.rotation.T
-    vals = jnp.stack([bilinear_equirect(lvl, d) for lvl in env.prefiltered])  # (M, P, J)
-    M = vals.shape[0]
-    if M == 1:
-        return vals[0]
-    logm = jnp.log(env.prefilter_mus)
-    x = jnp.clip(jnp.log(jnp.maximum(mu, 1e-12)), logm[0], logm[-1])
-    k0 = jnp.clip(jnp.searchsorted(logm, x, side="right") - 1, 0, M - 2)
-    t = ((x - logm[k0]) / (logm[k0 + 1] - logm[k0]))[:, None]
-    P = R_world.shape[0]
-    return vals[k0, jnp.arange(P)] * (1 - t) + vals[k0 + 1, jnp.arange(P)] * t
-
-
-# ---------------------------------------------------------------- geometry helpers
-
-
-def fresnel_table(n, k, size: int = FRESNEL_TABLE):
-    """F(cos θ, λ) on ``size`` cosines uniformly in [0, 1] (exact conductor Fresnel, differentiable in n, k)."""
-    c = jnp.linspace(0.0, 1.0, size, dtype=n.dtype)
-    return fresnel_conductor(c[:, None], n, k)
-
-
-def _table_lookup(table, cos):
-    """Linear interpolation of a ``(T, ...)`` table at cosines in [0, 1]."""
-    T = table.shape[0]
-    x = jnp.clip(cos, 0.0, 1.0) * (T - 1)
-    i0 = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, T - 2)
-    f = (x - i0).astype(table.dtype)
-    f = f.reshape(f.shape + (1,) * (table.ndim - 1))
-    return table[i0] * (1 - f) + table[i0 + 1] * f
-
-
-# ---------------------------------------------------------------- BRDF (f·cos θi) per region
-
-
-class Material(eqx.Module):
-    """Differentiable material inputs: Fresnel table and the fitted scales (calibrated convention)."""
-
-    ftable: Float[Array, "T wl"]
-    chi: Float[Array, ""]
-    beta: Float[Array, ""]
+# ---------------------------------------------------------------- lobes per region
 
 
 def _norms(plan: Plan, mat: Material, px: Pixels):
@@ -456,70 +240,6 @@ def _fcos_terms(lobes, L, V):
     return [(w * a, c) for lobe, w in lobes for a, c in lobe.terms(L, V)]
 
 
-# ---------------------------------------------------------------- Fresnel folded into the environment
-
-
-def fresnel_rank_for(ftable, tol: float = FRESNEL_RANK_TOL, max_rank: int = 8, *, _basis_too: bool = False) -> int:
-    """Smallest R with max |F − F_R| ≤ ``tol`` over the table (truncated SVD in λ), 0 if none ≤ ``max_rank``.
-
-    F(cos θ, λ) of a conductor is smooth in both arguments (see DESIGN.md); the
-    SVD is :func:`jkatana.light.fresnel_basis.svd_of_table`'s. Host-side
-    (NumPy float64) on a concrete table.
-    """
-    import hashlib
-
-    F = np.ascontiguousarray(np.asarray(ftable))
-    key = (hashlib.blake2b(F.tobytes(), digest_size=16).hexdigest(), F.shape, str(F.dtype), tol, max_rank)
-    if key not in _RANK_CACHE:  # a per-frame host SVD costs ~1 s on a loaded machine: once per table
-        F = F.astype(np.float64)
-        u, s, vt = svd_of_table(F)
-        _RANK_CACHE[key] = (0, vt)
-        for r in range(1, min(max_rank, len(s)) + 1):
-            if np.max(np.abs(F - (u[:, :r] * s[:r]) @ vt[:r])) <= tol:
-                _RANK_CACHE[key] = (r, vt)
-                break
-    return _RANK_CACHE[key][0] if not _basis_too else _RANK_CACHE[key]
-
-
-_RANK_CACHE: dict = {}
-
-
-def fold_fresnel(rank: int, mat: Material, env: Environment, cmf, basis=None) -> tuple[Material, Environment]:
-    """Fold a rank-``R`` Fresnel factorisation and the CMFs into the environment (exact up to that rank).
-
-    With ``F(c, λ) ≈ Σ_r a_r(c) b_r(λ)`` (``b`` the leading right singular
-    vectors of the table, held fixed — no gradient through the SVD; ``a = F bᵀ``
-    is differentiable in the table) the XYZ radiance of one sample is
-    ``Σ_r a_r(cos θ) G_r(L)`` with ``G_r = Σ_λ b_r(λ) E(L, λ) x̄ȳz̄(λ)``: a
-    ``3R``-channel map. Bilinear lookups commute with this per-texel linear map,
-    so the only approximation is the Fresnel rank. Per sample a ``3R``-channel
-    lookup replaces a ``wl``-band one — the issue's "9-channel bilinear lookup"
-    for R = 3. **Returns:** ``(material with ftable (T, R), environment with
-    channels (H, W, 3R) and folded prefiltered levels)``; pass both to
-    :func:`shade` with ``Plan(fresnel_rank=R)``. ``basis``: the ``(R, wl)`` spectra
-    if already known (the frame passes the host SVD of :func:`fresnel_rank_for`),
-    else the SVD runs here.
-    """
-    F = mat.ftable
-    if basis is None:
-        _, _, vt = jnp.linalg.svd(jax.lax.stop_gradient(F), full_matrices=False)
-        basis = vt[:rank]
-    b = jnp.asarray(basis, F.dtype)  # (R, wl)
-    a = F @ b.T  # (T, R)
-    M = jnp.einsum("jl,rl,lc->jrc", env.basis, b, cmf.astype(F.dtype))  # (J, R, 3)
-
-    def fold(img):
-        return jnp.einsum("hwj,jrc->hwrc", img, M).reshape(img.shape[:2] + (3 * rank,))
-
-    env2 = eqx.tree_at(lambda e: (e.channels, e.prefiltered), env,
-                       (fold(env.channels), tuple(fold(lvl) for lvl in env.prefiltered)))
-    return Material(a, mat.chi, mat.beta), env2
-
-
-def _folded(plan: Plan) -> bool:
-    return bool(plan.fresnel_rank) and not plan.factored
-
-
 # ---------------------------------------------------------------- the shader
 
 
@@ -559,68 +279,11 @@ def _paper_ray(plan: Plan, px: Pixels, Vl, fr, key, k):
     return Ll, to_world(Ll, *fr), phi, mu
 
 
-def _per_pixel(plan: Plan, ids: PixelIds | None) -> bool:
-    return ids is not None and plan.subpixels > 1
-
-
-def _mis_offset(key, P, dtype, plan: Plan | None = None, ids: PixelIds | None = None):
-    """Per-pixel randomisation of the Sobol sample sequence: random digital shifts ``(P, 5)`` (uint32).
-
-    With :class:`PixelIds` (and ``plan.subpixels > 1``) the randomisation is drawn per output
-    pixel from ``fold_in(key, pixel)``, so all subpixels of a pixel share it wherever they are shaded."""
-    if plan is not None and _per_pixel(plan, ids):
-        def one(p):
-            kp = jax.random.fold_in(key, p)
-            return jax.random.bits(kp, (5,), jnp.uint32)
-
-        return jax.vmap(one)(ids.pixel)
-    return jax.random.bits(key, (P, 5), jnp.uint32)
-
-
-def _sample_index(plan: Plan, ids: PixelIds | None, k):
-    """Index of the k-th sample of each G-buffer sample in its pixel's sequence: ``k`` (scalar), or
-    ``(P,)`` per subpixel (subpixel ``s`` takes indices ``s·N … s·N + N − 1``: for ``N`` a power of two each
-    block is a (0, m, 2)-net and their union the full prefix)."""
-    if not _per_pixel(plan, ids):
-        return k
-    sub = ids.subpixel.astype(jnp.int32)
-    return sub * plan.samples + k
-
-
-def _uniforms(plan: Plan, offset, k, dtype, ids: PixelIds | None = None):
-    """The k-th point per pixel: ``(mix, lobe u1, lobe u2, env (P, 2))``."""
-    idx = _sample_index(plan, ids, k)
-    n = plan.samples * (plan.subpixels if _per_pixel(plan, ids) else 1)
-    t = jnp.asarray(_sobol_table(n))[idx]  # (3,) the same point for every pixel, or (P, 3) per subpixel
-    t = jnp.broadcast_to(t, offset.shape[:1] + (3,))
-
-    def unit(x):  # top 24 bits → [0, 1) exactly representable in float32
-        return (x >> 8).astype(dtype) * jnp.asarray(2.0**-24, dtype)
-
-    return (unit(t[:, 2] ^ offset[:, 4]), unit(t[:, 0] ^ offset[:, 0]), unit(t[:, 1] ^ offset[:, 1]),
-            jnp.stack([unit(t[:, 0] ^ offset[:, 2]), unit(t[:, 1] ^ offset[:, 3])], -1))
-
-
-def sample_points(plan: Plan, key, n: int, ids: PixelIds | None = None, dtype=jnp.float32):
-    """The unit-cube points the MIS modes use: ``(n, plan.samples, 5)`` = (mixture choice, lobe u1, lobe u2,
-    environment u1, u2) per G-buffer sample (Sobol), for inspection and tests.
-
-    Same construction as :func:`shade` with the same ``key`` and ``ids``.
-    """
-    offset = _mis_offset(key, n, dtype, plan, ids)
-
-    def one(k):
-        r0, r1, r2, re = _uniforms(plan, offset, k, dtype, ids)
-        return jnp.concatenate([jnp.stack([r0, r1, r2], -1), re], -1)
-
-    return jax.vmap(one, out_axes=1)(jnp.arange(plan.samples))
-
-
 def _mis_rays(plan: Plan, env: Environment, sampler, Vl, fr, offset, k, ids: PixelIds | None = None):
     """The k-th MIS pair: ``(Ll, Lw, pdf)`` from the lobe mixture ``sampler``, ``(Ll2, Lw2, pe2, uv2)`` from the
     environment (``None`` without environment sampling; ``uv2`` the map coordinates of ``Lw2``, or ``None``)."""
     dtype = Vl.dtype
-    r0, r1, r2, re = _uniforms(plan, offset, k, dtype, ids)
+    r0, r1, r2, re = uniforms(plan, offset, k, dtype, ids)
     Ll, pb = sampler.sample(Vl, jnp.stack([r1, r2], -1), r0)
     Lw = to_world(Ll, *fr)
     if not plan.env_sampling:
@@ -664,7 +327,7 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
     if plan.mode == "paper" and _has_lobe(plan):
         lobe = jax.vmap(lambda k: _paper_ray(plan, px, Vl, fr, key, k)[1], out_axes=1)(ks)
     elif plan.mode in ("reference", "lowrank") and _has_lobe(plan):
-        offset = _mis_offset(key, P, dtype, plan, ids)
+        offset = mis_offset(key, P, dtype, plan, ids)
         sampler = _sampler(_lobes(plan, px, (1.0, 1.0)))  # sampling needs the widths only
 
         def one(k):
@@ -709,7 +372,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     P = px.normal.shape[0]
     fr, Vl = _frame(px)
     factored = plan.factored
-    folded = _folded(plan)
+    folded = is_folded(plan)
     norms = _norms(plan, mat, px)
     lobes = _lobes(plan, px, norms)
     sampler = _sampler(lobes) if lobes else None
@@ -729,10 +392,10 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     def combine(cos, E):
         """F(cos)·E in the accumulator's space."""
         if folded:
-            return jnp.einsum("pr,prc->pc", _table_lookup(mat.ftable, cos), E.reshape(E.shape[0], -1, 3))
+            return jnp.einsum("pr,prc->pc", table_lookup(mat.ftable, cos), E.reshape(E.shape[0], -1, 3))
         if factored:
-            return jnp.einsum("pjc,pj->pc", _table_lookup(xtable, cos), E)
-        return _table_lookup(mat.ftable, cos) * E
+            return jnp.einsum("pjc,pj->pc", table_lookup(xtable, cos), E)
+        return table_lookup(mat.ftable, cos) * E
 
     def radiance_terms(Ll, Lw, weight, uv=None):
         """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space (``uv``: map coordinates of Lw)."""
@@ -762,7 +425,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         cos = jnp.clip(Vl[:, 2], 0.0, 1.0)
         for on, weight, mu in ((plan.hiraji and not plan.mirror, px.w, px.mu0), (plan.hamon, 1.0 - px.w, px.mu1)):
             if on:
-                acc = add_mirror_like(acc, weight, _lookup_prefiltered(env, mu, Rw), cos)
+                acc = add_mirror_like(acc, weight, lookup_prefiltered(env, mu, Rw), cos)
     elif plan.mode == "paper" and _has_lobe(plan):
         def body(carry, xs):
             acc_, wsum = carry
@@ -780,7 +443,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         (lob, wsum), _ = jax.lax.scan(body, (jnp.zeros_like(acc), jnp.zeros((P,), dtype)), xs)
         acc = acc + lob / jnp.maximum(wsum, 1e-30)[:, None]
     elif _has_lobe(plan):  # reference / lowrank: MIS of lobe and environment sampling
-        offset = _mis_offset(key, P, dtype, plan, ids)
+        offset = mis_offset(key, P, dtype, plan, ids)
 
         def body(acc_, xs):
             k, v1, v2 = xs
@@ -814,26 +477,18 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
             Ll = to_local(Lw, *fr)
             spec = lights.spectrum[j]
             for a, c in _fcos_terms(lobes, Ll, Vl):
-                Fs = _table_lookup(mat.ftable, c) * spec[None, :]
+                Fs = table_lookup(mat.ftable, c) * spec[None, :]
                 if factored:
                     acc = acc + (a * falloff)[:, None] * (Fs @ cmf)
                 else:
-                    acc = acc + (a * falloff)[:, None] * Fs @ _unbasis(env)
+                    acc = acc + (a * falloff)[:, None] * Fs @ unbasis(env)
     if factored or folded:
         return acc, None
     spectra = acc @ env.basis  # identity when not factored
     return spectra @ cmf, (spectra if plan.spectral else None)
 
 
-def _unbasis(env: Environment):
-    """Pseudo-inverse map from spectra to the accumulator's channels (identity in full mode)."""
-    return env.basis.T
-
-
-def background(env: Environment, directions, cmf, spectral: bool = False):
-    """XYZ (and spectra) of the environment seen directly along camera rays."""
-    C = env_lookup(env, directions)
-    if not spectral:  # (J, 3) first: a (P, J) @ (J, wl) product per pixel would dominate large frames
-        return C @ (env.basis @ cmf), None
-    E = C @ env.basis
-    return E @ cmf, E
+__all__ = ["MIRROR_MU", "MODES", "FRESNEL_RANK_TOL", "FRESNEL_TABLE", "Environment", "Light", "Material", "PixelIds",
+           "Pixels", "Plan", "Rays", "Visibility", "background", "bilinear_equirect", "bilinear_equirect_uv",
+           "build_environment", "env_basis", "env_lookup", "env_uv", "fold_fresnel", "fresnel_rank_for",
+           "fresnel_table", "ray_directions", "sample_points", "shade"]
