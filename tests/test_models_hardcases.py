@@ -150,6 +150,7 @@ def _grads(dtype, L, V, mu, n, k):
 @example(mode="offplane-mirror", ti=math.pi / 2 - 1e-5, tr=0.0, ai=0.0, ar=0.0, mu=1e-8, n=2.9, k=2.9)
 @example(mode="mirror", ti=0.0, tr=0.0, ai=0.0, ar=0.0, mu=1e-19, n=2.9, k=2.9)  # d/dμ at φ = 0: μ² underflows
 @example(mode="mirror", ti=0.6, tr=0.0, ai=0.0, ar=0.0, mu=1e-20, n=2.9, k=2.9)
+@example(mode="mirror", ti=0.0, tr=0.0, ai=0.0, ar=0.0, mu=0.05, n=1e-8, k=0.0)  # Fresnel's 1/den² overflowed
 def test_models_float32_hard_cases(mode, ti, tr, ai, ar, mu, n, k):
     L64, V64 = _geometry(mode, ti, tr, ai, ar)
     L32, V32 = jnp.asarray(L64, F32), jnp.asarray(V64, F32)

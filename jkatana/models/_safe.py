@@ -24,9 +24,10 @@ def safe_sqrt(x):
 
 
 def safe_div(num, den, *, fallback=0.0):
-    """``num / den`` where ``den != 0``, ``fallback`` elsewhere; finite gradient."""
+    """``num / den`` where ``den != 0``, ``fallback`` elsewhere; finite gradient (differentiated as
+    :func:`ratio`, without forming 1/den², which overflows float32 for den ~ 1e-16)."""
     ok = den != 0
-    return jnp.where(ok, num / jnp.where(ok, den, 1.0), fallback)
+    return jnp.where(ok, ratio(num, jnp.where(ok, den, 1.0)), fallback)
 
 
 @jax.custom_jvp
