@@ -133,10 +133,9 @@ def run(quick: bool = False) -> list[dict]:
 
     # ---------------------------------------------------------------- sampling
     from jkatana.light.sampling import (
-        EnvSampler, frame_from_normal, gaussian_lobe_pdf, reflected_radiance, reflected_radiance_quadrature,
-        sample_gaussian_lobe, to_local,
+        EnvSampler, frame_from_normal, reflected_radiance, reflected_radiance_quadrature, to_local,
     )
-    from jkatana.models import Conductor, Hiraji
+    from jkatana.models import Conductor, Gaussian, Hiraji
 
     g7 = WavelengthGrid(400, 700, 50)
     small = hosek_wilkie_sky(35.0, 180.0, 3.0, 0.1, (64, 128), g7, dtype=jnp.float64)
@@ -166,8 +165,7 @@ def run(quick: bool = False) -> list[dict]:
                                                    ("mis", (8, 8), sampler_c, "mis balance + compensation"),
                                                    ("mis", (16, 16), sampler_c, "mis balance + compensation")):
                 f = jax.jit(jax.vmap(lambda k, strategy=strategy, ne=ne, nl=nl, smp=smp: reflected_radiance(
-                    k, small, smp, brdf, Vl, fr, lambda kk, n, VV: sample_gaussian_lobe(kk, n, mu, VV),
-                    lambda L, VV: gaussian_lobe_pdf(L, VV, mu), ne, nl, strategy=strategy)))
+                    k, small, smp, brdf, Vl, fr, Gaussian(jnp.asarray(mu)), ne, nl, strategy=strategy)))
                 Y = np.asarray(f(keys)) @ ybar7
                 t = timeit(lambda: f(keys), repeats=3)
                 n_tot = ne if strategy == "env" else nl if strategy == "lobe" else ne + nl

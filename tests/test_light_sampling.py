@@ -1,4 +1,5 @@
-"""Sampling: environment / Gaussian lobe / Beckmann densities, unbiased reflected radiance, MIS variance."""
+"""Sampling: environment densities, the lobes' samplers seen from the light stage, unbiased reflected radiance,
+MIS variance (the lobes' own property tests are in tests/test_models_lobes.py)."""
 
 import math
 from pathlib import Path
@@ -10,10 +11,9 @@ import pytest
 
 from jkatana.light import EnvMap, hosek_wilkie_sky, load_envmap
 from jkatana.light.sampling import (
-    EnvSampler, beckmann_pdf, frame_from_normal, gaussian_lobe_pdf, mis_weight, reflected_radiance,
-    reflected_radiance_quadrature, sample_beckmann, sample_gaussian_lobe, to_local,
+    EnvSampler, frame_from_normal, mis_weight, reflected_radiance, reflected_radiance_quadrature, to_local,
 )
-from jkatana.models import Conductor, Hiraji
+from jkatana.models import Beckmann, Conductor, Gaussian, Hiraji
 from jkatana.spectral import WavelengthGrid
 from jkatana.shared import shared_data
 
@@ -80,27 +80,32 @@ def test_env_sampler_positive_where_radiance_is():
     assert float(s.texel_pdf.min()) > 0
 
 
-def _cap_check(sample, pdf, V, extent, n=50_000):
+def _sample(lobe, key, n, V):
+    V = jnp.broadcast_to(V, (n, 3))
+    return lobe.sample(V, jax.random.uniform(key, (n, 2), V.dtype))
+
+
+def _cap_check(lobe, V, extent, n=50_000):
     """E[1_cap / p] = Ω_cap for a cap of half-angle `extent` around the mirror direction."""
-    L, p = sample(jax.random.PRNGKey(3), n, V)
-    np.testing.assert_allclose(np.asarray(pdf(L, V)), np.asarray(p), rtol=1e-10)
+    L, p = _sample(lobe, jax.random.PRNGKey(3), n, V)
+    np.testing.assert_allclose(np.asarray(lobe.pdf(L, V)), np.asarray(p), rtol=1e-10)
     R = jnp.array([-V[0], -V[1], V[2]])
-    inside = (L @ R) > math.cos(extent)
-    est = float(jnp.mean(jnp.where(inside, 1 / p, 0.0)))
+    inside = ((L @ R) > math.cos(extent)) & (p > 0)
+    est = float(jnp.mean(jnp.where(inside, 1 / jnp.where(inside, p, 1.0), 0.0)))
     return est, 2 * math.pi * (1 - math.cos(extent))
 
 
 @pytest.mark.parametrize("mu", [0.005, 0.05, 0.3])
 def test_gaussian_lobe_pdf_matches_sampler(mu):
     V = jnp.array([math.sin(0.7), 0.0, math.cos(0.7)])
-    est, omega = _cap_check(lambda k, n, V: sample_gaussian_lobe(k, n, mu, V),
-                            lambda L, V: gaussian_lobe_pdf(L, V, mu), V, 2 * mu)
+    lobe = Gaussian(jnp.asarray(mu))
+    est, omega = _cap_check(lobe, V, 2 * mu)
     assert est == pytest.approx(omega, rel=0.03)
     # normalised over the sphere (quadrature); at normal view no half vector has V·H ≤ 0
     fr = frame_from_normal(jnp.array([0.0, 0.0, 1.0]))
     N = jnp.array([0.0, 0.0, 1.0])
     total = reflected_radiance_quadrature(EnvMap(jnp.ones((4, 8, 1)), WavelengthGrid(550, 550, 1)),
-                                          lambda L, V_: gaussian_lobe_pdf(L, V_, mu)[..., None], N, fr,
+                                          lambda L, V_: lobe.pdf(L, V_)[..., None], N, fr,
                                           min(16 * mu, math.pi))
     assert float(total[0]) == pytest.approx(1.0, abs=1e-6)
 
@@ -108,16 +113,15 @@ def test_gaussian_lobe_pdf_matches_sampler(mu):
 @pytest.mark.parametrize("alpha", [0.02, 0.2])
 def test_beckmann_pdf_matches_sampler(alpha):
     V = jnp.array([math.sin(0.4), 0.0, math.cos(0.4)])
-    est, omega = _cap_check(lambda k, n, V: sample_beckmann(k, n, alpha, V),
-                            lambda L, V: beckmann_pdf(L, V, alpha), V, 2 * alpha)
+    est, omega = _cap_check(Beckmann(jnp.asarray(alpha)), V, 2 * alpha)
     assert est == pytest.approx(omega, rel=0.03)
 
 
 def test_lobe_sampling_finite_at_tiny_mu_and_normal_view():
-    L, p = sample_gaussian_lobe(jax.random.PRNGKey(0), 1000, 1e-4, jnp.array([0.0, 0.0, 1.0], jnp.float32))
+    N = jnp.array([0.0, 0.0, 1.0], jnp.float32)
+    L, p = _sample(Gaussian(jnp.float32(1e-4)), jax.random.PRNGKey(0), 1000, N)
     assert np.isfinite(np.asarray(L)).all() and np.isfinite(np.asarray(p)).all() and float(p.min()) > 0
-    g = jax.grad(lambda m: jnp.sum(jnp.log(gaussian_lobe_pdf(L, jnp.array([0.0, 0.0, 1.0], jnp.float32), m))))(
-        jnp.float32(1e-4))
+    g = jax.grad(lambda m: jnp.sum(jnp.log(Gaussian(m).pdf(L, N))))(jnp.float32(1e-4))
     assert np.isfinite(float(g))
 
 
@@ -143,12 +147,11 @@ def _estimates(env, mu, n_w, V_w, N=8, M=128, seed=11):
     ybar = np.asarray(xyz_weights(G7))[:, 1]
     Y_ref = float(np.asarray(reflected_radiance_quadrature(env, brdf, Vl, fr, min(16 * mu, math.pi))) @ ybar)
     plain, comp = EnvSampler.build(env), EnvSampler.build(env, compensate=True)
-    ls = lambda k, n, V: sample_gaussian_lobe(k, n, mu, V)  # noqa: E731
-    lp = lambda L, V: gaussian_lobe_pdf(L, V, mu)  # noqa: E731
+    lobe = Gaussian(jnp.asarray(mu))
     keys = jax.random.split(jax.random.PRNGKey(seed), M)
     out = {}
     for strategy, sampler in (("env", plain), ("lobe", plain), ("mis", comp)):
-        f = jax.jit(jax.vmap(lambda k: reflected_radiance(k, env, sampler, brdf, Vl, fr, ls, lp, N, N,
+        f = jax.jit(jax.vmap(lambda k: reflected_radiance(k, env, sampler, brdf, Vl, fr, lobe, N, N,
                                                           strategy=strategy)))
         out[strategy] = np.asarray(f(keys)) @ ybar
     return Y_ref, out

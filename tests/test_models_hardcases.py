@@ -36,7 +36,7 @@ mus = st.one_of(st.sampled_from([1e-6, 1e-3, 0.05, 1.0]),
                 st.floats(math.log(1e-6), 0.0).map(math.exp))
 ns = st.one_of(st.sampled_from([0.1, 1.0, 5.0]), st.floats(0.1, 5.0))
 ks = st.one_of(st.sampled_from([0.0, 10.0]), st.floats(0.0, 10.0))
-modes = st.sampled_from(["free", "free", "free", "L=V", "L=-V", "mirror", "near-mirror"])
+modes = st.sampled_from(["free", "free", "free", "L=V", "L=-V", "mirror", "near-mirror", "offplane-mirror"])
 
 
 def _direction(theta: float, az: float) -> np.ndarray:
@@ -54,6 +54,9 @@ def _geometry(mode, ti, tr, ai, ar):
         V = -L
     elif mode == "mirror":
         V = np.array([-L[0], -L[1], L[2]])
+    elif mode == "offplane-mirror":  # the mirror direction, L moved 1e-16 out of the plane of incidence
+        V = np.array([-L[0], -L[1], L[2]])
+        L = L + np.array([0.0, 1e-16, 0.0])
     elif mode == "near-mirror":  # within a few μ of the specular direction
         V = np.array([-L[0], -L[1], L[2]])
         V = _direction(min(math.acos(np.clip(V[2], -1, 1)) + 1e-3 * (tr - 0.7), math.pi / 2),
@@ -143,6 +146,11 @@ def _grads(dtype, L, V, mu, n, k):
 @example(mode="mirror", ti=0.0, tr=0.0, ai=0.0, ar=0.0, mu=1e-6, n=1.0, k=0.0)  # L = V = N, F = 0
 @example(mode="L=V", ti=math.pi / 2, tr=0.0, ai=0.0, ar=0.0, mu=1.0, n=0.1, k=10.0)
 @example(mode="free", ti=0.1, tr=0.0, ai=0.0, ar=0.0, mu=0.05, n=0.1, k=0.0)  # F(θi) 0.2 mrad from its critical angle
+@example(mode="offplane-mirror", ti=math.pi / 2 - 1e-3, tr=0.0, ai=0.0, ar=0.0, mu=1e-8, n=2.9, k=2.9)  # |N×(L+V)| = 1e-16
+@example(mode="offplane-mirror", ti=math.pi / 2 - 1e-5, tr=0.0, ai=0.0, ar=0.0, mu=1e-8, n=2.9, k=2.9)
+@example(mode="mirror", ti=0.0, tr=0.0, ai=0.0, ar=0.0, mu=1e-19, n=2.9, k=2.9)  # d/dμ at φ = 0: μ² underflows
+@example(mode="mirror", ti=0.6, tr=0.0, ai=0.0, ar=0.0, mu=1e-20, n=2.9, k=2.9)
+@example(mode="mirror", ti=0.0, tr=0.0, ai=0.0, ar=0.0, mu=0.05, n=1e-8, k=0.0)  # Fresnel's 1/den² overflowed
 def test_models_float32_hard_cases(mode, ti, tr, ai, ar, mu, n, k):
     L64, V64 = _geometry(mode, ti, tr, ai, ar)
     L32, V32 = jnp.asarray(L64, F32), jnp.asarray(V64, F32)
@@ -158,11 +166,12 @@ def test_models_float32_hard_cases(mode, ti, tr, ai, ar, mu, n, k):
         assert np.all(np.isfinite(v)), (mode, v)
         assert np.all(v >= 0), (mode, v)
 
-    # float32 vs float64 where float64's value is a normal float32 number and
-    # |L+V| is above float32's half-vector cut (below it float32 returns 0 by design)
+    # float32 vs float64 where float64's value is a normal float32 number, |L+V| is above float32's
+    # half-vector cut (below it float32 returns 0 by design) and μ above float32's floor of the lobe
+    # normalisation, tiny^(1/4) = 3.3e-10 (below it the normalised lobes take that width, by design)
     s = np.asarray(Lr) + np.asarray(Vr)
     phi64 = math.atan2(math.hypot(s[0], s[1]), s[2])
-    if np.linalg.norm(s) > 4 * EPS32:
+    if np.linalg.norm(s) > 4 * EPS32 and mu32 > float(np.finfo(np.float32).tiny) ** 0.25:
         dF = _fresnel_condition((float(np.asarray(Lr)[2]), float(np.linalg.norm(s)) / 2), n32, k32)
         for v32, v64, g64 in zip(vals32, vals64, geom64):
             representable = (v64 < np.finfo(np.float32).max) & ((v64 == 0) | (v64 > np.finfo(np.float32).tiny))
@@ -225,6 +234,31 @@ def test_beckmann_from_cos_loses_small_angles_in_float32():
         a = beckmann(jnp.cos(jnp.asarray(p, F64)), 0.3)
         b = beckmann_phi(jnp.asarray(p, F64), 0.3)
         assert float(b) == pytest.approx(float(a), rel=1e-12)
+
+
+@pytest.mark.parametrize("dtype", [F32, F64])
+@pytest.mark.parametrize("alpha", [1e-8, 1e-6, 0.3])
+def test_beckmann_at_the_peak_has_finite_gradients(dtype, alpha):
+    """beckmann(cos = 1, α): value 1/(π α²) and finite derivatives (α⁴ is never formed)."""
+    c, a = jnp.asarray(1.0, dtype), jnp.asarray(alpha, dtype)
+    assert float(beckmann(c, a)) == pytest.approx(1 / (np.pi * float(a) ** 2), rel=1e-6)
+    for g in jax.grad(beckmann, argnums=(0, 1))(c, a):
+        assert bool(jnp.isfinite(g))
+    assert float(jax.grad(beckmann, argnums=1)(c, a)) == pytest.approx(-2 / (np.pi * float(a) ** 3), rel=1e-5)
+
+
+@pytest.mark.parametrize("dtype", [F32, F64])
+@pytest.mark.parametrize("nk", [(1e20, 1e20), (1e20, 0.0), (1e30, 3.0)])
+def test_fresnel_of_a_huge_index_is_one(dtype, nk):
+    from jkatana.models import fresnel_conductor
+
+    cos = jnp.asarray([0.0, 0.3, 1.0], dtype)
+    n, k = (jnp.asarray(x, dtype) for x in nk)
+    f = np.asarray(fresnel_conductor(cos, n, k))
+    assert np.isfinite(f).all()
+    np.testing.assert_allclose(f, 1.0, atol=1e-7)
+    for g in jax.grad(lambda n, k: jnp.sum(fresnel_conductor(cos, n, k)), argnums=(0, 1))(n, k):
+        assert bool(jnp.isfinite(g))
 
 
 def test_beckmann_normalised_and_smith_limits():

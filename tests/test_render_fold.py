@@ -13,7 +13,8 @@ from jkatana.models import Conductor
 from jkatana.render.camera import Camera
 from jkatana.render.film import film_weights
 from jkatana.render.frame import render_frame, resolve_plan
-from jkatana.render.shading import (FRESNEL_RANK_TOL, Material, Pixels, Plan, _sobol_table, build_environment,
+from jkatana.render.points import sobol_table
+from jkatana.render.shading import (FRESNEL_RANK_TOL, Material, Pixels, Plan, build_environment,
                                     fold_fresnel, fresnel_rank_for, fresnel_table, shade)
 from jkatana.spectral import DEFAULT_GRID
 
@@ -128,7 +129,7 @@ def test_two_uniform_environment_warp_is_unbiased_and_consistent():
     sky = _sky((16, 32)).astype(np.float64)
     env, _, _ = build_environment(sky, dtype=jnp.float64)
     s = env.sampler
-    pts = _sobol_table(4096).astype(np.float64) / 2.0**32
+    pts = sobol_table(4096).astype(np.float64) / 2.0**32
     d, pdf, u, v = s.sample_uniform2(jnp.asarray(pts[:, :2]))
     d, pdf, u, v = map(np.asarray, (d, pdf, u, v))
     np.testing.assert_allclose(np.linalg.norm(d, axis=-1), 1.0, atol=1e-12)
@@ -150,7 +151,7 @@ def test_two_uniform_environment_warp_is_unbiased_and_consistent():
 
 def test_sobol_points_are_a_02_net():
     """Each power-of-two prefix of dims 0, 1 puts one point in every elementary interval (here 4 × 4 and 2 × 8)."""
-    p = _sobol_table(16).astype(np.float64) / 2.0**32
+    p = sobol_table(16).astype(np.float64) / 2.0**32
     for a, b in ((4, 4), (2, 8), (8, 2), (16, 1)):
         cells = set(zip(np.floor(p[:, 0] * a).astype(int), np.floor(p[:, 1] * b).astype(int)))
         assert len(cells) == 16

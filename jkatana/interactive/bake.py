@@ -52,6 +52,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jkatana.light.fresnel_basis import basis_of_table
 from jkatana.models import Conductor, Hamon, Hiraji, gaussian_facet
 from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
 from jkatana.render.film import film_weights
@@ -64,29 +65,18 @@ MAX_RANK = 4
 
 
 def fresnel_basis(conductor: Conductor, rank: int, n_cos: int = 256):
-    """Low-rank SVD basis of F(θ, λ): ``F ≈ a @ b`` with ``a (n_cos, rank)``, ``b (rank, wl)``.
+    """The bake's view of :func:`jkatana.light.fresnel_basis.basis_of_table`: F on ``n_cos`` cosines uniform
+    on [0, 1] (the shaders' texture coordinate), rank 1–4.
 
-    **Arguments:**
-
-    - `conductor`: n(λ), k(λ) on the rendering grid.
-    - `rank`: number of spectral basis functions (1–4).
-    - `n_cos`: samples of cos θ, uniform on [0, 1].
-
-    **Returns:**
-
-    ``(cos, a, b, rel_err)``: the cos grid, coefficients, orthonormal spectral
-    basis (rows), and the max relative error of the reconstruction.
+    **Returns:** ``(cos, a, b, rel_err)``: the cos grid, coefficients, orthonormal spectral
+    basis (rows, the first with a positive sum), and the max relative error of the reconstruction.
     """
     if not 1 <= rank <= MAX_RANK:
         raise ValueError(f"rank must be 1..{MAX_RANK}, got {rank}")
     cos = np.linspace(0.0, 1.0, n_cos)
     F = np.asarray(conductor.fresnel(jnp.asarray(cos, conductor.n.dtype)), np.float64)
-    U, S, Vt = np.linalg.svd(F, full_matrices=False)
-    a, b = U[:, :rank] * S[:rank], Vt[:rank]
-    # sign convention: the first basis function positive
-    sgn = np.sign(b.sum(axis=1, keepdims=True))
-    sgn[sgn == 0] = 1.0
-    a, b = a * sgn.T, b * sgn
+    fb = basis_of_table(cos, F, rank)
+    a, b = np.asarray(fb.coefficients), np.asarray(fb.basis)
     rel_err = float(np.max(np.abs(a @ b - F) / F))
     return cos, a, b, rel_err
 

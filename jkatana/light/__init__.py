@@ -13,22 +13,17 @@ from jkatana.light.envmap import (
     texel_solid_angles as texel_solid_angles,
     uv_to_direction as uv_to_direction,
 )
+from jkatana.light.fresnel_basis import FresnelBasis as FresnelBasis, fresnel_basis as fresnel_basis
 from jkatana.light.prefilter import (
-    FresnelBasis as FresnelBasis,
     PrefilteredEnv as PrefilteredEnv,
-    fresnel_basis as fresnel_basis,
     prefilter as prefilter,
     project_on_basis as project_on_basis,
 )
 from jkatana.light.sampling import (
     EnvSampler as EnvSampler,
-    beckmann_pdf as beckmann_pdf,
     frame_from_normal as frame_from_normal,
-    gaussian_lobe_pdf as gaussian_lobe_pdf,
     mis_weight as mis_weight,
     reflected_radiance as reflected_radiance,
-    sample_beckmann as sample_beckmann,
-    sample_gaussian_lobe as sample_gaussian_lobe,
 )
 from jkatana.light.sky import (
     hosek_wilkie_sky as hosek_wilkie_sky,

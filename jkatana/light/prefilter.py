@@ -27,8 +27,9 @@ to interpolation).
 
 ## Fresnel basis
 
-:func:`fresnel_basis` factorises F(cos θ, λ) ≈ Σ_r c_r(cos θ) b_r(λ) by a
-truncated SVD (Eckart & Young 1936) over a dense cos θ table. For iron
+:func:`jkatana.light.fresnel_basis.fresnel_basis` factorises F(cos θ, λ) ≈
+Σ_r c_r(cos θ) b_r(λ) by a truncated SVD (Eckart & Young 1936) over a dense
+cos θ table. For iron
 (Johnson & Christy 1974) rank 3 reproduces F to a few 1e-6 (tests report the
 measured value). With it, the spectral reflection of a prefiltered
 environment needs only ``rank`` colour maps:
@@ -50,6 +51,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from jkatana.errors import InputError
 from jkatana.light.envmap import EnvMap
+from jkatana.light.fresnel_basis import FresnelBasis, fresnel_basis  # noqa: F401 (the basis' home; re-exported)
 from jkatana.spectral.colorimetry import xyz_weights
 
 LN2 = math.log(2.0)
@@ -227,56 +229,6 @@ def brute_force_convolution(env: EnvMap, d, mu: float, sub: int = 8) -> np.ndarr
 
 
 # ---------------------------------------------------------------- Fresnel basis
-
-
-class FresnelBasis(eqx.Module):
-    """F(cos θ, λ) ≈ Σ_r c_r(cos θ) b_r(λ).
-
-    **Fields:** `basis` ``(rank, wl)``, `cos_table` ``(m,)`` increasing cos θ,
-    `coefficients` ``(m, rank)``, `singular_values` ``(min(m, wl),)`` (all of them,
-    to judge the truncation).
-    """
-
-    basis: Float[Array, "rank wl"]
-    cos_table: Float[Array, "m"]
-    coefficients: Float[Array, "m rank"]
-    singular_values: Float[Array, "s"]
-
-    @property
-    def rank(self) -> int:
-        return self.basis.shape[0]
-
-    def coeffs(self, cos_theta) -> Float[Array, "*#b rank"]:
-        """Coefficients at ``cos_theta`` (linear interpolation in the table)."""
-        c = jnp.clip(jnp.asarray(cos_theta), 0.0, 1.0)
-        return jnp.stack([jnp.interp(c, self.cos_table, self.coefficients[:, r]) for r in range(self.rank)], axis=-1)
-
-    def reconstruct(self, cos_theta) -> Float[Array, "*#b wl"]:
-        """Rank-r F at ``cos_theta``."""
-        return self.coeffs(cos_theta) @ self.basis
-
-
-def fresnel_basis(conductor, rank: int = 3, n_cos: int = 2049) -> FresnelBasis:
-    """Truncated SVD of a conductor's F(cos θ, λ) on ``n_cos`` cos θ samples in [0, 1].
-
-    **Arguments:**
-
-    - `conductor`: a :class:`jkatana.models.Conductor` (its grid defines λ).
-    - `rank`: number of spectral basis functions kept.
-    - `n_cos`: table size, spaced uniformly in θ (dense at grazing, where F varies fastest).
-
-    **Returns:** :class:`FresnelBasis` in float64 (NumPy SVD, Eckart–Young optimal in the
-    Frobenius norm over the table).
-    """
-    theta = np.linspace(0.0, math.pi / 2, n_cos)
-    cos = np.cos(theta)[::-1].copy()
-    cos[0] = 0.0
-    F = np.asarray(conductor.fresnel(jnp.asarray(cos, jnp.float64)), np.float64)  # (m, wl)
-    U, S, Vt = np.linalg.svd(F, full_matrices=False)
-    if not (1 <= rank <= S.size):
-        raise InputError(f"rank must be within 1..{S.size}, got {rank}", field="rank")
-    coef = U[:, :rank] * S[:rank]
-    return FresnelBasis(jnp.asarray(Vt[:rank]), jnp.asarray(cos), jnp.asarray(coef), jnp.asarray(S))
 
 
 def project_on_basis(env_or_level: EnvMap, basis: FresnelBasis) -> Float[Array, "H W rank 3"]:

@@ -12,23 +12,16 @@ Three strategies and their combination:
   the density positive wherever any band is, and the sun (a few texels that
   carry most of the power of a clear-sky map) is never missed: its texels get
   their full share of samples.
-- **Gaussian lobe** (:func:`sample_gaussian_lobe`): the paper's facet
-  distribution D(φ) = exp(−ln2 φ²/μ²) (Mochizuki et al.). The facet angle φ is
-  drawn from ``q(φ) ∝ φ exp(−ln2 φ²/μ²)`` on [0, π/2] (inverse CDF, exact),
-  the limit of ``D(φ) cos φ sin φ`` for small μ, azimuth uniform; the half
-  vector is reflected about V. The pdf (:func:`gaussian_lobe_pdf`) is the exact
-  density of this procedure, ``q(φ)/(2π sin φ) / (4 V·H)``.
-- **Beckmann** (:func:`sample_beckmann`): Walter et al. (2007), "Microfacet
-  Models for Refraction through Rough Surfaces", EGSR, eqs. 28–29:
-  ``tan²θ_h = −α² ln(1 − ξ)``, pdf ``D(h) cos θ_h / (4 V·H)``.
+- **Lobes**: any :class:`jkatana.models.lobes.Lobe` (its ``sample`` and
+  ``pdf``; the lobes live with their values in :mod:`jkatana.models.lobes`).
 - **MIS** (:func:`mis_weight`): Veach & Guibas (1995), "Optimally Combining
   Sampling Techniques for Monte Carlo Rendering", SIGGRAPH: balance or power
   (β = 2) heuristic; :func:`reflected_radiance` is the combined one-sample-per-
   strategy estimator the tests check for bias and variance.
 
-Frames: the lobe samplers work in the local shading frame (N = +z, as
+Frames: the lobes work in the local shading frame (N = +z, as
 :mod:`jkatana.models`); :func:`frame_from_normal` gives the rotation to world
-(Duff et al. 2017, "Building an Orthonormal Basis, Revisited", JCGT 6(1)).
+as a matrix (:func:`jkatana.models.geometry.tangent_frame`).
 """
 
 from __future__ import annotations
@@ -43,9 +36,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from jkatana.light.envmap import EnvMap, direction_to_uv
+from jkatana.models.geometry import tangent_frame
 from jkatana.spectral.colorimetry import cmfs
-
-LN2 = math.log(2.0)
 
 
 # ---------------------------------------------------------------- environment
@@ -224,18 +216,13 @@ def _row_search(cdf: Float[Array, "H W1"], j: Int[Array, "n"], x: Float[Array, "
 
 
 def frame_from_normal(n: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*#b 3 3"]:
-    """Rows (t, b, n): an orthonormal frame around unit ``n`` (Duff et al. 2017, branchless).
+    """Rows (t, b, n): :func:`jkatana.models.geometry.tangent_frame` around unit ``n`` as a matrix.
 
     ``local = frame @ world`` and ``world = local @ frame`` (for row vectors).
     """
     n = jnp.asarray(n)
-    x, y, z = n[..., 0], n[..., 1], n[..., 2]
-    sign = jnp.where(z >= 0, 1.0, -1.0).astype(n.dtype)
-    a = -1.0 / (sign + z)
-    b = x * y * a
-    t = jnp.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=-1)
-    bb = jnp.stack([b, sign + y * y * a, -y], axis=-1)
-    return jnp.stack([t, bb, n], axis=-2)
+    t, b = tangent_frame(n)
+    return jnp.stack([t, b, n], axis=-2)
 
 
 def to_local(frame, d):
@@ -244,96 +231,6 @@ def to_local(frame, d):
 
 def to_world(frame, d):
     return jnp.einsum("...ij,...i->...j", frame, d)
-
-
-def _reflect(V, h):
-    return 2.0 * jnp.sum(V * h, axis=-1, keepdims=True) * h - V
-
-
-def _half(L, V):
-    s = L + V
-    return s / jnp.maximum(jnp.linalg.norm(s, axis=-1, keepdims=True), jnp.finfo(s.dtype).tiny)
-
-
-def _from_angles(theta_cos_sin, phi):
-    c, s = theta_cos_sin
-    return jnp.stack([s * jnp.cos(phi), s * jnp.sin(phi), c], axis=-1)
-
-
-# ---------------------------------------------------------------- Gaussian lobe
-
-
-def _phi_max_term(mu):
-    """``1 − exp(−ln2 (π/2)²/μ²)``: mass of the untruncated Rayleigh on [0, π/2]."""
-    return -jnp.expm1(-LN2 * (jnp.pi / 2) ** 2 / (mu * mu))
-
-
-def sample_gaussian_lobe(key, n: int, mu, V: Float[ArrayLike, "*#b 3"]) -> tuple[Float[Array, "n *#b 3"], Float[Array, "n *#b"]]:
-    """Sample ``n`` incident directions L (local frame, N = +z) around the mirror of ``V``.
-
-    φ ~ q(φ) ∝ φ exp(−ln2 φ²/μ²) on [0, π/2] by inverse CDF, azimuth uniform,
-    L = reflect(V, H). Returns ``(L, pdf)`` with the pdf of :func:`gaussian_lobe_pdf`
-    (per steradian of L). L may point below the surface (the BRDF is 0 there).
-    """
-    V = jnp.asarray(V)
-    dt = V.dtype
-    mu = jnp.asarray(mu, dt)
-    u = jax.random.uniform(key, (n,) + V.shape[:-1] + (2,), dt)
-    # inverse CDF of the truncated Rayleigh: φ = μ sqrt(−ln(1 − ξ c)/ln2)
-    phi = mu * jnp.sqrt(-jnp.log1p(-u[..., 0] * _phi_max_term(mu)) / LN2)
-    az = 2 * jnp.pi * u[..., 1]
-    h = _from_angles((jnp.cos(phi), jnp.sin(phi)), az)
-    L = _reflect(jnp.broadcast_to(V, h.shape), h)
-    return L, gaussian_lobe_pdf(L, V, mu)
-
-
-def gaussian_lobe_pdf(L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b 3"], mu) -> Float[Array, "*#b"]:
-    """Density (per steradian of L) of :func:`sample_gaussian_lobe`.
-
-    ``p_h = q(φ) / (2π sin φ)`` with ``q(φ) = (2 ln2/μ²) φ e^{−ln2 φ²/μ²} / c``
-    (``φ/sin φ`` evaluated as ``1/sinc``, finite at φ = 0), then the reflection
-    Jacobian ``1/(4 V·H)``. Zero where V·H ≤ 0 or φ > π/2: the few half vectors
-    drawn with V·H ≤ 0 (grazing V, large μ) are dropped (their samples get pdf 0 and
-    contribute 0), which is unbiased because f_r = 0 there (V·(L+V) ≥ 0 always).
-    """
-    L, V = jnp.broadcast_arrays(jnp.asarray(L), jnp.asarray(V))
-    dt = L.dtype
-    mu = jnp.asarray(mu, dt)
-    h = _half(L, V)
-    phi = jnp.arctan2(jnp.linalg.norm(h[..., :2], axis=-1), h[..., 2])
-    vh = jnp.sum(V * h, axis=-1)
-    t = phi / mu
-    q_over_sin = (2 * LN2 / (mu * mu)) * jnp.exp(-LN2 * t * t) / jnp.sinc(phi / jnp.pi) / _phi_max_term(mu)
-    ok = (vh > 0) & (phi <= jnp.pi / 2)
-    return jnp.where(ok, q_over_sin / (2 * jnp.pi) / (4 * jnp.where(ok, vh, 1.0)), 0.0)
-
-
-# ---------------------------------------------------------------- Beckmann
-
-
-def sample_beckmann(key, n: int, alpha, V: Float[ArrayLike, "*#b 3"]) -> tuple[Float[Array, "n *#b 3"], Float[Array, "n *#b"]]:
-    """Sample L by the Beckmann NDF (Walter et al. 2007, eq. 28): ``tan²θ_h = −α² ln(1−ξ)``."""
-    V = jnp.asarray(V)
-    dt = V.dtype
-    alpha = jnp.asarray(alpha, dt)
-    u = jax.random.uniform(key, (n,) + V.shape[:-1] + (2,), dt)
-    tan2 = -alpha * alpha * jnp.log1p(-u[..., 0])
-    c = 1 / jnp.sqrt(1 + tan2)
-    s = jnp.sqrt(tan2) * c
-    h = _from_angles((c, s), 2 * jnp.pi * u[..., 1])
-    L = _reflect(jnp.broadcast_to(V, h.shape), h)
-    return L, beckmann_pdf(L, V, alpha)
-
-
-def beckmann_pdf(L, V, alpha):
-    """``D_Beckmann(h) cos θ_h / (4 V·H)`` per steradian of L (0 where V·H ≤ 0)."""
-    from jkatana.models.microfacet import beckmann
-
-    L, V = jnp.broadcast_arrays(jnp.asarray(L), jnp.asarray(V))
-    h = _half(L, V)
-    vh = jnp.sum(V * h, axis=-1)
-    ok = vh > 0
-    return jnp.where(ok, beckmann(h[..., 2], jnp.asarray(alpha, L.dtype)) * h[..., 2] / (4 * jnp.where(ok, vh, 1.0)), 0.0)
 
 
 # ---------------------------------------------------------------- MIS
@@ -352,7 +249,7 @@ def mis_weight(p_this, p_other, n_this=1, n_other=1, heuristic: str = "balance")
 
 
 def reflected_radiance(key, env: EnvMap, sampler: EnvSampler, brdf_cos: Callable, V_local, frame,
-                       lobe_sample: Callable, lobe_pdf: Callable, n_env: int, n_lobe: int,
+                       lobe, n_env: int, n_lobe: int,
                        strategy: str = "mis", heuristic: str = "balance") -> Float[Array, "wl"]:
     """One estimate of ``L_o(V) = ∫ L_env(ω) f_r cos θ dω`` at one shading point.
 
@@ -360,7 +257,7 @@ def reflected_radiance(key, env: EnvMap, sampler: EnvSampler, brdf_cos: Callable
 
     - `brdf_cos(L_local, V_local) -> (..., wl)`: f_r cos θ_i (0 below the surface).
     - `V_local`: view direction in the local frame; `frame`: from :func:`frame_from_normal`.
-    - `lobe_sample(key, n, V_local) -> (L_local, pdf)`, `lobe_pdf(L_local, V_local)`.
+    - `lobe`: a :class:`jkatana.models.lobes.Lobe` (its ``sample`` and ``pdf``).
     - `strategy`: ``"env"`` (n_env samples), ``"lobe"`` (n_lobe samples) or
       ``"mis"`` (both, weighted by `heuristic`).
     """
@@ -370,10 +267,13 @@ def reflected_radiance(key, env: EnvMap, sampler: EnvSampler, brdf_cos: Callable
         d, p_e = sampler.sample(k1, n_env)
         Ll = to_local(frame, d)
         f = brdf_cos(Ll, V_local) * env.lookup(d)
-        w = mis_weight(p_e, lobe_pdf(Ll, V_local), n_env, n_lobe, heuristic) if strategy == "mis" else 1.0
+        w = mis_weight(p_e, lobe.pdf(Ll, V_local), n_env, n_lobe, heuristic) if strategy == "mis" else 1.0
         out = out + jnp.sum((w / jnp.where(p_e > 0, p_e, 1.0))[..., None] * f, axis=0) / n_env
     if strategy in ("lobe", "mis"):
-        Ll, p_b = lobe_sample(k2, n_lobe, V_local)
+        ku, kc = jax.random.split(k2)
+        V = jnp.broadcast_to(V_local, (n_lobe,) + jnp.shape(V_local))
+        Ll, p_b = lobe.sample(V, jax.random.uniform(ku, V.shape[:-1] + (2,), V.dtype),
+                              jax.random.uniform(kc, V.shape[:-1], V.dtype))
         d = to_world(frame, Ll)
         f = brdf_cos(Ll, V_local) * env.lookup(d)
         w = mis_weight(p_b, sampler.pdf(d), n_lobe, n_env, heuristic) if strategy == "mis" else 1.0

@@ -36,9 +36,12 @@ def fresnel_conductor(cos_theta: Float[ArrayLike, "*#b"], n: Float[ArrayLike, "*
     ``n, k`` of shape ``(wl,)`` to get ``(..., wl)``.
 
     **Returns:** F ∈ [0, 1], finite with finite gradients everywhere
-    including θ = 90°, k = 0 (total reflection when n < 1) and n = 1.
+    including θ = 90°, k = 0 (total reflection when n < 1) and n = 1; n, k
+    above max^(1/4)/4 of the dtype (float32: 1.1e9) are clamped there
+    (:func:`_clamp_index`: F is 1 to the dtype's resolution).
     """
     c = jnp.clip(cos_theta, 0.0, 1.0)
+    n, k = _clamp_index(n), _clamp_index(k)
     c2 = c * c
     s2 = 1.0 - c2
     n2, k2 = n * n, k * k
@@ -56,6 +59,17 @@ def fresnel_conductor(cos_theta: Float[ArrayLike, "*#b"], n: Float[ArrayLike, "*
     bc2 = b2 * c2
     ratio = safe_div((ac - s2) ** 2 + bc2, (ac + s2) ** 2 + bc2, fallback=1.0)
     return 0.5 * rs * (1.0 + ratio)
+
+
+def _clamp_index(x):
+    """n or k limited to max^(1/4)/4 of the dtype (float32: 1.1e9), so that (n k)² stays finite.
+
+    Beyond it F differs from 1 by less than 4/n (float32: 4e-9, below its
+    resolution), so the clamp changes no representable value.
+    """
+    x = jnp.asarray(x)
+    dtype = x.dtype if jnp.issubdtype(x.dtype, jnp.floating) else jnp.result_type(float)
+    return jnp.minimum(x, float(jnp.finfo(dtype).max) ** 0.25 / 4.0)
 
 
 def fresnel_dielectric(cos_theta, eta):

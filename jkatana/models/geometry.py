@@ -93,3 +93,29 @@ def in_plane(theta_i, theta_r):
 def in_plane_angles(theta_i, theta_r):
     """In-plane facet angle φ = (θr − θi)/2 and θH = (θi + θr)/2 (radians, signed φ)."""
     return 0.5 * (theta_r - theta_i), 0.5 * (theta_i + theta_r)
+
+
+def tangent_frame(n: Float[Array, "*b 3"]) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3"]]:
+    """Orthonormal tangents ``(t, b)`` completing unit normals ``n`` to a right-handed frame (t, b, n).
+
+    Branchless construction of Duff, Burgess, Christensen, Hery, Kensler, Liani &
+    Villemin (2017), "Building an orthonormal basis, revisited", JCGT 6(1):
+    continuous except across n_z = 0 and exact for n = ±z. The shading frame of
+    every renderer and sampler (local N = +z).
+    """
+    sign = jnp.where(n[..., 2] >= 0, 1.0, -1.0).astype(n.dtype)
+    a = -1.0 / (sign + n[..., 2])
+    b = n[..., 0] * n[..., 1] * a
+    t = jnp.stack([1.0 + sign * n[..., 0] ** 2 * a, sign * b, -sign * n[..., 0]], -1)
+    bt = jnp.stack([b, sign + n[..., 1] ** 2 * a, -n[..., 1]], -1)
+    return t, bt
+
+
+def to_local(v, t, b, n):
+    """World vectors ``v`` in the frame (t, b, n): ``(v·t, v·b, v·n)``."""
+    return jnp.stack([jnp.sum(v * t, -1), jnp.sum(v * b, -1), jnp.sum(v * n, -1)], -1)
+
+
+def to_world(v, t, b, n):
+    """Local vectors ``v`` of the frame (t, b, n) in world coordinates."""
+    return v[..., 0:1] * t + v[..., 1:2] * b + v[..., 2:3] * n

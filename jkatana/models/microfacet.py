@@ -26,7 +26,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from jkatana.models._safe import safe_sqrt
+from jkatana.models._safe import ratio, safe_sqrt
 
 LN2 = math.log(2.0)
 # Gauss–Legendre nodes on [0, 1] for the normalisation integral (smooth integrand).
@@ -44,7 +44,9 @@ def gaussian_facet(phi, mu):
 
     Finite value and gradient for μ down to the dtype's tiny and φ of any size:
     where the exponent would exceed the underflow point, D is exactly 0 and the
-    computation is done on substituted values.
+    computation is done on substituted values; φ/μ is differentiated without
+    forming μ² (:func:`~jkatana.models._safe.ratio`), which underflows for
+    μ < 1e-19 in float32.
     """
     phi = jnp.asarray(phi)
     mu = jnp.asarray(mu)
@@ -54,7 +56,7 @@ def gaussian_facet(phi, mu):
     live = jnp.abs(phi) < ratio_max * jnp.abs(mu)  # no division: safe at μ = 0
     phi_s = jnp.where(live, phi, 0.0)
     mu_s = jnp.where(live, mu, 1.0)
-    return jnp.where(live, jnp.exp(-LN2 * (phi_s / mu_s) ** 2), 0.0)
+    return jnp.where(live, jnp.exp(-LN2 * ratio(phi_s, mu_s) ** 2), 0.0)
 
 
 def gaussian_normalisation(mu):
@@ -64,7 +66,9 @@ def gaussian_normalisation(mu):
     microfacet normal distribution (Walter et al. 2007, eq. 4). Computed by
     48-point Gauss–Legendre quadrature over [0, min(π/2, c μ)], where c is the
     point beyond which D underflows — exact to quadrature error (< 1e-12 for
-    μ ≤ 0.5) and differentiable. For small μ, N → ln2 / (π μ²).
+    μ ≤ 0.5) and differentiable. For small μ, N → ln2 / (π μ²). Widths below
+    tiny^(1/4) of the dtype (float32: 3.3e-10 rad) are computed at that width,
+    so N and its derivative stay finite.
 
     A Python scalar μ gives a Python float (weakly typed: it does not promote
     float32 arrays it multiplies); an array μ gives an array of its dtype.
@@ -79,7 +83,9 @@ def gaussian_normalisation(mu):
 def _normalisation(xp, mu, dtype):
     """:func:`gaussian_normalisation` with array namespace ``xp`` (NumPy for Python scalars, so it works under jit)."""
     ratio_max = math.sqrt(_exp_cutoff(dtype) / LN2)
-    mu_safe = xp.maximum(xp.abs(mu), float(np.finfo(dtype).tiny) ** 0.25)
+    floor = float(np.finfo(dtype).tiny) ** 0.25
+    mu_abs = xp.abs(mu)
+    mu_safe = xp.where(mu_abs > floor, mu_abs, floor)  # a select, not maximum: no 0 · inf below the floor
     upper = xp.minimum(np.pi / 2, ratio_max * mu_safe)
     x = xp.asarray(_GL_X, dtype)
     w = xp.asarray(_GL_W, dtype)
@@ -87,9 +93,11 @@ def _normalisation(xp, mu, dtype):
     # D(φ) cosφ sinφ with the substitution φ = μ t keeps the integrand O(1) at tiny μ:
     t = phi / mu_safe[..., None]
     integrand = xp.exp(-LN2 * t * t) * xp.cos(phi) * xp.sinc(phi / np.pi) * t
-    # ∫ D cos sin dφ = μ² ∫ e^{-ln2 t²} cos(φ) (sin φ / φ) t dt over t ∈ [0, upper/μ]
-    integral = (mu_safe**2) * (upper / mu_safe) * xp.sum(w * integrand, axis=-1)
-    return 1.0 / (2.0 * np.pi * integral)
+    # ∫ D cos sin dφ = μ² ∫ e^{-ln2 t²} cos(φ) (sin φ / φ) t dt over t ∈ [0, upper/μ]; the factor 1/μ²
+    # is applied as (1/μ)(1/μ), so its derivative never forms 1/(μ²)², which overflows float32 at μ ~ 1e-9
+    integral_t = (upper / mu_safe) * xp.sum(w * integrand, axis=-1)
+    inv = 1.0 / mu_safe
+    return inv * inv / (2.0 * np.pi * integral_t)
 
 
 def beckmann(cos_phi, alpha):
@@ -106,11 +114,13 @@ def beckmann(cos_phi, alpha):
     c2 = c * c
     s2 = jnp.maximum(1.0 - c2, 0.0)
     x_max = _exp_cutoff(dtype) * 0.5  # leave headroom for the 1/cos⁴ factor
-    live = (c > 0) & (s2 < x_max * alpha * alpha * c2)
-    c2_s = jnp.where(live, c2, 1.0)
-    s2_s = jnp.where(live, s2, 0.0)
-    a2 = jnp.where(live, alpha * alpha, 1.0)
-    value = jnp.exp(-s2_s / (c2_s * a2)) / (jnp.pi * a2 * c2_s * c2_s)
+    live = (c > 0) & (s2 < x_max * alpha * alpha * c2) & (alpha != 0)
+    c_s = jnp.where(live, c, 1.0)
+    a = jnp.where(live, alpha, 1.0)
+    # tan φ / α, differentiated without forming α² or α⁴ (float32 gradients at α = 1e-8 stay finite)
+    q = ratio(safe_sqrt(jnp.where(live, s2, 0.0)), c_s * a)
+    c2_s = c_s * c_s
+    value = jnp.exp(-q * q) / (jnp.pi * a) / a / (c2_s * c2_s)
     return jnp.where(live, value, 0.0)
 
 
@@ -131,10 +141,10 @@ def beckmann_phi(phi, alpha):
     c = jnp.cos(phi)
     t = jnp.tan(jnp.where(c > 0, phi, 0.0))
     live = (c > 0) & (jnp.abs(t) < jnp.sqrt(x_max) * jnp.abs(alpha))
-    t_s = jnp.where(live, t, 0.0)
+    a = jnp.where(live, alpha, 1.0)
+    q = jnp.where(live, t, 0.0) / a  # tan φ / α: O(1) in the lobe, keeps float32 gradients in range
     c2_s = jnp.where(live, c * c, 1.0)
-    a2 = jnp.where(live, alpha * alpha, 1.0)
-    value = jnp.exp(-(t_s * t_s) / a2) / (jnp.pi * a2 * c2_s * c2_s)
+    value = jnp.exp(-q * q) / (jnp.pi * a) / a / (c2_s * c2_s)
     return jnp.where(live, value, 0.0)
 
 

@@ -32,42 +32,23 @@ static (trace-time) choices recorded in a :class:`Plan`:
   folded into a (cos θ, rank, XYZ) table. A grey environment is exactly rank 1:
   the renderer detects it and always runs one band (:func:`env_basis`).
 
-Per-sample cost and variance of the MIS modes (measured on the rough iron
-sphere of :mod:`validation.mitsuba` (in the source checkout), 95 bands, CPU time per sample
-so that the shared machine's load cancels; ``benchmarks/bench_render.py``):
+Sampling design of the MIS modes:
 
+- the lobes are the objects of :mod:`jkatana.models.lobes` (value, sampler
+  and pdf together): hiraji :class:`~jkatana.models.lobes.Gaussian`, hamon
+  :class:`~jkatana.models.lobes.GaussianVCavity` (or
+  :class:`~jkatana.models.lobes.Beckmann` for the Mitsuba comparison), blended
+  and sampled as a :class:`~jkatana.models.lobes.Mixture` with weights w, 1 − w;
 - the Fresnel factor is folded into the environment (:func:`fold_fresnel`,
-  ``Plan.fresnel_rank``; rank 5 for iron on 360–830 nm at |ΔF| ≤ 1e-5): a
-  15-channel lookup per sample instead of 95 bands, ~1.5× less time per
-  sample, ΔE2000 2e-4 against the full-spectral frame with the same samples;
-- per-pixel points are a 3D Sobol sequence with random digital shifts, the
-  environment warp taking 2 of them (:meth:`EnvSampler.sample_uniform2`):
-  at 32 MIS pairs ΔE 3.26 → 2.58 against the previous R7 + Cranley–Patterson
-  points with a 4-uniform warp (variance −37 %), same cost;
+  ``Plan.fresnel_rank``): per sample a ``3R``-channel lookup instead of one per
+  wavelength, exact up to the rank of F(cos θ, λ);
+- per-pixel points are a 3D Sobol sequence (Joe & Kuo 2008) with random
+  digital shifts (Owen 2003), the environment warp taking 2 of them
+  (:meth:`~jkatana.light.sampling.EnvSampler.sample_uniform2`), so that each
+  strategy sees a well-stratified 2D set;
 - one point set per output pixel across its subpixels (``Plan.subpixels``,
-  :class:`PixelIds`, ``render_frame(..., supersample=s)``; subpixel ``q`` of
-  ``S`` takes points ``q·N … q·N + N − 1`` of the pixel's ``S·N``-point Sobol
-  sequence under the pixel's digital shift, so the union is one (0, m, 2)-net):
-  rough iron sphere 128², 2×2 subpixels, noise ΔE2000(seed 1, seed 2)/√2,
-  independent subpixel sets → one per pixel at 16 / 32 / 64 / 128 / 512 samples
-  per pixel: 3.30 → 2.77, 2.11 → 1.67, 1.40 → 0.92, 0.81 → 0.54, 0.258 → 0.197;
-  frame time 0.79× (128) and 0.69× (512) of before (medians of 4 interleaved
-  runs, load 3–4; likely cache locality: neighbouring subpixels now draw
-  neighbouring points). At equal time (log–log interpolation of the old curve)
-  ~0.56× the time for the same noise. At 692² (32 spp × 4): 0.809 → 0.518, frame
-  19.3 → 16.5 s (medians of 2, load 3.3–3.8). ``SUBPIXEL_ORDER = "interleave"``
-  (points ``q, q + S, …``): same noise (0.56 at 128), slower in single runs.
-  The blade scene of the renderer has no subpixels, so it is unchanged; its
-  16-spp ΔE of 1.19 (vs 0.89 with R7 points) is the Sobol sequence's: 4.3 % of
-  pixels have ΔE > 5 at 8 and 16 spp and none at 32 (ΔE 0.20 vs R7's 0.67;
-  64: 0.14 vs 0.40; the median is lower than R7's at every count), measured
-  at 200×150 against 256 spp;
-- tried and not kept: guide tables for the CDF searches (111 vs 62 ns CPU
-  per warp: the extra gathers cost more than the saved search steps); a
-  low-rank environment instead of the Fresnel fold (rank 8: 1.27× faster but
-  ΔE 0.01 of bias, rank 12: 1.08×); lobe-only sampling (half the cost per
-  sample but at equal time ΔE 2.36 vs MIS 1.51); a (2, 2, C) block gather for
-  the bilinear lookup (20 % faster in isolation; moot after the fold).
+  :class:`PixelIds`): subpixel ``q`` of ``S`` takes points ``q·N … q·N + N − 1``
+  of the pixel's ``S·N``-point sequence, so the union is one (0, m, 2)-net.
 
 Effects on demand (all decided on the host before tracing, so a switched-off
 effect is absent from the compiled program): no hamon pixels → no
@@ -82,73 +63,27 @@ optionally as spectra.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
-from jkatana.light.envmap import EnvMap, direction_to_uv, uv_to_direction
-from jkatana.light.sampling import EnvSampler
-from jkatana.models import Hamon, Hiraji
-from jkatana.models.fresnel import fresnel_conductor
-from jkatana.models.geometry import facet_angle, half_vector_cos
+from jkatana.models.geometry import tangent_frame, to_local, to_world
+from jkatana.models.lobes import Beckmann, Gaussian, GaussianVCavity, Mixture, reflect
+from jkatana.models.microfacet import gaussian_facet, gaussian_normalisation
+# the shader's inputs and helpers live by job in their own modules; re-exported here as the render API
+from jkatana.render.environment import (Environment, background, bilinear_equirect, bilinear_equirect_uv,  # noqa: F401
+                                        build_environment, env_basis, env_lookup, env_uv, lookup_prefiltered,
+                                        unbasis)
+from jkatana.render.fresnel_fold import (FRESNEL_RANK_TOL, FRESNEL_TABLE, Material, fold_fresnel,  # noqa: F401
+                                         fresnel_rank_for, fresnel_table, is_folded, table_lookup)
+from jkatana.render.points import PixelIds, mis_offset, sample_points, uniforms  # noqa: F401
 
-LN2 = math.log(2.0)
-
-
-def _kronecker_alpha(d: int) -> tuple[float, ...]:
-    """Roberts (2018) R_d sequence: α_j = φ_d^(−j), φ_d the real root of x^(d+1) = x + 1."""
-    x = 2.0
-    for _ in range(64):
-        x = (1.0 + x) ** (1.0 / (d + 1))
-    return tuple((x ** -(j + 1)) % 1.0 for j in range(d))
-
-
-_R7 = _kronecker_alpha(7)
-
-
-@functools.lru_cache(maxsize=64)
-def _sobol_table(n: int) -> np.ndarray:
-    """First ``n`` points of the 3D Sobol sequence (Joe & Kuo 2008 directions, scipy.stats.qmc) as uint32.
-
-    Dimensions 0 and 1 form a (0, 2)-sequence: every power-of-two prefix is a
-    (0, m, 2)-net, i.e. one point in every elementary interval of the unit
-    square. The renderer XORs each pixel's points with random bits (a random
-    digital shift, which keeps the net property; Owen 2003, "Quasi-Monte Carlo
-    sampling", SIGGRAPH course notes) — independently for the lobe and the
-    environment strategies, so each gets its own well-stratified 2D set.
-    """
-    from scipy.stats import qmc
-
-    m = 1 << max(n - 1, 0).bit_length()  # a power-of-two prefix (scipy warns otherwise), then the first n
-    pts = qmc.Sobol(d=3, scramble=False).random(m)[:n]
-    return np.asarray(np.round(pts * 2.0**32), np.uint64).astype(np.uint32)
 #: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
 MIRROR_MU = 1e-4
-#: Cosine samples of the Fresnel table (linear interpolation error < 1e-6 for iron).
-FRESNEL_TABLE = 1024
 MODES = ("reference", "paper", "prefiltered", "lowrank")
-#: Per-pixel sample sequence of the ``"reference"``/``"lowrank"`` modes: ``"sobol"`` (3D Sobol points with a
-#: per-pixel random digital shift per strategy; the environment warp takes 2 of them) or ``"r7"``
-#: (Roberts' R7 Kronecker sequence with one Cranley–Patterson rotation per pixel, the environment
-#: warp taking 4 dimensions — the previous sampler, kept for the benchmark's comparison).
-SEQUENCE = "sobol"
-#: Which points of a pixel's ``S·N``-point sequence subpixel ``s`` takes (``Plan.subpixels = S > 1``, ``N``
-#: samples): ``"block"`` — indices ``s·N … s·N + N − 1`` (for Sobol and ``N`` a power of two each block is
-#: itself a (0, m, 2)-net and the union the full prefix, a (0, m + log2 S, 2)-net) or ``"interleave"`` —
-#: indices ``s, s + S, s + 2S, …`` (the union is the same prefix; each subpixel's own set is confined to
-#: one stratum of the first dimension).
-SUBPIXEL_ORDER = "block"
-#: Largest |F − F_R| (absolute reflectance) accepted for a rank-R Fresnel table (:func:`fresnel_rank_for`).
-FRESNEL_RANK_TOL = 1e-5
-#: Texel weight of the environment density (:meth:`jkatana.light.sampling.EnvSampler.build`'s
-#: ``bilinear``): ``"max"`` (3×3 neighbourhood maximum) or ``True`` (exact bilinear integral).
-ENV_DENSITY = "max"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,7 +120,8 @@ class Plan:
     - `subpixels`: ``S`` G-buffer samples (subpixels) per output pixel. With
       ``S > 1`` and :class:`PixelIds` passed to :func:`shade`, the MIS modes draw
       ONE per-pixel point set of ``S × samples`` points and give each subpixel
-      its share (:data:`SUBPIXEL_ORDER`), so that the union over a pixel's
+      its share (subpixel ``q`` takes points ``q·N … q·N + N − 1`` of the pixel's
+      ``S·N``-point Sobol sequence under the pixel's digital shift), so that the union over a pixel's
       subpixels is one well-stratified set instead of ``S`` independently
       shifted ones. Without ids (or ``S = 1``) every G-buffer sample is its own pixel.
     """
@@ -206,30 +142,6 @@ class Plan:
     subpixels: int = 1
 
 
-class Environment(eqx.Module):
-    """Environment lighting as the shader sees it.
-
-    **Fields:**
-
-    - `channels`: ``(H, W, J)``: spectral radiance (J = wavelengths, `basis`
-      unused) or coefficients on a spectral basis.
-    - `basis`: ``(J, wl)`` spectra such that radiance = channels @ basis.
-    - `rotation`: ``(3, 3)`` world → map rotation applied to every lookup.
-    - `sampler`: :class:`jkatana.light.sampling.EnvSampler` of the map (luminance ×
-      solid angle, bilinear-safe), in map coordinates.
-    - `prefiltered`: ``M`` lobe-convolved maps ``(H_m, W_m, J)`` for ``prefilter_mus``
-      (:func:`jkatana.light.prefilter.prefilter`, projected on ``basis``), or ``()``.
-    - `prefilter_mus`: ``(M,)`` μ of each prefiltered level (increasing).
-    """
-
-    channels: Float[Array, "H W J"]
-    basis: Float[Array, "J wl"]
-    rotation: Float[Array, "3 3"]
-    sampler: EnvSampler
-    prefiltered: tuple
-    prefilter_mus: Float[Array, "M"]
-
-
 class Light(NamedTuple):
     """Point (``kind`` 0: position, intensity W sr⁻¹ nm⁻¹) or directional (1: direction to light, irradiance)."""
 
@@ -247,18 +159,6 @@ class Pixels(NamedTuple):
     w: Float[Array, "P"]
     mu0: Float[Array, "P"]
     mu1: Float[Array, "P"]
-
-
-class PixelIds(NamedTuple):
-    """Which output pixel and which of its subpixels each G-buffer sample is (see ``Plan.subpixels``).
-
-    ``pixel (P,)`` uint32: a frame-wide pixel index (the scramble of the pixel's
-    point set is ``jax.random.bits(fold_in(key, pixel))``, so it does not depend on
-    the chunk or device that shades it); ``subpixel (P,)`` int32 in ``[0, S)``.
-    """
-
-    pixel: Array
-    subpixel: Array
 
 
 class Rays(NamedTuple):
@@ -287,227 +187,11 @@ class Visibility(NamedTuple):
     lights: Float[Array, "P n"]
 
 
-# ---------------------------------------------------------------- environment
-
-
-def bilinear_equirect(image: Float[Array, "H W C"], d: Float[Array, "*b 3"]) -> Float[Array, "*b C"]:
-    """Bilinear lookup of an equirectangular ``(H, W, C)`` image in direction ``d``.
-
-    Same convention and filtering as :meth:`jkatana.light.envmap.EnvMap.lookup`
-    (wrap in u, clamp in v), for any number of channels (spectral bands or
-    basis coefficients).
-    """
-    u, v = direction_to_uv(d)
-    return bilinear_equirect_uv(image, u, v)
-
-
-def bilinear_equirect_uv(image: Float[Array, "H W C"], u, v) -> Float[Array, "*b C"]:
-    """:func:`bilinear_equirect` at given equirectangular coordinates ``(u, v)`` (no ``atan2``)."""
-    H, W = image.shape[0], image.shape[1]
-    x = u * W - 0.5
-    y = jnp.clip(v * H - 0.5, 0.0, H - 1.0)
-    x0 = jnp.floor(x)
-    y0 = jnp.floor(y)
-    fx = (x - x0).astype(image.dtype)[..., None]
-    fy = (y - y0).astype(image.dtype)[..., None]
-    i0 = jnp.mod(x0.astype(jnp.int32), W)
-    i1 = jnp.mod(i0 + 1, W)
-    j0 = jnp.clip(y0.astype(jnp.int32), 0, H - 1)
-    j1 = jnp.minimum(j0 + 1, H - 1)
-    top = image[j0, i0] * (1 - fx) + image[j0, i1] * fx
-    bottom = image[j1, i0] * (1 - fx) + image[j1, i1] * fx
-    return top * (1 - fy) + bottom * fy
-
-
-def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5):
-    """Spectral factorisation of an environment: ``radiance ≈ coeffs @ basis``.
-
-    ``rank=None`` keeps the full spectra (identity basis) unless the map is grey
-    (every texel a multiple of one spectrum to ``grey_rtol``), which is exactly
-    rank 1. Otherwise the first ``rank`` right singular vectors of the
-    ``(H·W, wl)`` radiance matrix (principal spectra, Eckart–Young optimal in
-    the least-squares sense).
-
-    **Returns:** ``(coeffs (H, W, J), basis (J, wl), factored: bool, rel_residual)``.
-    """
-    L = np.asarray(radiance, np.float64)
-    H, W, nwl = L.shape
-    flat = L.reshape(-1, nwl)
-    # rank-1 test on a subsample (cheap): the leading singular value carries all the energy
-    step = max(1, flat.shape[0] // 20000)
-    _, s, vt = np.linalg.svd(flat[::step], full_matrices=False)
-    energy = np.sqrt(np.sum(s[1:] ** 2)) / max(s[0], 1e-300)
-    if rank is None and energy > grey_rtol:
-        return L.astype(np.float32), np.eye(nwl, dtype=np.float32), False, 0.0
-    r = 1 if rank is None else int(rank)
-    basis = vt[:r]
-    if basis[0].sum() < 0:
-        basis = -basis
-    coeffs = flat @ basis.T
-    resid = np.linalg.norm(flat - coeffs @ basis) / max(np.linalg.norm(flat), 1e-300)
-    return (coeffs.reshape(H, W, r).astype(np.float32), basis.astype(np.float32), True, float(resid))
-
-
-def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation=None,
-                      prefilter_mus=(), prefilter_resolution: int = 128, dtype=jnp.float32, grid=None):
-    """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
-
-    Environment sampling is :class:`jkatana.light.sampling.EnvSampler` (the light
-    stage's): a piecewise-constant density ∝ luminance × solid angle per texel,
-    the texel's luminance being the integral of the *bilinear* radiance the
-    lookups return (so ``radiance / pdf`` stays bounded next to a one-texel
-    sun), uniform in solid angle inside a texel — Pharr, Jakob & Humphreys,
-    *PBRT* 4th ed., §A.5 and §12.5.
-
-    **Returns:** ``(environment, factored, rel_residual)``.
-    """
-    from jkatana.spectral import DEFAULT_GRID
-
-    radiance = np.asarray(radiance, np.float64)
-    H, W, nwl = radiance.shape
-    coeffs, basis, factored, resid = env_basis(radiance, rank)
-    if grid is None:  # the density only steers sampling: an unknown grid borrows the default range
-        grid = DEFAULT_GRID if nwl == DEFAULT_GRID.size else type(DEFAULT_GRID).with_count(DEFAULT_GRID.start, DEFAULT_GRID.stop, nwl)
-    sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=ENV_DENSITY)
-    rot = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
-    mus = tuple(sorted(float(m) for m in prefilter_mus))
-    pre = ()
-    if mus:
-        # the light stage's exact convolution with the lobe kernel, on the source box-downsampled to
-        # at most `prefilter_resolution` columns, then projected on the environment's spectral basis
-        from jkatana.light.prefilter import prefilter as light_prefilter
-
-        src = EnvMap(jnp.asarray(radiance, jnp.float32), grid)
-        while src.width > prefilter_resolution and src.height % 2 == 0 and src.width % 2 == 0:
-            src = src.downsample(2)
-        levels = light_prefilter(src, mus).levels
-        pre = tuple(jnp.asarray(np.asarray(lvl.radiance, np.float64) @ basis.T.astype(np.float64), dtype)
-                    for lvl in levels)
-    env = Environment(jnp.asarray(coeffs, dtype), jnp.asarray(basis, dtype), jnp.asarray(rot, dtype), sampler,
-                      pre, jnp.asarray(np.asarray(mus, np.float64), dtype))
-    return env, factored, resid
-
-
-def sample_environment(env: Environment, u):
-    """Directions from the environment's density for uniforms ``u (P, 4)``: ``(d_world, pdf_solid_angle)``."""
-    d_map, pdf = env.sampler.sample_uniform(u)
-    return d_map @ env.rotation, pdf  # map → world (rotation is orthonormal)
-
-
-def env_pdf_map(env: Environment, d_map):
-    """Solid-angle density of :func:`sample_environment` at map direction ``d_map``."""
-    return env.sampler.pdf(d_map)
-
-
-def env_lookup(env: Environment, d_world):
-    """Environment channels in world direction ``d_world`` (rotation applied)."""
-    return bilinear_equirect(env.channels, d_world @ env.rotation.T)
-
-
-def env_uv(env: Environment, d_world):
-    """Map coordinates ``(u, v)`` of world direction ``d_world`` (one ``direction_to_uv`` for lookup and pdf)."""
-    return direction_to_uv(d_world @ env.rotation.T)
-
-
-def _lookup_prefiltered(env: Environment, mu, R_world):
-    """Prefiltered channels toward ``R_world`` for per-pixel ``mu``: bilinear in each level, linear
-    in log μ between levels, clamped to the tabulated range (as
-    :meth:`jkatana.light.prefilter.PrefilteredEnv.lookup`, in the environment's channel space)."""
-    d = R_world @ env.rotation.T
-    vals = jnp.stack([bilinear_equirect(lvl, d) for lvl in env.prefiltered])  # (M, P, J)
-    M = vals.shape[0]
-    if M == 1:
-        return vals[0]
-    logm = jnp.log(env.prefilter_mus)
-    x = jnp.clip(jnp.log(jnp.maximum(mu, 1e-12)), logm[0], logm[-1])
-    k0 = jnp.clip(jnp.searchsorted(logm, x, side="right") - 1, 0, M - 2)
-    t = ((x - logm[k0]) / (logm[k0 + 1] - logm[k0]))[:, None]
-    P = R_world.shape[0]
-    return vals[k0, jnp.arange(P)] * (1 - t) + vals[k0 + 1, jnp.arange(P)] * t
-
-
-# ---------------------------------------------------------------- geometry helpers
-
-
-def _basis(n):
-    """Orthonormal tangent frame (t, b) for unit normals n (Duff et al. 2017, JCGT 6(1))."""
-    sign = jnp.where(n[..., 2] >= 0, 1.0, -1.0).astype(n.dtype)
-    a = -1.0 / (sign + n[..., 2])
-    b = n[..., 0] * n[..., 1] * a
-    t = jnp.stack([1.0 + sign * n[..., 0] ** 2 * a, sign * b, -sign * n[..., 0]], -1)
-    bt = jnp.stack([b, sign + n[..., 1] ** 2 * a, -n[..., 1]], -1)
-    return t, bt
-
-
-def _to_local(v, t, b, n):
-    return jnp.stack([jnp.sum(v * t, -1), jnp.sum(v * b, -1), jnp.sum(v * n, -1)], -1)
-
-
-def _to_world(v, t, b, n):
-    return v[..., 0:1] * t + v[..., 1:2] * b + v[..., 2:3] * n
-
-
-def fresnel_table(n, k, size: int = FRESNEL_TABLE):
-    """F(cos θ, λ) on ``size`` cosines uniformly in [0, 1] (exact conductor Fresnel, differentiable in n, k)."""
-    c = jnp.linspace(0.0, 1.0, size, dtype=n.dtype)
-    return fresnel_conductor(c[:, None], n, k)
-
-
-def _table_lookup(table, cos):
-    """Linear interpolation of a ``(T, ...)`` table at cosines in [0, 1]."""
-    T = table.shape[0]
-    x = jnp.clip(cos, 0.0, 1.0) * (T - 1)
-    i0 = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, T - 2)
-    f = (x - i0.astype(x.dtype)).astype(table.dtype)
-    f = f.reshape(f.shape + (1,) * (table.ndim - 1))
-    return table[i0] * (1 - f) + table[i0 + 1] * f
-
-
-# ---------------------------------------------------------------- lobe sampling
-
-
-def _rayleigh_sample(mu, u1, u2):
-    """Facet normal (local, N = +z) with φ ~ Rayleigh(σ = μ/√(2 ln 2)): density ∝ D(φ, μ) φ."""
-    sigma = jnp.maximum(mu, 1e-7) / math.sqrt(2 * LN2)
-    phi = sigma * jnp.sqrt(-2.0 * jnp.log1p(-jnp.minimum(u1, 1 - 1e-7)))
-    psi = 2 * jnp.pi * u2
-    s = jnp.sin(phi)
-    return jnp.stack([s * jnp.cos(psi), s * jnp.sin(psi), jnp.cos(phi)], -1), phi
-
-
-def _pdf_h(mu, phi):
-    """Solid-angle density of :func:`_rayleigh_sample` at facet angle φ (0 beyond π/2)."""
-    sigma2 = (jnp.maximum(mu, 1e-7) ** 2) / (2 * LN2)
-    d = jnp.exp(-jnp.minimum(phi * phi / (2 * sigma2), 80.0))
-    return jnp.where(phi < jnp.pi / 2, d / (2 * jnp.pi * sigma2) / jnp.sinc(phi / jnp.pi), 0.0)
-
-
-def _pdf_L(mu, L, V):
-    """Density of reflected directions L = reflect(V, h) with h from :func:`_rayleigh_sample`."""
-    phi = facet_angle(L, V)
-    _, cos_th, valid = half_vector_cos(L, V)
-    return jnp.where(valid & (cos_th > 0), _pdf_h(mu, phi) / (4.0 * jnp.maximum(cos_th, 1e-7)), 0.0)
-
-
-def _reflect(V, h):
-    return 2.0 * jnp.sum(V * h, -1, keepdims=True) * h - V
-
-
-# ---------------------------------------------------------------- BRDF (f·cos θi) per region
-
-
-class Material(eqx.Module):
-    """Differentiable material inputs: Fresnel table and the fitted scales (calibrated convention)."""
-
-    ftable: Float[Array, "T wl"]
-    chi: Float[Array, ""]
-    beta: Float[Array, ""]
+# ---------------------------------------------------------------- lobes per region
 
 
 def _norms(plan: Plan, mat: Material, px: Pixels):
     """Per-pixel lobe scales: N(μ) (normalised convention) or χ/K, β/K (calibrated). Hoisted out of the sample loop."""
-    from jkatana.models.microfacet import gaussian_normalisation
-
     if plan.calibration is None:
         n0 = gaussian_normalisation(px.mu0) if (plan.hiraji and not plan.mirror) else None
         n1 = gaussian_normalisation(px.mu1) if plan.hamon else None
@@ -515,58 +199,31 @@ def _norms(plan: Plan, mat: Material, px: Pixels):
     return mat.chi / plan.calibration, mat.beta / plan.calibration
 
 
-def _fcos_scalar(plan: Plan, mat: Material, px: Pixels, L, V, norms):
-    """Scalar parts of f·cos θi (without Fresnel) per lobe with the Fresnel cosine: [(a, cos), ...].
+def _lobes(plan: Plan, px: Pixels, norms):
+    """The sampled lobes of the pixels with their blend weights: ``[(lobe, weight), ...]``.
 
-    Same expressions as :meth:`Hiraji.brdf_cos` / :meth:`Hamon.brdf_cos`,
-    split so that the Fresnel factor comes from a table.
+    Hiraji: :class:`~jkatana.models.lobes.Gaussian` (μ0, weight w) unless it is a
+    perfect mirror; hamon: :class:`~jkatana.models.lobes.GaussianVCavity` (μ1) or,
+    with ``plan.rough_model == "beckmann"``, :class:`~jkatana.models.lobes.Beckmann`
+    (α = μ1), weight 1 − w (Mochizuki et al., eq. 5).
     """
+    normalised = plan.calibration is None
     out = []
     if plan.hiraji and not plan.mirror:
-        cos_i, cos_th, d = Hiraji(mat.chi, px.mu0)._terms(L, V)
-        scale = norms[0] / (4.0 * jnp.maximum(cos_th, 1e-7)) if plan.calibration is None else norms[0]
-        out.append((px.w * scale * d, cos_i))
-    if plan.hamon and plan.rough_model == "beckmann":
-        from jkatana.models.microfacet import beckmann, smith_beckmann
-
-        cos_nh, cos_th, valid = half_vector_cos(L, V)
-        ok = valid & (L[..., 2] > 0) & (V[..., 2] > 0)
-        g = smith_beckmann(V[..., 2], L[..., 2], px.mu1)
-        d = beckmann(cos_nh, px.mu1)
-        fc = jnp.where(ok, d * g / (4.0 * jnp.maximum(V[..., 2], 1e-7)), 0.0)
-        out.append(((1.0 - px.w) * fc, cos_th))
-    elif plan.hamon:
-        cos_th, dg = Hamon(mat.beta, px.mu1)._terms(L, V)
-        scale = norms[1] / 4.0 if plan.calibration is None else norms[1]
-        out.append(((1.0 - px.w) * scale * dg, cos_th))
+        out.append((Gaussian(px.mu0, norms[0], normalised=normalised), px.w))
+    if plan.hamon:
+        rough = (Beckmann(px.mu1) if plan.rough_model == "beckmann"
+                 else GaussianVCavity(px.mu1, norms[1], normalised=normalised))
+        out.append((rough, 1.0 - px.w))
     return out
 
 
-def _beckmann_sample(alpha, u1, u2):
-    """Facet normal from the Beckmann distribution: tan²φ = −α² ln(1 − u1) (Walter et al. 2007, eq. 28)."""
-    t2 = -(alpha**2) * jnp.log1p(-jnp.minimum(u1, 1 - 1e-7))
-    c = 1.0 / jnp.sqrt(1.0 + t2)
-    s = jnp.sqrt(jnp.maximum(1.0 - c * c, 0.0))
-    psi = 2 * jnp.pi * u2
-    return jnp.stack([s * jnp.cos(psi), s * jnp.sin(psi), c], -1)
-
-
-def _pdf_L_beckmann(alpha, L, V):
-    from jkatana.models.microfacet import beckmann
-
-    cos_nh, cos_th, valid = half_vector_cos(L, V)
-    return jnp.where(valid & (cos_th > 0), beckmann(cos_nh, alpha) * cos_nh / (4.0 * jnp.maximum(cos_th, 1e-7)), 0.0)
-
-
-def _lobe_pdf(plan: Plan, px: Pixels, L, V):
-    """Mixture density of the lobe sampler (hiraji w, hamon 1 − w)."""
-    p = 0.0
-    if plan.hiraji and not plan.mirror:
-        p = p + _mix_w(plan, px) * _pdf_L(px.mu0, L, V)
-    if plan.hamon:
-        pdf1 = _pdf_L_beckmann(px.mu1, L, V) if plan.rough_model == "beckmann" else _pdf_L(px.mu1, L, V)
-        p = p + (1.0 - _mix_w(plan, px)) * pdf1
-    return p
+def _sampler(lobes):
+    """One lobe, or the blend of two sampled by its weights (:class:`~jkatana.models.lobes.Mixture`)."""
+    if len(lobes) == 1:
+        return lobes[0][0]
+    (a, w), (b, _) = lobes
+    return Mixture(a, b, w)
 
 
 def _mix_w(plan: Plan, px: Pixels):
@@ -578,69 +235,9 @@ def _mix_w(plan: Plan, px: Pixels):
     return px.w
 
 
-# ---------------------------------------------------------------- Fresnel folded into the environment
-
-
-def fresnel_rank_for(ftable, tol: float = FRESNEL_RANK_TOL, max_rank: int = 8, *, _basis_too: bool = False
-                     ) -> int | tuple[int, np.ndarray]:
-    """Smallest R with max |F − F_R| ≤ ``tol`` over the table (truncated SVD in λ), 0 if none ≤ ``max_rank``.
-
-    F(cos θ, λ) of a conductor is smooth in both arguments: for iron (Johnson &
-    Christy 1974) rank 3 reproduces it to ~1e-6 (see DESIGN.md). Host-side
-    (NumPy float64) on a concrete table.
-    """
-    import hashlib
-
-    F = np.ascontiguousarray(np.asarray(ftable))
-    key = (hashlib.blake2b(F.tobytes(), digest_size=16).hexdigest(), F.shape, str(F.dtype), tol, max_rank)
-    if key not in _RANK_CACHE:  # a per-frame host SVD costs ~1 s on a loaded machine: once per table
-        F = F.astype(np.float64)
-        u, s, vt = np.linalg.svd(F, full_matrices=False)
-        _RANK_CACHE[key] = (0, vt)
-        for r in range(1, min(max_rank, len(s)) + 1):
-            if np.max(np.abs(F - (u[:, :r] * s[:r]) @ vt[:r])) <= tol:
-                _RANK_CACHE[key] = (r, vt)
-                break
-    return _RANK_CACHE[key][0] if not _basis_too else _RANK_CACHE[key]
-
-
-_RANK_CACHE: dict = {}
-
-
-def fold_fresnel(rank: int, mat: Material, env: Environment, cmf, basis=None) -> tuple[Material, Environment]:
-    """Fold a rank-``R`` Fresnel factorisation and the CMFs into the environment (exact up to that rank).
-
-    With ``F(c, λ) ≈ Σ_r a_r(c) b_r(λ)`` (``b`` the leading right singular
-    vectors of the table, held fixed — no gradient through the SVD; ``a = F bᵀ``
-    is differentiable in the table) the XYZ radiance of one sample is
-    ``Σ_r a_r(cos θ) G_r(L)`` with ``G_r = Σ_λ b_r(λ) E(L, λ) x̄ȳz̄(λ)``: a
-    ``3R``-channel map. Bilinear lookups commute with this per-texel linear map,
-    so the only approximation is the Fresnel rank. Per sample a ``3R``-channel
-    lookup replaces a ``wl``-band one — the issue's "9-channel bilinear lookup"
-    for R = 3. **Returns:** ``(material with ftable (T, R), environment with
-    channels (H, W, 3R) and folded prefiltered levels)``; pass both to
-    :func:`shade` with ``Plan(fresnel_rank=R)``. ``basis``: the ``(R, wl)`` spectra
-    if already known (the frame passes the host SVD of :func:`fresnel_rank_for`),
-    else the SVD runs here.
-    """
-    F = mat.ftable
-    if basis is None:
-        _, _, vt = jnp.linalg.svd(jax.lax.stop_gradient(F), full_matrices=False)
-        basis = vt[:rank]
-    b = jnp.asarray(basis, F.dtype)  # (R, wl)
-    a = F @ b.T  # (T, R)
-    M = jnp.einsum("jl,rl,lc->jrc", env.basis, b, cmf.astype(F.dtype))  # (J, R, 3)
-
-    def fold(img):
-        return jnp.einsum("hwj,jrc->hwrc", img, M).reshape(img.shape[:2] + (3 * rank,))
-
-    env2 = eqx.tree_at(lambda e: (e.channels, e.prefiltered), env,
-                       (fold(env.channels), tuple(fold(lvl) for lvl in env.prefiltered)))
-    return Material(a, mat.chi, mat.beta), env2
-
-
-def _folded(plan: Plan) -> bool:
-    return bool(plan.fresnel_rank) and not plan.factored
+def _fcos_terms(lobes, L, V):
+    """f·cos θi without Fresnel per lobe term, weighted by the blend: ``[(a, Fresnel cosine), ...]``."""
+    return [(w * a, c) for lobe, w in lobes for a, c in lobe.terms(L, V)]
 
 
 # ---------------------------------------------------------------- the shader
@@ -649,13 +246,13 @@ def _folded(plan: Plan) -> bool:
 def _frame(px: Pixels):
     """Per-pixel tangent frame and the view direction in it."""
     N = px.normal
-    t, b = _basis(N)
-    return (t, b, N), _to_local(px.view, t, b, N)
+    t, b = tangent_frame(N)
+    return (t, b, N), to_local(px.view, t, b, N)
 
 
 def _mirror_ray(Vl, fr):
     Rl = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
-    return Rl, _to_world(Rl, *fr)
+    return Rl, to_world(Rl, *fr)
 
 
 def _paper_grid(S: int):
@@ -678,103 +275,22 @@ def _paper_ray(plan: Plan, px: Pixels, Vl, fr, key, k):
     psi = 2 * jnp.pi * sv
     s = jnp.sin(phi)
     h = jnp.stack([s * jnp.cos(psi), s * jnp.sin(psi), jnp.cos(phi)], -1)
-    Ll = _reflect(Vl, h)
-    return Ll, _to_world(Ll, *fr), phi, mu
+    Ll = reflect(Vl, h)
+    return Ll, to_world(Ll, *fr), phi, mu
 
 
-def _per_pixel(plan: Plan, ids: PixelIds | None) -> bool:
-    return ids is not None and plan.subpixels > 1
-
-
-def _mis_offset(key, P, dtype, plan: Plan | None = None, ids: PixelIds | None = None):
-    """Per-pixel randomisation of the sample sequence (:data:`SEQUENCE`): Cranley–Patterson
-    offsets ``(P, 7)`` for R7, random digital shifts ``(P, 5)`` (uint32) for Sobol.
-
-    With :class:`PixelIds` (and ``plan.subpixels > 1``) the randomisation is drawn per output
-    pixel from ``fold_in(key, pixel)``, so all subpixels of a pixel share it wherever they are shaded."""
-    if plan is not None and _per_pixel(plan, ids):
-        def one(p):
-            kp = jax.random.fold_in(key, p)
-            return jax.random.uniform(kp, (7,), dtype) if SEQUENCE == "r7" else jax.random.bits(kp, (5,), jnp.uint32)
-
-        return jax.vmap(one)(ids.pixel)
-    if SEQUENCE == "r7":
-        return jax.random.uniform(key, (P, 7), dtype)
-    return jax.random.bits(key, (P, 5), jnp.uint32)
-
-
-def _sample_index(plan: Plan, ids: PixelIds | None, k):
-    """Index of the k-th sample of each G-buffer sample in its pixel's sequence: ``k`` (scalar), or
-    ``(P,)`` per subpixel (:data:`SUBPIXEL_ORDER`)."""
-    k = jnp.asarray(k, jnp.int32)
-    if not _per_pixel(plan, ids):
-        return k
-    sub = ids.subpixel.astype(jnp.int32)
-    if SUBPIXEL_ORDER == "interleave":
-        return sub + plan.subpixels * k
-    return sub * plan.samples + k
-
-
-def _uniforms(plan: Plan, offset, k, dtype, ids: PixelIds | None = None):
-    """The k-th point per pixel: ``(mix, lobe u1, lobe u2, env (P, 2) or (P, 4))``."""
-    idx = _sample_index(plan, ids, k)
-    if SEQUENCE == "r7":
-        kk = jnp.asarray(idx + 1).astype(dtype)
-        kk = kk[..., None] if kk.ndim else kk
-        r = jnp.mod(offset + kk * jnp.asarray(_R7, dtype), 1.0)
-        return r[:, 0], r[:, 1], r[:, 2], r[:, 3:7]
-    n = plan.samples * (plan.subpixels if _per_pixel(plan, ids) else 1)
-    t = jnp.asarray(_sobol_table(n))[idx]  # (3,) the same point for every pixel, or (P, 3) per subpixel
-    t = jnp.broadcast_to(t, offset.shape[:1] + (3,))
-
-    def unit(x):  # top 24 bits → [0, 1) exactly representable in float32
-        return (x >> 8).astype(dtype) * jnp.asarray(2.0**-24, dtype)
-
-    return (unit(t[:, 2] ^ offset[:, 4]), unit(t[:, 0] ^ offset[:, 0]), unit(t[:, 1] ^ offset[:, 1]),
-            jnp.stack([unit(t[:, 0] ^ offset[:, 2]), unit(t[:, 1] ^ offset[:, 3])], -1))
-
-
-def sample_points(plan: Plan, key, n: int, ids: PixelIds | None = None, dtype=jnp.float32):
-    """The unit-cube points the MIS modes use: ``(n, plan.samples, 5)`` = (mixture choice, lobe u1, lobe u2,
-    environment u1, u2) per G-buffer sample (Sobol; ``"r7"`` gives 7 columns), for inspection and tests.
-
-    Same construction as :func:`shade` with the same ``key`` and ``ids``.
-    """
-    offset = _mis_offset(key, n, dtype, plan, ids)
-
-    def one(k):
-        r0, r1, r2, re = _uniforms(plan, offset, k, dtype, ids)
-        return jnp.concatenate([jnp.stack([r0, r1, r2], -1), re], -1)
-
-    return jax.vmap(one, out_axes=1)(jnp.arange(plan.samples))
-
-
-def _mis_rays(plan: Plan, env: Environment, px: Pixels, Vl, fr, offset, k, ids: PixelIds | None = None):
-    """The k-th MIS pair: ``(Ll, Lw)`` from the lobe mixture, ``(Ll2, Lw2, pe2, uv2)`` from the environment
-    (``None`` without environment sampling; ``uv2`` the map coordinates of ``Lw2``, or ``None``)."""
+def _mis_rays(plan: Plan, env: Environment, sampler, Vl, fr, offset, k, ids: PixelIds | None = None):
+    """The k-th MIS pair: ``(Ll, Lw, pdf)`` from the lobe mixture ``sampler``, ``(Ll2, Lw2, pe2, uv2)`` from the
+    environment (``None`` without environment sampling; ``uv2`` the map coordinates of ``Lw2``, or ``None``)."""
     dtype = Vl.dtype
-    r0, r1, r2, re = _uniforms(plan, offset, k, dtype, ids)
-    gauss = plan.hiraji and not plan.mirror  # the Gaussian (Rayleigh-warped) facet sampler is needed
-    beck = plan.hamon and plan.rough_model == "beckmann"
-    if gauss or (plan.hamon and not beck):
-        use0 = r0 < _mix_w(plan, px)
-        mu = jnp.where(use0, px.mu0, px.mu1)
-        h, _ = _rayleigh_sample(mu, r1, r2)
-        if beck:
-            h = jnp.where(use0[:, None], h, _beckmann_sample(px.mu1, r1, r2))
-    else:  # Beckmann hamon only: no Rayleigh sample computed and thrown away
-        h = _beckmann_sample(px.mu1, r1, r2)
-    Ll = _reflect(Vl, h)
-    Lw = _to_world(Ll, *fr)
+    r0, r1, r2, re = uniforms(plan, offset, k, dtype, ids)
+    Ll, pb = sampler.sample(Vl, jnp.stack([r1, r2], -1), r0)
+    Lw = to_world(Ll, *fr)
     if not plan.env_sampling:
-        return Ll, Lw, None, None, None, None
-    if re.shape[-1] == 4:
-        Lw2, pe2 = sample_environment(env, re)
-        uv2 = None
-    else:
-        d_map, pe2, u2, v2 = env.sampler.sample_uniform2(re)
-        Lw2, uv2 = d_map @ env.rotation, (u2, v2)
-    return Ll, Lw, _to_local(Lw2, *fr), Lw2, pe2, uv2
+        return Ll, Lw, pb, None, None, None, None
+    d_map, pe2, u2, v2 = env.sampler.sample_uniform2(re)
+    Lw2, uv2 = d_map @ env.rotation, (u2, v2)
+    return Ll, Lw, pb, to_local(Lw2, *fr), Lw2, pe2, uv2
 
 
 def _light_ray(lights: Light, j: int, px: Pixels):
@@ -811,10 +327,11 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
     if plan.mode == "paper" and _has_lobe(plan):
         lobe = jax.vmap(lambda k: _paper_ray(plan, px, Vl, fr, key, k)[1], out_axes=1)(ks)
     elif plan.mode in ("reference", "lowrank") and _has_lobe(plan):
-        offset = _mis_offset(key, P, dtype, plan, ids)
+        offset = mis_offset(key, P, dtype, plan, ids)
+        sampler = _sampler(_lobes(plan, px, (1.0, 1.0)))  # sampling needs the widths only
 
         def one(k):
-            _, Lw, _, Lw2, _, _ = _mis_rays(plan, env, px, Vl, fr, offset, k, ids)
+            _, Lw, _, _, Lw2, _, _ = _mis_rays(plan, env, sampler, Vl, fr, offset, k, ids)
             return Lw, (Lw2 if Lw2 is not None else jnp.zeros((P, 3), dtype))
 
         lobe, envd = jax.vmap(one, out_axes=1)(ks)
@@ -855,8 +372,10 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     P = px.normal.shape[0]
     fr, Vl = _frame(px)
     factored = plan.factored
-    folded = _folded(plan)
+    folded = is_folded(plan)
     norms = _norms(plan, mat, px)
+    lobes = _lobes(plan, px, norms)
+    sampler = _sampler(lobes) if lobes else None
     if folded:
         R = plan.fresnel_rank
         if plan.lights or plan.spectral or mat.ftable.shape[-1] != R or env.channels.shape[-1] != 3 * R:
@@ -873,14 +392,14 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     def combine(cos, E):
         """F(cos)·E in the accumulator's space."""
         if folded:
-            return jnp.einsum("pr,prc->pc", _table_lookup(mat.ftable, cos), E.reshape(E.shape[0], -1, 3))
+            return jnp.einsum("pr,prc->pc", table_lookup(mat.ftable, cos), E.reshape(E.shape[0], -1, 3))
         if factored:
-            return jnp.einsum("pjc,pj->pc", _table_lookup(xtable, cos), E)
-        return _table_lookup(mat.ftable, cos) * E
+            return jnp.einsum("pjc,pj->pc", table_lookup(xtable, cos), E)
+        return table_lookup(mat.ftable, cos) * E
 
     def radiance_terms(Ll, Lw, weight, uv=None):
         """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space (``uv``: map coordinates of Lw)."""
-        terms = _fcos_scalar(plan, mat, px, Ll, Vl, norms)
+        terms = _fcos_terms(lobes, Ll, Vl)
         E = env_lookup(env, Lw) if uv is None else bilinear_equirect_uv(env.channels, *uv)  # (P, J)
         total = 0.0
         for a, c in terms:
@@ -906,14 +425,14 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         cos = jnp.clip(Vl[:, 2], 0.0, 1.0)
         for on, weight, mu in ((plan.hiraji and not plan.mirror, px.w, px.mu0), (plan.hamon, 1.0 - px.w, px.mu1)):
             if on:
-                acc = add_mirror_like(acc, weight, _lookup_prefiltered(env, mu, Rw), cos)
+                acc = add_mirror_like(acc, weight, lookup_prefiltered(env, mu, Rw), cos)
     elif plan.mode == "paper" and _has_lobe(plan):
         def body(carry, xs):
             acc_, wsum = carry
             k, v = xs
             Ll, Lw, phi, mu = _paper_ray(plan, px, Vl, fr, key, k)
-            gauss = jnp.exp(-LN2 * (phi / jnp.maximum(mu, 1e-7)) ** 2)
-            pdf = _lobe_pdf(plan, px, Ll, Vl)
+            gauss = gaussian_facet(phi, jnp.maximum(mu, 1e-7))
+            pdf = sampler.pdf(Ll, Vl)
             ok = (Ll[:, 2] > 0) & (pdf > 0)
             g = jnp.where(ok, gauss / jnp.where(ok, pdf, 1.0), 0.0)  # Gaussian weight × 1/pdf → throughput
             if v is not None:
@@ -924,12 +443,11 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         (lob, wsum), _ = jax.lax.scan(body, (jnp.zeros_like(acc), jnp.zeros((P,), dtype)), xs)
         acc = acc + lob / jnp.maximum(wsum, 1e-30)[:, None]
     elif _has_lobe(plan):  # reference / lowrank: MIS of lobe and environment sampling
-        offset = _mis_offset(key, P, dtype, plan, ids)
+        offset = mis_offset(key, P, dtype, plan, ids)
 
         def body(acc_, xs):
             k, v1, v2 = xs
-            Ll, Lw, Ll2, Lw2, pe2, uv2 = _mis_rays(plan, env, px, Vl, fr, offset, k, ids)
-            pb = _lobe_pdf(plan, px, Ll, Vl)
+            Ll, Lw, pb, Ll2, Lw2, pe2, uv2 = _mis_rays(plan, env, sampler, Vl, fr, offset, k, ids)
             uv = env_uv(env, Lw)  # one atan2 pair serves the density and the lookup
             pe = env.sampler.pdf_uv(*uv) if plan.env_sampling else 0.0
             ok = (Ll[:, 2] > 0) & (pb > 0)
@@ -938,7 +456,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
                 wgt = wgt * v1
             acc_ = acc_ + radiance_terms(Ll, Lw, wgt, uv)
             if plan.env_sampling:
-                pb2 = _lobe_pdf(plan, px, Ll2, Vl)
+                pb2 = sampler.pdf(Ll2, Vl)
                 ok2 = (Ll2[:, 2] > 0) & (pe2 > 0)
                 wgt2 = jnp.where(ok2, 1.0 / jnp.where(ok2, pb2 + pe2, 1.0), 0.0)
                 if v2 is not None:
@@ -956,29 +474,21 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
             Lw, falloff, _ = _light_ray(lights, j, px)
             if vis is not None:
                 falloff = falloff * vis.lights[:, j]
-            Ll = _to_local(Lw, *fr)
+            Ll = to_local(Lw, *fr)
             spec = lights.spectrum[j]
-            for a, c in _fcos_scalar(plan, mat, px, Ll, Vl, norms):
-                Fs = _table_lookup(mat.ftable, c) * spec[None, :]
+            for a, c in _fcos_terms(lobes, Ll, Vl):
+                Fs = table_lookup(mat.ftable, c) * spec[None, :]
                 if factored:
                     acc = acc + (a * falloff)[:, None] * (Fs @ cmf)
                 else:
-                    acc = acc + (a * falloff)[:, None] * Fs @ _unbasis(env)
+                    acc = acc + (a * falloff)[:, None] * Fs @ unbasis(env)
     if factored or folded:
         return acc, None
     spectra = acc @ env.basis  # identity when not factored
     return spectra @ cmf, (spectra if plan.spectral else None)
 
 
-def _unbasis(env: Environment):
-    """Pseudo-inverse map from spectra to the accumulator's channels (identity in full mode)."""
-    return env.basis.T
-
-
-def background(env: Environment, directions, cmf, spectral: bool = False):
-    """XYZ (and spectra) of the environment seen directly along camera rays."""
-    C = env_lookup(env, directions)
-    if not spectral:  # (J, 3) first: a (P, J) @ (J, wl) product per pixel would dominate large frames
-        return C @ (env.basis @ cmf), None
-    E = C @ env.basis
-    return E @ cmf, E
+__all__ = ["MIRROR_MU", "MODES", "FRESNEL_RANK_TOL", "FRESNEL_TABLE", "Environment", "Light", "Material", "PixelIds",
+           "Pixels", "Plan", "Rays", "Visibility", "background", "bilinear_equirect", "bilinear_equirect_uv",
+           "build_environment", "env_basis", "env_lookup", "env_uv", "fold_fresnel", "fresnel_rank_for",
+           "fresnel_table", "ray_directions", "sample_points", "shade"]

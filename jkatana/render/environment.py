@@ -1,0 +1,187 @@
+"""Environment lighting as the shader sees it: spectral channels (optionally on a spectral basis), its
+rotation, its importance sampler and its prefiltered levels; bilinear lookups and the background.
+
+The sampler is the light stage's :class:`jkatana.light.sampling.EnvSampler`
+(piecewise-constant density ∝ luminance × solid angle, Pharr, Jakob &
+Humphreys, *PBRT* 4th ed., §A.5 and §12.5); prefiltered levels come from
+:func:`jkatana.light.prefilter.prefilter` (split sum, Karis 2013); the spectral
+basis of a low-rank environment is its leading principal spectra (SVD,
+Eckart & Young 1936).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from jkatana.light.envmap import EnvMap, direction_to_uv
+from jkatana.light.sampling import EnvSampler
+
+
+class Environment(eqx.Module):
+    """Environment lighting as the shader sees it.
+
+    **Fields:**
+
+    - `channels`: ``(H, W, J)``: spectral radiance (J = wavelengths, `basis`
+      unused) or coefficients on a spectral basis.
+    - `basis`: ``(J, wl)`` spectra such that radiance = channels @ basis.
+    - `rotation`: ``(3, 3)`` world → map rotation applied to every lookup.
+    - `sampler`: :class:`jkatana.light.sampling.EnvSampler` of the map (luminance ×
+      solid angle, bilinear-safe), in map coordinates.
+    - `prefiltered`: ``M`` lobe-convolved maps ``(H_m, W_m, J)`` for ``prefilter_mus``
+      (:func:`jkatana.light.prefilter.prefilter`, projected on ``basis``), or ``()``.
+    - `prefilter_mus`: ``(M,)`` μ of each prefiltered level (increasing).
+    """
+
+    channels: Float[Array, "H W J"]
+    basis: Float[Array, "J wl"]
+    rotation: Float[Array, "3 3"]
+    sampler: EnvSampler
+    prefiltered: tuple
+    prefilter_mus: Float[Array, "M"]
+
+
+
+def bilinear_equirect(image: Float[Array, "H W C"], d: Float[Array, "*b 3"]) -> Float[Array, "*b C"]:
+    """Bilinear lookup of an equirectangular ``(H, W, C)`` image in direction ``d``.
+
+    Same convention and filtering as :meth:`jkatana.light.envmap.EnvMap.lookup`
+    (wrap in u, clamp in v), for any number of channels (spectral bands or
+    basis coefficients).
+    """
+    u, v = direction_to_uv(d)
+    return bilinear_equirect_uv(image, u, v)
+
+
+def bilinear_equirect_uv(image: Float[Array, "H W C"], u, v) -> Float[Array, "*b C"]:
+    """:func:`bilinear_equirect` at given equirectangular coordinates ``(u, v)`` (no ``atan2``)."""
+    H, W = image.shape[0], image.shape[1]
+    x = u * W - 0.5
+    y = jnp.clip(v * H - 0.5, 0.0, H - 1.0)
+    x0 = jnp.floor(x)
+    y0 = jnp.floor(y)
+    fx = (x - x0).astype(image.dtype)[..., None]
+    fy = (y - y0).astype(image.dtype)[..., None]
+    i0 = jnp.mod(x0.astype(jnp.int32), W)
+    i1 = jnp.mod(i0 + 1, W)
+    j0 = jnp.clip(y0.astype(jnp.int32), 0, H - 1)
+    j1 = jnp.minimum(j0 + 1, H - 1)
+    top = image[j0, i0] * (1 - fx) + image[j0, i1] * fx
+    bottom = image[j1, i0] * (1 - fx) + image[j1, i1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5):
+    """Spectral factorisation of an environment: ``radiance ≈ coeffs @ basis``.
+
+    ``rank=None`` keeps the full spectra (identity basis) unless the map is grey
+    (every texel a multiple of one spectrum to ``grey_rtol``), which is exactly
+    rank 1. Otherwise the first ``rank`` right singular vectors of the
+    ``(H·W, wl)`` radiance matrix (principal spectra, Eckart–Young optimal in
+    the least-squares sense).
+
+    **Returns:** ``(coeffs (H, W, J), basis (J, wl), factored: bool, rel_residual)``.
+    """
+    L = np.asarray(radiance, np.float64)
+    H, W, nwl = L.shape
+    flat = L.reshape(-1, nwl)
+    # rank-1 test on a subsample (cheap): the leading singular value carries all the energy
+    step = max(1, flat.shape[0] // 20000)
+    _, s, vt = np.linalg.svd(flat[::step], full_matrices=False)
+    energy = np.sqrt(np.sum(s[1:] ** 2)) / max(s[0], 1e-300)
+    if rank is None and energy > grey_rtol:
+        return L.astype(np.float32), np.eye(nwl, dtype=np.float32), False, 0.0
+    r = 1 if rank is None else int(rank)
+    basis = vt[:r]
+    if basis[0].sum() < 0:
+        basis = -basis
+    coeffs = flat @ basis.T
+    resid = np.linalg.norm(flat - coeffs @ basis) / max(np.linalg.norm(flat), 1e-300)
+    return (coeffs.reshape(H, W, r).astype(np.float32), basis.astype(np.float32), True, float(resid))
+
+
+def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation=None,
+                      prefilter_mus=(), prefilter_resolution: int = 128, dtype=jnp.float32, grid=None,
+                      env_density="max"):
+    """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
+
+    Environment sampling is :class:`jkatana.light.sampling.EnvSampler` (the light
+    stage's): a piecewise-constant density ∝ luminance × solid angle per texel,
+    the texel's luminance being the integral of the *bilinear* radiance the
+    lookups return (so ``radiance / pdf`` stays bounded next to a one-texel
+    sun), uniform in solid angle inside a texel — Pharr, Jakob & Humphreys,
+    *PBRT* 4th ed., §A.5 and §12.5. ``env_density`` is the texel weight
+    (:meth:`~jkatana.light.sampling.EnvSampler.build`'s ``bilinear``): ``"max"``
+    (3×3 neighbourhood maximum) or ``True`` (exact bilinear integral).
+
+    **Returns:** ``(environment, factored, rel_residual)``.
+    """
+    from jkatana.spectral import DEFAULT_GRID
+
+    radiance = np.asarray(radiance, np.float64)
+    H, W, nwl = radiance.shape
+    coeffs, basis, factored, resid = env_basis(radiance, rank)
+    if grid is None:  # the density only steers sampling: an unknown grid borrows the default range
+        grid = DEFAULT_GRID if nwl == DEFAULT_GRID.size else type(DEFAULT_GRID).with_count(DEFAULT_GRID.start, DEFAULT_GRID.stop, nwl)
+    sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=env_density)
+    rot = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
+    mus = tuple(sorted(float(m) for m in prefilter_mus))
+    pre = ()
+    if mus:
+        # the light stage's exact convolution with the lobe kernel, on the source box-downsampled to
+        # at most `prefilter_resolution` columns, then projected on the environment's spectral basis
+        from jkatana.light.prefilter import prefilter as light_prefilter
+
+        src = EnvMap(jnp.asarray(radiance, jnp.float32), grid)
+        while src.width > prefilter_resolution and src.height % 2 == 0 and src.width % 2 == 0:
+            src = src.downsample(2)
+        levels = light_prefilter(src, mus).levels
+        pre = tuple(jnp.asarray(np.asarray(lvl.radiance, np.float64) @ basis.T.astype(np.float64), dtype)
+                    for lvl in levels)
+    env = Environment(jnp.asarray(coeffs, dtype), jnp.asarray(basis, dtype), jnp.asarray(rot, dtype), sampler,
+                      pre, jnp.asarray(np.asarray(mus, np.float64), dtype))
+    return env, factored, resid
+
+
+def env_lookup(env: Environment, d_world):
+    """Environment channels in world direction ``d_world`` (rotation applied)."""
+    return bilinear_equirect(env.channels, d_world @ env.rotation.T)
+
+
+def env_uv(env: Environment, d_world):
+    """Map coordinates ``(u, v)`` of world direction ``d_world`` (one ``direction_to_uv`` for lookup and pdf)."""
+    return direction_to_uv(d_world @ env.rotation.T)
+
+
+def lookup_prefiltered(env: Environment, mu, R_world):
+    """Prefiltered channels toward ``R_world`` for per-pixel ``mu``: bilinear in each level, linear
+    in log μ between levels, clamped to the tabulated range (as
+    :meth:`jkatana.light.prefilter.PrefilteredEnv.lookup`, in the environment's channel space)."""
+    d = R_world @ env.rotation.T
+    vals = jnp.stack([bilinear_equirect(lvl, d) for lvl in env.prefiltered])  # (M, P, J)
+    M = vals.shape[0]
+    if M == 1:
+        return vals[0]
+    logm = jnp.log(env.prefilter_mus)
+    x = jnp.clip(jnp.log(jnp.maximum(mu, 1e-12)), logm[0], logm[-1])
+    k0 = jnp.clip(jnp.searchsorted(logm, x, side="right") - 1, 0, M - 2)
+    t = ((x - logm[k0]) / (logm[k0 + 1] - logm[k0]))[:, None]
+    P = R_world.shape[0]
+    return vals[k0, jnp.arange(P)] * (1 - t) + vals[k0 + 1, jnp.arange(P)] * t
+
+
+def unbasis(env: Environment):
+    """Pseudo-inverse map from spectra to the accumulator's channels (identity in full mode)."""
+    return env.basis.T
+
+
+def background(env: Environment, directions, cmf, spectral: bool = False):
+    """XYZ (and spectra) of the environment seen directly along camera rays."""
+    C = env_lookup(env, directions)
+    if not spectral:  # (J, 3) first: a (P, J) @ (J, wl) product per pixel would dominate large frames
+        return C @ (env.basis @ cmf), None
+    E = C @ env.basis
+    return E @ cmf, E

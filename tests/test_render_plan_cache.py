@@ -1,0 +1,73 @@
+"""Every trace-time choice of the shader is a field of Plan, hence of the compile cache key: no stale programs."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jkatana.render import frame, shading
+from jkatana.render.shading import Material, Pixels, Plan, build_environment, fresnel_table, shade
+from jkatana.spectral import DEFAULT_GRID
+
+# a value different from the default for every field of Plan
+ALTERNATIVES = {"mode": "paper", "samples": 8, "hiraji": False, "hamon": False, "mirror": True,
+                "env_sampling": False, "factored": True, "fresnel_rank": 3, "lights": 1, "rough_model": "beckmann",
+                "calibration": 1e5, "spectral": True, "visibility": True, "subpixels": 4}
+
+
+def test_every_plan_field_has_an_alternative():
+    assert set(ALTERNATIVES) == {f.name for f in dataclasses.fields(Plan)}
+
+
+def test_no_module_level_switch_changes_the_shader():
+    """The trace-time switches the shader used to read from module globals are gone (Plan fields or arguments)."""
+    for name in ("SEQUENCE", "SUBPIXEL_ORDER", "ENV_DENSITY"):
+        assert not hasattr(shading, name), name
+    # what is left at module level are constants of the numerics, not switches
+    upper = {k for k, v in vars(shading).items() if k.isupper() and not callable(v)}
+    assert upper <= {"MIRROR_MU", "FRESNEL_TABLE", "MODES", "FRESNEL_RANK_TOL", "_RANK_CACHE"}, upper
+
+
+@pytest.mark.parametrize("field", sorted(ALTERNATIVES))
+def test_changing_a_plan_field_gives_another_compiled_program(field):
+    base = Plan(mode="reference", samples=4, fresnel_rank=0)
+    other = dataclasses.replace(base, **{field: ALTERNATIVES[field]})
+    assert other != base
+    assert frame._compiled(other, 1, 1024)[0] is not frame._compiled(base, 1, 1024)[0]
+    assert frame._compiled(base, 1, 1024)[0] is frame._compiled(base, 1, 1024)[0]  # and the same plan hits
+
+
+def _inputs():
+    grid = DEFAULT_GRID
+    radiance = np.random.default_rng(0).uniform(0.5, 1.5, (4, 8, grid.size))  # not grey: full spectra
+    env, factored, _ = build_environment(radiance, dtype=jnp.float32)
+    assert not factored
+    n = jnp.full((grid.size,), 2.9, jnp.float32)
+    mat = Material(fresnel_table(n, n), jnp.float32(79000.0), jnp.float32(43000.0))
+    P = 4
+    nrm = jnp.tile(jnp.asarray([[0.0, 0.0, 1.0]], jnp.float32), (P, 1))
+    view = jnp.tile(jnp.asarray([[0.3, 0.0, 0.954]], jnp.float32), (P, 1))
+    px = Pixels(jnp.zeros((P, 3), jnp.float32), nrm, view, jnp.full((P,), 0.5, jnp.float32),
+                jnp.full((P,), 0.05, jnp.float32), jnp.full((P,), 0.1, jnp.float32))
+    cmf = jnp.ones((grid.size, 3), jnp.float32) / grid.size
+    return mat, env, px, cmf
+
+
+@pytest.mark.parametrize("field,value", [("mode", "paper"), ("samples", 8), ("hiraji", False), ("hamon", False),
+                                         ("mirror", True), ("env_sampling", False), ("rough_model", "beckmann"),
+                                         ("calibration", 1e5), ("spectral", True)])
+def test_changing_a_plan_field_changes_the_traced_program(field, value):
+    """Not only the cache key: the program the shader traces differs (so the field is really a trace-time choice)."""
+    mat, env, px, cmf = _inputs()
+    key = jax.random.PRNGKey(0)
+    base = Plan(mode="reference", samples=4, fresnel_rank=0)
+    other = dataclasses.replace(base, **{field: value})
+
+    def program(plan):
+        return str(jax.make_jaxpr(lambda m, e, p, c, k: shade(plan, m, e, None, p, c, k))(mat, env, px, cmf, key))
+
+    assert program(other) != program(base)
