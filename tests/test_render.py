@@ -154,7 +154,7 @@ def test_point_light_matches_analytic_brdf():
 
     t, b = tangent_frame(jnp.asarray(N))
     Ll, Vl = to_local(jnp.asarray(Lw), t, b, jnp.asarray(N)), to_local(jnp.asarray(V), t, b, jnp.asarray(N))
-    fc = np.asarray(Hiraji(79000.0, 0.3).brdf_cos(Ll, Vl, c))
+    fc = np.asarray(Hiraji(79000.0, 0.3).brdf_cos(Ll, Vl, Conductor.from_table("Fe-Johnson", GRID)))  # float64
     expect = _xyz_of(fc / r2[:, None])
     got = f.xyz[gb.mask]
     big = expect[:, 1] > 1e-3 * expect[:, 1].max()

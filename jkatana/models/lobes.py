@@ -74,7 +74,7 @@ WIDTH_MIN = 1e-7
 COS_FLOOR = 1e-7
 
 
-def reflect(V: Float[Array, "*b 3"], h: Float[Array, "*b 3"]) -> Float[Array, "*b 3"]:
+def reflect(V: Float[Array, "*#b 3"], h: Float[Array, "*#b 3"]) -> Float[Array, "*#b 3"]:
     """Mirror ``V`` about the unit facet normal ``h``: L = 2 (V·h) h − V."""
     return 2.0 * jnp.sum(V * h, -1, keepdims=True) * h - V
 
@@ -102,14 +102,14 @@ class Lobe(eqx.Module):
     def pdf(self, L, V):
         raise NotImplementedError
 
-    def f_cos(self, L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]) -> Float[Array, "*b"]:
+    def f_cos(self, L: Float[Array, "*#b 3"], V: Float[Array, "*#b 3"]) -> Float[Array, "*#b"]:
         """f_r cos θi with the Fresnel factor taken as 1 (sum of :meth:`terms`)."""
         total = 0.0
         for a, _ in self.terms(L, V):
             total = total + a
         return total
 
-    def brdf_cos(self, L, V, conductor) -> Float[Array, "*b wl"]:
+    def brdf_cos(self, L, V, conductor) -> Float[Array, "*#b wl"]:
         """f_r cos θi with the conductor's Fresnel factor: Σ_j a_j F(cos_F_j, λ) → ``(*b, wl)``."""
         total = 0.0
         for a, c in self.terms(L, V):
