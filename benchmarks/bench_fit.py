@@ -28,7 +28,7 @@ def _campaign(region="hiraji", seed=0):
     from jkatana.measure.protocol import paper_protocol
 
     table, _ = synthetic.simulate_table(paper_protocol(), region, seed=seed,
-                                        noise=synthetic.NoiseModel(relative=0.02, floor=20.0))
+                                        noise=synthetic.NoiseModel(relative=0.02, absolute=20.0))
     return FitData.from_table(table, region)
 
 

@@ -52,20 +52,41 @@ Z95 = 1.959963984540054
 class NoiseModel:
     """σ(ρ)² = (relative·ρ)² + shot·|ρ| + absolute² (camera units).
 
-    The same form as :class:`jkatana.measure.synthetic.NoiseModel`: a
-    multiplicative term (flicker), a Poisson-like term and an absolute floor
+    One noise model for simulation and fitting: a multiplicative term (source
+    flicker), a Poisson-like term (variance ∝ signal) and an absolute floor
     (read noise, quantisation, stray light). Without the floor the far tail of
     a mirror lobe (values at 1e-55 of the peak) would count as exact
-    information.
+    information. All terms default to 0 (no noise); every term must be finite
+    and ≥ 0.
+
+    **Arguments:**
+
+    - `relative`: multiplicative standard deviation (e.g. 0.02 = 2 %).
+    - `absolute`: absolute standard deviation (camera units).
+    - `shot`: variance per unit signal (camera units).
     """
 
-    relative: float = 0.02
-    absolute: float = 1.0
+    relative: float = 0.0
+    absolute: float = 0.0
     shot: float = 0.0
 
+    def __post_init__(self):
+        from jkatana.errors import InputError
+
+        for name in ("relative", "absolute", "shot"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
+                raise InputError(f"noise parameter must be finite and >= 0, got {v!r}", field=name)
+
     def sigma(self, rho):
-        rho = jnp.abs(rho)
-        return jnp.sqrt((self.relative * rho) ** 2 + self.shot * rho + self.absolute**2)
+        """σ at ``rho``: a jax array for a jax input, numpy float64 otherwise."""
+        xp = jnp if isinstance(rho, jax.Array) else np
+        rho = xp.abs(rho if xp is jnp else np.asarray(rho, np.float64))
+        return xp.sqrt((self.relative * rho) ** 2 + self.shot * rho + self.absolute**2)
+
+    @property
+    def is_zero(self) -> bool:
+        return self.relative == 0 and self.shot == 0 and self.absolute == 0
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
