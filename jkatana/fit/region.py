@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -74,6 +75,14 @@ class FitData:
                    usable, region=region, source=None if source is None else str(source))
 
     @property
+    def has_sigma(self) -> bool:
+        """True when every usable row has a positive, finite σ (then fits use it as given)."""
+        if self.sigma is None:
+            return False
+        s = self.sigma[self.usable]
+        return bool(np.all(np.isfinite(s) & (s > 0)))
+
+    @property
     def incidences(self) -> np.ndarray:
         """Incidence angles (degrees) that have usable rows."""
         return np.unique(np.round(self.theta_i_deg[self.usable], 6))
@@ -106,11 +115,48 @@ class Setup:
         return load(self.optical_constants).on_grid(self.grid)
 
     def describe(self) -> dict:
+        """The setup as the parameter file stores it.
+
+        Names are kept as given; the camera sensitivity and light spectrum on
+        the grid are stored too (``camera_sensitivity``, ``light_spectrum``), so
+        a file fitted with an array or a sensitivity file that has since moved
+        can still be re-read by :func:`Setup.from_dict`.
+        """
+        from jkatana.measure.camera import camera_sensitivity, light_spectrum
+
         g = self.grid
         return dict(optical_constants=str(self.optical_constants),
                     grid=dict(start=float(g.start), stop=float(g.stop), step=float(g.step), size=int(g.size)),
-                    camera=self.camera if isinstance(self.camera, str) else "array",
-                    light=self.light if isinstance(self.light, (str, int, float)) else "array")
+                    camera=str(self.camera) if isinstance(self.camera, (str, Path)) else "array",
+                    light=self.light if isinstance(self.light, (str, int, float)) else "array",
+                    camera_sensitivity=np.asarray(camera_sensitivity(self.camera, g), np.float64).tolist(),
+                    light_spectrum=np.asarray(light_spectrum(self.light, g), np.float64).tolist())
+
+    @classmethod
+    def from_dict(cls, d: dict, path=None) -> "Setup":
+        """The setup of a parameter file (inverse of :meth:`describe`; older files without arrays too)."""
+        from jkatana.spectral.grid import WavelengthGrid
+
+        g = d.get("grid") or {}
+        try:
+            grid = WavelengthGrid(g["start"], g["stop"], g["step"]) if g else DEFAULT_GRID
+        except (KeyError, TypeError, ValueError):
+            raise InputError(f"not a wavelength grid: {g!r}", path=path, field="grid") from None
+
+        def arr(key, name_key, default):
+            a = d.get(key)
+            if isinstance(a, list) and len(a) == grid.size:
+                return np.asarray(a, np.float64)
+            name = d.get(name_key)
+            if name is None:
+                return default
+            if name == "array":
+                raise InputError(f"{name_key} was an array and the file lacks {key!r}", path=path, field=key)
+            return name
+
+        return cls(optical_constants=d.get("optical_constants") or "Fe-Johnson", grid=grid,
+                   camera=arr("camera_sensitivity", "camera", DEFAULT_CAMERA),
+                   light=arr("light_spectrum", "light", "D65"))
 
 
 @dataclasses.dataclass
@@ -200,8 +246,11 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
     - `tilt`, `floor`: free sample tilt (degrees, towards the light) / constant floor.
     - `solver`: ``"lm"`` (optimistix Levenberg–Marquardt), ``"dogleg"``, ``"gn"``
       (Gauss–Newton) or ``"jaxopt"`` (jaxopt LM, Madsen–Nielsen stop).
-    - `noise`: a :class:`NoiseModel`, or ``"auto"`` to estimate it from the
-      table (:func:`~jkatana.fit._solve.estimate_noise`).
+    - `noise`: ``"auto"`` (default): the table's per-row σ as given when every
+      usable row has a positive finite σ, else a :class:`NoiseModel` estimated
+      from the table (:func:`~jkatana.fit._solve.estimate_noise`);
+      ``"given"``: the per-row σ (an error without it); ``"model"``: always
+      the estimated noise model; or a :class:`NoiseModel`.
     - `start`: None/"closed" (log-linear closed form), "grid", a dict of
       natural values, or a parameter vector. `multistart`: also try the grid start.
     - `per_incidence`: compute per-incidence quality and refits.
@@ -209,8 +258,8 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
     - `dtype`: float64 (default). float32 works only with ``jax_enable_x64`` off
       (lineax crashes on mixed dtypes otherwise; see the issue's trap):
       run float32 fits in a separate process.
-    - `irls`: re-evaluate σ at the fitted model and refit once (σ from the data
-      biases the fit towards low-fluctuating points).
+    - `irls`: with a noise model, re-evaluate σ at the fitted model and refit
+      once (σ from the data biases the fit towards low-fluctuating points).
 
     **Returns:** :class:`RegionFit`.
     """
@@ -222,18 +271,28 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
                          "run them in a separate process")
     n, k = setup.nk()
     terms = prepare(model, data.theta_i_deg, data.theta_r_deg, n, k, setup.weights(), dtype)
+    given = None
     if isinstance(noise, str):
-        if noise != "auto":
-            raise InputError(f"noise must be 'auto' or a NoiseModel, got {noise!r}", field="noise")
+        if noise not in ("auto", "given", "model"):
+            raise InputError(f"noise must be 'auto', 'given', 'model' or a NoiseModel, got {noise!r}",
+                             field="noise")
+        if noise in ("auto", "given") and data.has_sigma:
+            given = np.where(data.usable, data.sigma, 1.0)
+        elif noise == "given":
+            raise InputError("noise='given' needs a positive finite σ on every usable row", path=data.source,
+                             field="sigma")
         noise = estimate_noise(data.value[data.usable],
                                None if data.sigma is None else data.sigma[data.usable])
     y_np = np.where(data.usable, data.value, 0.0)
     y = jnp.asarray(y_np, dtype)
     use = jnp.asarray(data.usable)
-    w = jnp.where(use, 1.0 / noise.sigma(y), 0.0).astype(dtype)
+    if given is not None:
+        w = jnp.where(use, 1.0 / jnp.asarray(given, dtype), 0.0).astype(dtype)
+    else:
+        w = jnp.where(use, 1.0 / noise.sigma(y), 0.0).astype(dtype)
     out = fit_arrays(terms, y, w, spec, start=start, solver=solver, max_steps=max_steps, multistart=multistart)
     steps = int(out["steps"])
-    if irls and np.all(np.isfinite(out["p"])):
+    if irls and given is None and np.all(np.isfinite(out["p"])):
         m = green(jnp.asarray(out["p"]), terms, spec)
         w = jnp.where(use, 1.0 / noise.sigma(m), 0.0).astype(dtype)
         out2 = fit_arrays(terms, y, w, spec, start=out["p"], solver=solver, max_steps=max_steps)
@@ -253,7 +312,8 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
     diagnostics = dict(solver=solver, steps=steps, cost=float(out["cost"]), cost_start=float(out["cost0"]),
                        gn_decrement=float(out["decrement"]), grad_inf_norm=float(out["grad_norm"]),
                        chi2_dof=lap["chi2_dof"], n_points=n_used, n_excluded=int(data.value.size - n_used),
-                       dof=max(1, n_used - spec.size), noise=noise.as_dict(),
+                       dof=max(1, n_used - spec.size),
+                       noise=noise.as_dict() | dict(sigma="per-row (given)" if given is not None else "model"),
                        start=to_natural(out["p0"], spec) if np.all(np.isfinite(out["p0"])) else None,
                        dtype=str(np.dtype(dtype)), reasons=reasons)
     fit = RegionFit(region=data.region, spec=spec, p=np.asarray(out["p"], np.float64), values=values,

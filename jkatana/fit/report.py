@@ -38,14 +38,9 @@ def _refit_from_params(d: dict, table_path: Path):
     from jkatana.fit.region import FitData, Setup, default_model
     from jkatana.fit._model import prepare
     from jkatana.measure.table import read_table
-    from jkatana.spectral.grid import WavelengthGrid
-
     table = read_table(table_path)
     data = FitData.from_table(table, d["region"], source=table_path)
-    g = d.get("grid") or {}
-    grid = WavelengthGrid(g["start"], g["stop"], g["step"]) if g else WavelengthGrid(400, 700, 5)
-    setup = Setup(optical_constants=d["optical_constants"], grid=grid,
-                  camera=d.get("camera") or "Nikon 5100 (NPL)", light=d.get("light") or "D65")
+    setup = Setup.from_dict(d)
     opts = d.get("options") or {}
     spec = ModelSpec(d.get("model") or default_model(d["region"]), bool(opts.get("tilt")), bool(opts.get("floor")))
     n, k = setup.nk()
@@ -90,9 +85,12 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
                              field="data.table")
         data, spec, terms, p = _refit_from_params(d, tpath)
         m = np.asarray(green(jnp.asarray(p), terms, spec))
-        nz = d["diagnostics"].get("noise") or {}
-        noise = NoiseModel(**{k: nz[k] for k in ("relative", "absolute", "shot") if k in nz})
-        sig = np.asarray(noise.sigma(jnp.asarray(m)))
+        nz = (d.get("diagnostics") or {}).get("noise") or {}
+        if nz.get("sigma") == "per-row (given)" and data.has_sigma:
+            sig = np.where(data.usable, data.sigma, np.inf)
+        else:
+            noise = NoiseModel(**{k: nz[k] for k in ("relative", "absolute", "shot") if k in nz})
+            sig = np.asarray(noise.sigma(jnp.asarray(m)))
         incs = data.incidences
         ncol = min(3, len(incs))
         nrow = int(np.ceil(len(incs) / ncol))
