@@ -32,3 +32,14 @@ from jkatana.models.reflectance import (
     blend as blend,
     paper_models as paper_models,
 )
+from jkatana.models.lobes import (
+    GGX as GGX,
+    GTR as GTR,
+    LOBES as LOBES,
+    Beckmann as Beckmann,
+    Gaussian as Gaussian,
+    GaussianVCavity as GaussianVCavity,
+    Lobe as Lobe,
+    Mixture as Mixture,
+    lobe_from_params as lobe_from_params,
+)

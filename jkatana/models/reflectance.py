@@ -42,10 +42,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from jkatana.models._safe import safe_div
 from jkatana.models.fresnel import fresnel_conductor
-from jkatana.models.geometry import half_vector_terms
-from jkatana.models.microfacet import gaussian_facet, gaussian_normalisation, vcavity_over_cos
+from jkatana.models.lobes import Gaussian, GaussianVCavity
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
 
 
@@ -87,60 +85,58 @@ def _lobe_times_fresnel(lobe, cos_theta, conductor: "Conductor"):
 
 
 class Hiraji(eqx.Module):
-    """Paper eq. (1): χ D(φ, μ0) F(θi) E(λ). Defaults are the paper's fit."""
+    """Paper eq. (1): χ D(φ, μ0) F(θi) E(λ). Defaults are the paper's fit.
+
+    The lobe itself is :class:`jkatana.models.lobes.Gaussian`; this class adds the
+    paper's camera-unit scale χ and the two rendering conventions.
+    """
 
     chi: Float[Array, "*p"] = 79000.0
     mu: Float[Array, "*p"] = 0.05
 
-    def _terms(self, L, V):
-        cos_i, cos_r = L[..., 2], V[..., 2]
-        phi, _, cos_th, valid = half_vector_terms(L, V)
-        visible = valid & (cos_i >= 0) & (cos_r >= 0)
-        return cos_i, cos_th, jnp.where(visible, gaussian_facet(phi, self.mu), 0.0)
+    def lobe(self, calibration: float | None = None) -> Gaussian:
+        """The rendering lobe: normalised (``calibration=None``) or with scale χ/K."""
+        if calibration is None:
+            return Gaussian(self.mu)
+        return Gaussian(self.mu, self.chi / calibration, normalised=False)
 
     def camera(self, L: Float[Array, "*b 3"], V: Float[Array, "*b 3"], conductor: Conductor,
                E: Float[Array, "wl"] | None = None) -> Float[Array, "*b wl"]:
         """Eq. (1) in camera units: χ · D(φ, μ0) · F(θi) [· E(λ)]."""
-        cos_i, _, d = self._terms(L, V)
-        return _spectral(_lobe_times_fresnel(self.chi * d, cos_i, conductor), E)
+        ((a, c),) = Gaussian(self.mu, self.chi, normalised=False).terms(L, V)
+        return _spectral(_lobe_times_fresnel(a, c, conductor), E)
 
     def brdf_cos(self, L, V, conductor: Conductor, calibration: float | None = None
                  ) -> Float[Array, "*b wl"]:
         """f_r cos θi for rendering (module docstring: calibrated or normalised)."""
-        cos_i, cos_th, d = self._terms(L, V)
-        if calibration is None:
-            scale = safe_div(gaussian_normalisation(self.mu), 4.0 * cos_th)
-        else:
-            scale = self.chi / calibration
-        return _lobe_times_fresnel(scale * d, cos_i, conductor)
+        ((a, c),) = self.lobe(calibration).terms(L, V)
+        return _lobe_times_fresnel(a, c, conductor)
 
 
 class Hamon(eqx.Module):
-    """Paper eq. (2), Torrance–Sparrow: β F(θH) D(φ, μ1) G / cos θr E(λ)."""
+    """Paper eq. (2), Torrance–Sparrow: β F(θH) D(φ, μ1) G / cos θr E(λ).
+
+    The lobe itself is :class:`jkatana.models.lobes.GaussianVCavity`.
+    """
 
     beta: Float[Array, "*p"] = 43000.0
     mu: Float[Array, "*p"] = 0.05
 
-    def _terms(self, L, V):
-        cos_i, cos_r = L[..., 2], V[..., 2]
-        phi, cos_nh, cos_th, valid = half_vector_terms(L, V)
-        visible = valid & (cos_i >= 0) & (cos_r >= 0)
-        g_over_cos = vcavity_over_cos(cos_nh, jnp.maximum(cos_r, 0.0), jnp.maximum(cos_i, 0.0), cos_th)
-        return cos_th, jnp.where(visible, gaussian_facet(phi, self.mu) * g_over_cos, 0.0)
+    def lobe(self, calibration: float | None = None) -> GaussianVCavity:
+        """The rendering lobe: normalised (``calibration=None``) or with scale β/K."""
+        if calibration is None:
+            return GaussianVCavity(self.mu)
+        return GaussianVCavity(self.mu, self.beta / calibration, normalised=False)
 
     def camera(self, L, V, conductor: Conductor, E=None) -> Float[Array, "*b wl"]:
         """Eq. (2) in camera units: β · F(θH) · D(φ, μ1) · G / cos θr [· E(λ)]."""
-        cos_th, dg = self._terms(L, V)
-        return _spectral(_lobe_times_fresnel(self.beta * dg, cos_th, conductor), E)
+        ((a, c),) = GaussianVCavity(self.mu, self.beta, normalised=False).terms(L, V)
+        return _spectral(_lobe_times_fresnel(a, c, conductor), E)
 
     def brdf_cos(self, L, V, conductor: Conductor, calibration: float | None = None):
         """f_r cos θi for rendering: Cook–Torrance F D̂ G /(4 cos θr) with D̂ = N(μ) D, or β/K."""
-        cos_th, dg = self._terms(L, V)
-        if calibration is None:
-            scale = gaussian_normalisation(self.mu) / 4.0
-        else:
-            scale = self.beta / calibration
-        return _lobe_times_fresnel(scale * dg, cos_th, conductor)
+        ((a, c),) = self.lobe(calibration).terms(L, V)
+        return _lobe_times_fresnel(a, c, conductor)
 
 
 def blend(w: Float[Array, "*b"], c_f: Float[Array, "*b wl"], c_t: Float[Array, "*b wl"]):

@@ -1,0 +1,534 @@
+"""Reflection lobes as objects: value, importance sampling and pdf side by side.
+
+Each lobe is one :class:`equinox.Module` holding its parameters (leaves: any
+float dtype, any batch shape that broadcasts with the directions), in the
+way pbrt-v4 keeps a BxDF's ``f``, ``Sample_f`` and ``PDF`` together (Pharr,
+Jakob & Humphreys, *Physically Based Rendering*, 4th ed., 2023, §9.1). All
+methods are pure JAX, vectorised over any batch shape, and jit/vmap/grad-able
+in float32 and float64. Directions are unit vectors in the local shading
+frame (N = +z, :mod:`jkatana.models.geometry`): ``L`` towards the light,
+``V`` towards the viewer.
+
+API of every lobe:
+
+- ``terms(L, V) -> ((a, cos_F), ...)``: f_r(L, V)·cos θi **without the Fresnel
+  factor**, as a tuple of terms; term ``j`` is multiplied by ``F(cos_F_j, λ)``.
+  A single lobe has one term (its own Fresnel cosine: cos θi for the paper's
+  hiraji lobe, cos θH for microfacet lobes); a :class:`Mixture` has the terms
+  of both parts, weighted. Keeping F outside lets a renderer take it from a
+  table or fold it into the environment.
+- ``f_cos(L, V)``: Σ a_j — the value with F ≡ 1 (white furnace).
+- ``brdf_cos(L, V, conductor)``: Σ a_j F(cos_F_j, λ) → ``(*b, wl)``.
+- ``sample(V, u, uc=None) -> (L, pdf)``: an incident direction from uniforms
+  ``u (*b, 2)`` in [0, 1) (``uc (*b,)`` picks a :class:`Mixture`'s part) and
+  its density per steradian of L. ``L`` may lie below the surface; its value
+  is then 0. Samples whose facet normal faces away from V get pdf 0 (and
+  value 0): drop them (unbiased, since f_r = 0 there).
+- ``pdf(L, V)``: the density of ``sample`` per steradian of L.
+- ``sample_h(u)``, ``pdf_h(φ, cos φ)``: the facet-normal sampler and its density
+  per steradian of h, for callers that reflect themselves.
+- ``to_params() -> dict`` / ``LOBES[name].from_params(dict)`` /
+  :func:`lobe_from_params`: a JSON-able description ``{"lobe": name, ...}``
+  so that a parameter file can name its lobe.
+
+Microfacet lobes (:class:`Beckmann`, :class:`GGX`, :class:`GTR`) are normalised
+Cook–Torrance BRDFs f_r = F D G / (4 cos θi cos θr) (Cook & Torrance 1982;
+Walter, Marschner, Li & Torrance 2007, "Microfacet models for refraction
+through rough surfaces", EGSR, eq. 20) with separable Smith shadowing, sampled
+by their distribution of normals (pdf_h = D cos φ, then the reflection
+Jacobian 1/(4 V·H), Walter et al. eq. 14). The paper's two lobes (Mochizuki
+et al., eqs. 1–2) are :class:`Gaussian` and :class:`GaussianVCavity`; they use
+the facet angle φ from ``atan2`` (exact for narrow lobes in float32) and are
+sampled by a Rayleigh distribution of φ (density ∝ D(φ, μ) sin φ ≈ φ D), not
+truncated: facet normals beyond φ = π/2 get pdf 0, so the pdf integrates to
+``1 − exp(−ln2 (π/2)²/μ²)`` over facet normals (:meth:`Gaussian.facet_mass`;
+< 1e-6 for μ ≤ 0.42).
+
+For fitting camera units, multiply ``brdf_cos`` by a fitted scale; the
+paper's camera-unit forms are :class:`jkatana.models.Hiraji` /
+:class:`jkatana.models.Hamon`, built on these lobes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from jkatana.models._safe import safe_div, safe_sqrt
+from jkatana.models.geometry import half_vector_terms
+from jkatana.models.microfacet import (LN2, beckmann_phi, gaussian_facet, gaussian_normalisation,
+                                       smith_beckmann, vcavity_over_cos)
+
+#: Largest uniform used by the inverse-CDF warps (keeps log(1 − u) finite in float32).
+U_MAX = 1.0 - 1e-7
+#: Smallest lobe width (μ or α, radians / RMS slope) the samplers use: narrower lobes sample as this one.
+WIDTH_MIN = 1e-7
+#: Floor of cos θH and cos θr used as divisors in the lobes' Jacobians (as pbrt-v4's microfacet code).
+COS_FLOOR = 1e-7
+
+
+def reflect(V: Float[Array, "*b 3"], h: Float[Array, "*b 3"]) -> Float[Array, "*b 3"]:
+    """Mirror ``V`` about the unit facet normal ``h``: L = 2 (V·h) h − V."""
+    return 2.0 * jnp.sum(V * h, -1, keepdims=True) * h - V
+
+
+def _from_polar(cos_t, sin_t, psi):
+    return jnp.stack([sin_t * jnp.cos(psi), sin_t * jnp.sin(psi), cos_t], -1)
+
+
+def _split(u):
+    u = jnp.asarray(u)
+    return u[..., 0], u[..., 1]
+
+
+class Lobe(eqx.Module):
+    """Base class: subclasses define ``terms``, ``sample``, ``pdf`` and the class attribute ``name``."""
+
+    name: ClassVar[str] = ""
+
+    def terms(self, L, V):
+        raise NotImplementedError
+
+    def sample(self, V, u, uc=None):
+        raise NotImplementedError
+
+    def pdf(self, L, V):
+        raise NotImplementedError
+
+    def f_cos(self, L: Float[Array, "*b 3"], V: Float[Array, "*b 3"]) -> Float[Array, "*b"]:
+        """f_r cos θi with the Fresnel factor taken as 1 (sum of :meth:`terms`)."""
+        total = 0.0
+        for a, _ in self.terms(L, V):
+            total = total + a
+        return total
+
+    def brdf_cos(self, L, V, conductor) -> Float[Array, "*b wl"]:
+        """f_r cos θi with the conductor's Fresnel factor: Σ_j a_j F(cos_F_j, λ) → ``(*b, wl)``."""
+        total = 0.0
+        for a, c in self.terms(L, V):
+            total = total + a[..., None] * conductor.fresnel(c)
+        return total
+
+    def to_params(self) -> dict:
+        """``{"lobe": name, field: value, ...}`` with plain floats/lists (JSON-able)."""
+        out = {"lobe": self.name}
+        for f in _field_names(type(self)):
+            v = getattr(self, f)
+            if isinstance(v, Lobe):
+                out[f] = v.to_params()
+            elif isinstance(v, (bool, str)) or v is None:
+                out[f] = v
+            else:
+                out[f] = np.asarray(v).tolist()
+        return out
+
+    @classmethod
+    def from_params(cls, params: dict, dtype=None) -> "Lobe":
+        """Inverse of :meth:`to_params` (the ``"lobe"`` key, if present, must name this class)."""
+        p = dict(params)
+        name = p.pop("lobe", cls.name)
+        if name != cls.name:
+            raise ValueError(f"params name lobe {name!r}, not {cls.name!r}")
+        kw = {}
+        for k, v in p.items():
+            if k not in _field_names(cls):
+                raise ValueError(f"unknown field {k!r} of lobe {cls.name!r}")
+            if isinstance(v, dict):
+                kw[k] = lobe_from_params(v, dtype)
+            elif isinstance(v, (bool, str)) or v is None:
+                kw[k] = v
+            else:
+                kw[k] = jnp.asarray(v, dtype) if dtype is not None else jnp.asarray(v)
+        return cls(**kw)
+
+
+def _field_names(cls) -> tuple[str, ...]:
+    return tuple(f.name for f in dataclasses.fields(cls))
+
+
+def _sampled(lobe, V, h):
+    """``(L, pdf(L, V))`` for the sampled facet normal ``h``; pdf 0 where h is below the surface or faces away from V.
+
+    Such samples are dropped (f_r = 0 there), so the density of the remaining ones
+    is :meth:`Lobe.pdf` (reflection maps h and −h to the same L; only the branch
+    with V·h > 0, h_z > 0 is counted). The pdf is evaluated from L, as the value
+    is, so f·cos/pdf keeps its bound; where a float32 L cannot resolve the lobe
+    (angular error ~eps/cos θH against a width μ, e.g. μ = 1e-6 with cos θr < 0.9)
+    a sample may get pdf 0 and is dropped like the others.
+    """
+    L = reflect(V, h)
+    ok = (h[..., 2] > 0) & (jnp.sum(V * h, -1) > 0)
+    return L, jnp.where(ok, lobe.pdf(L, V), 0.0)
+
+
+# ---------------------------------------------------------------- the paper's Gaussian lobes
+
+
+def _rayleigh_h(mu, u):
+    """Facet normal with φ ~ Rayleigh(σ = μ/√(2 ln 2)) (density ∝ φ D(φ, μ)), azimuth uniform."""
+    u1, u2 = _split(u)
+    sigma = jnp.maximum(mu, WIDTH_MIN) / math.sqrt(2 * LN2)
+    phi = sigma * jnp.sqrt(-2.0 * jnp.log1p(-jnp.minimum(u1, U_MAX)))
+    return _from_polar(jnp.cos(phi), jnp.sin(phi), 2 * jnp.pi * u2)
+
+
+def _rayleigh_pdf_h(mu, phi):
+    """Density per steradian of the facet normals of :func:`_rayleigh_h`: exp(−φ²/2σ²) / (2π σ² sinc φ), 0 beyond π/2."""
+    sigma2 = (jnp.maximum(mu, WIDTH_MIN) ** 2) / (2 * LN2)
+    d = jnp.exp(-jnp.minimum(phi * phi / (2 * sigma2), 80.0))
+    return jnp.where(phi < jnp.pi / 2, d / (2 * jnp.pi * sigma2) / jnp.sinc(phi / jnp.pi), 0.0)
+
+
+def _rayleigh_pdf(mu, L, V):
+    """Density per steradian of L of :func:`_rayleigh_h` reflected about V: p_h / (4 V·H), 0 where V·H ≤ 0."""
+    phi, _, cos_th, valid = half_vector_terms(L, V)
+    p_h = _rayleigh_pdf_h(mu, phi)
+    return jnp.where(valid & (cos_th > 0), p_h / (4.0 * jnp.maximum(cos_th, COS_FLOOR)), 0.0)
+
+
+class _GaussianBase(Lobe):
+    mu: Float[Array, "*p"]
+    scale: Float[Array, "*p"]
+    normalised: bool = eqx.field(static=True)
+
+    def __init__(self, mu, scale=None, normalised: bool = True):
+        """``mu``: half-width at half-maximum of the facet angle (rad). ``normalised=True``: ``scale`` is
+        N(μ) (:func:`~jkatana.models.microfacet.gaussian_normalisation`, computed here when omitted) and the
+        lobe tends to a perfect mirror as μ → 0; ``False``: ``scale`` multiplies D as given (the paper's
+        χ/K or β/K, calibrated convention)."""
+        self.mu = mu
+        self.normalised = bool(normalised)
+        if scale is None:
+            if not normalised:
+                raise ValueError("a calibrated Gaussian lobe needs its scale")
+            scale = gaussian_normalisation(mu)
+        self.scale = scale
+
+    def sample_h(self, u):
+        """Facet normal: φ ~ Rayleigh(σ = μ/√(2 ln 2)), azimuth uniform (not truncated at π/2)."""
+        return _rayleigh_h(self.mu, u)
+
+    def sample(self, V, u, uc=None):
+        return _sampled(self, V, self.sample_h(u))
+
+    def pdf(self, L, V):
+        return _rayleigh_pdf(self.mu, L, V)
+
+    def pdf_h(self, phi, cos_phi):
+        """Density per steradian of sampled facet normals at facet angle φ."""
+        return _rayleigh_pdf_h(self.mu, phi)
+
+    def facet_mass(self):
+        """Probability that a sampled facet normal lies in the upper hemisphere: 1 − exp(−ln2 (π/2)²/μ²)."""
+        mu = jnp.maximum(jnp.asarray(self.mu), WIDTH_MIN)
+        return -jnp.expm1(-LN2 * (jnp.pi / 2) ** 2 / (mu * mu))
+
+    def to_params(self) -> dict:
+        out = super().to_params()
+        if self.normalised:
+            out.pop("scale")  # recomputed from μ
+        return out
+
+
+class Gaussian(_GaussianBase):
+    """The paper's hiraji lobe (Mochizuki et al., eq. 1): f_r cos θi = s · D(φ, μ), Fresnel at θi.
+
+    D(φ, μ) = exp(−ln2 φ²/μ²) (:func:`~jkatana.models.microfacet.gaussian_facet`).
+    Normalised: s = N(μ)/(4 cos θH) (Walter et al. 2007, eq. 20 with the paper's
+    D and no shadowing), so ∫ f_r cos θi dω → 1 as μ → 0; calibrated: s = χ/K.
+    0 where L or V is below the surface or L = −V.
+    """
+
+    name: ClassVar[str] = "gaussian"
+
+    def terms(self, L, V):
+        cos_i, cos_r = L[..., 2], V[..., 2]
+        phi, _, cos_th, valid = half_vector_terms(L, V)
+        visible = valid & (cos_i >= 0) & (cos_r >= 0)
+        d = jnp.where(visible, gaussian_facet(phi, self.mu), 0.0)
+        s = safe_div(self.scale, 4.0 * cos_th) if self.normalised else self.scale
+        return ((s * d, cos_i),)
+
+
+class GaussianVCavity(_GaussianBase):
+    """The paper's hamon lobe (eq. 2), Torrance–Sparrow (1967): s · D(φ, μ) · G / cos θr, Fresnel at θH.
+
+    G is the V-cavity term (:func:`~jkatana.models.microfacet.vcavity_over_cos`
+    gives G / cos θr finite at grazing view). Normalised: s = N(μ)/4 (Cook–Torrance
+    form F D̂ G /(4 cos θr) with D̂ = N(μ) D); calibrated: s = β/K.
+    """
+
+    name: ClassVar[str] = "gaussian-vcavity"
+
+    def terms(self, L, V):
+        cos_i, cos_r = L[..., 2], V[..., 2]
+        phi, cos_nh, cos_th, valid = half_vector_terms(L, V)
+        visible = valid & (cos_i >= 0) & (cos_r >= 0)
+        g_over_cos = vcavity_over_cos(cos_nh, jnp.maximum(cos_r, 0.0), jnp.maximum(cos_i, 0.0), cos_th)
+        dg = jnp.where(visible, gaussian_facet(phi, self.mu) * g_over_cos, 0.0)
+        s = self.scale / 4.0 if self.normalised else self.scale
+        return ((s * dg, cos_th),)
+
+
+# ---------------------------------------------------------------- microfacet lobes
+
+
+class _Microfacet(Lobe):
+    """f_r cos θi = D(h) G1(V) G1(L) / (4 cos θr), Fresnel at θH; sampled by D(h) cos φ."""
+
+    def D(self, phi, cos_phi):
+        raise NotImplementedError
+
+    def G(self, cos_r, cos_i):
+        raise NotImplementedError
+
+    def sample_h(self, u):
+        raise NotImplementedError
+
+    def terms(self, L, V):
+        cos_i, cos_r = L[..., 2], V[..., 2]
+        phi, cos_nh, cos_th, valid = half_vector_terms(L, V)
+        ok = valid & (cos_i > 0) & (cos_r > 0)
+        d = self.D(phi, cos_nh)
+        g = self.G(cos_r, cos_i)
+        return ((jnp.where(ok, d * g / (4.0 * jnp.maximum(cos_r, COS_FLOOR)), 0.0), cos_th),)
+
+    def pdf(self, L, V):
+        phi, cos_nh, cos_th, valid = half_vector_terms(L, V)
+        return jnp.where(valid & (cos_th > 0),
+                         self.D(phi, cos_nh) * cos_nh / (4.0 * jnp.maximum(cos_th, COS_FLOOR)), 0.0)
+
+    def pdf_h(self, phi, cos_phi):
+        """Density per steradian of sampled facet normals: D cos φ."""
+        return self.D(phi, cos_phi) * cos_phi
+
+    def sample(self, V, u, uc=None):
+        return _sampled(self, V, self.sample_h(u))
+
+
+def _tan2_from_phi(phi):
+    c = jnp.cos(phi)
+    t = jnp.tan(jnp.where(c > 0, phi, 0.0))
+    return t * t, c
+
+
+class Beckmann(_Microfacet):
+    """Cook–Torrance with the Beckmann distribution and separable Smith shadowing.
+
+    D = exp(−tan²φ/α²)/(π α² cos⁴φ) (Beckmann & Spizzichino 1963, normalised as
+    Walter et al. 2007, eq. 25), G1 by Walter et al.'s rational approximation
+    (eq. 27); the combination Mitsuba 3's ``roughconductor`` (``beckmann``,
+    ``sample_visible = false``) uses. Sampled by D: tan²φ = −α² ln(1 − u)
+    (Walter et al., eq. 28). α = RMS slope. D is evaluated from φ
+    (:func:`~jkatana.models.microfacet.beckmann_phi`) and sin φ = tan φ cos φ,
+    so narrow lobes keep their shape in float32.
+    """
+
+    alpha: Float[Array, "*p"]
+    name: ClassVar[str] = "beckmann"
+
+    def D(self, phi, cos_phi):
+        return beckmann_phi(phi, self.alpha)
+
+    def G(self, cos_r, cos_i):
+        return smith_beckmann(cos_r, cos_i, self.alpha)
+
+    def sample_h(self, u):
+        u1, u2 = _split(u)
+        t2 = -(self.alpha**2) * jnp.log1p(-jnp.minimum(u1, U_MAX))
+        c = jax.lax.rsqrt(1.0 + t2)
+        return _from_polar(c, safe_sqrt(t2) * c, 2 * jnp.pi * u2)
+
+
+def _smith_g1_ggx(cos_theta, alpha):
+    """Exact Smith G1 for GGX (Walter et al. 2007, eq. 34): 2 cos / (cos + √(cos² + α² sin²)); 0 at cos ≤ 0."""
+    c = jnp.clip(cos_theta, 0.0, 1.0)
+    root = safe_sqrt(c * c + alpha * alpha * (1.0 - c * c))
+    return safe_div(2.0 * c, c + root)
+
+
+class GGX(_Microfacet):
+    """Cook–Torrance with the GGX / Trowbridge–Reitz distribution and exact Smith shadowing.
+
+    D = α² / (π cos⁴φ (α² + tan²φ)²) (Trowbridge & Reitz 1975; Walter et al. 2007,
+    eq. 33), G1 = 2/(1 + √(1 + α² tan²θ)) (eq. 34). Sampled by D (not the visible
+    normals): tan²φ = α² u/(1 − u) (eq. 35). tan φ is taken from φ, not from
+    cos φ, so narrow lobes keep their shape in float32.
+    """
+
+    alpha: Float[Array, "*p"]
+    name: ClassVar[str] = "ggx"
+
+    def D(self, phi, cos_phi):
+        a = jnp.maximum(self.alpha, WIDTH_MIN)
+        c = jnp.cos(phi)
+        t = jnp.tan(jnp.where(c > 0, phi, 0.0))
+        live = (c > 0) & (t < 3e7 * a)
+        q = jnp.where(live, t, 0.0) / a  # tan φ / α: O(1) in the lobe, keeps float32 gradients in range
+        c2 = jnp.where(live, c * c, 1.0)
+        peak = 1.0 / (jnp.pi * a) / a
+        return jnp.where(live, peak / (c2 * c2 * (1.0 + q * q) ** 2), 0.0)
+
+    def G(self, cos_r, cos_i):
+        a = jnp.maximum(self.alpha, WIDTH_MIN)
+        return _smith_g1_ggx(cos_r, a) * _smith_g1_ggx(cos_i, a)
+
+    def sample_h(self, u):
+        u1, u2 = _split(u)
+        a = jnp.maximum(self.alpha, WIDTH_MIN)
+        u1 = jnp.minimum(u1, U_MAX)
+        t2 = a * a * u1 / (1.0 - u1)
+        c = jax.lax.rsqrt(1.0 + t2)
+        s = safe_sqrt(t2) * c
+        return _from_polar(c, s, 2 * jnp.pi * u2)
+
+
+def _exprel(x):
+    """expm1(x)/x, 1 at x = 0 (finite value and gradient)."""
+    small = jnp.abs(x) < 1e-4
+    xs = jnp.where(small, 1.0, x)
+    return jnp.where(small, 1.0 + 0.5 * x, jnp.expm1(xs) / xs)
+
+
+def _log_exprel(x):
+    """log(expm1(x)/x) without overflow: x + log(exprel(−x)) for x > 0."""
+    pos = x > 0
+    return jnp.where(pos, x, 0.0) + jnp.log(_exprel(jnp.where(pos, -x, x)))
+
+
+def _log1prel(y):
+    """log1p(y)/y, 1 at y = 0."""
+    small = jnp.abs(y) < 1e-4
+    ys = jnp.where(small, 1.0, y)
+    return jnp.where(small, 1.0 - 0.5 * y, jnp.log1p(ys) / ys)
+
+
+class GTR(_Microfacet):
+    """Generalised Trowbridge–Reitz (Burley 2012, "Physically-based shading at Disney", SIGGRAPH course).
+
+    D = c / (α² cos²φ + sin²φ)^γ with c = (γ − 1)(α² − 1) / (π (1 − α^{2(1−γ)})),
+    written as c = exprel(ln α²) / (π exprel((1 − γ) ln α²)) (exprel(x) = (eˣ − 1)/x),
+    which is finite at γ = 1 (Berry's distribution) and α = 1 (uniform D = 1/π).
+    γ = 2 is GGX; γ < 2 gives heavier tails (the haze of polished metal), γ > 2
+    lighter ones. Evaluated in log space (no underflow for α = 1e-6, γ ≤ 4).
+    Sampled by D cos φ (Burley 2012, appendix B):
+    cos²φ = (1 − [α^{2(1−γ)}(1 − u) + u]^{1/(1−γ)}) / (1 − α²), in a form that
+    stays accurate at γ → 1 and α → 1. Shadowing: separable Smith G1 of GGX
+    with the same α (Burley 2012 does the same; exact only at γ = 2): for
+    γ < 2 the tails are under-shadowed, and the albedo can exceed 1 at grazing
+    view by a few per cent (γ = 1, α = 0.3, θr = 74°: 1.017).
+    Domain: 0 < α ≤ 1, 1 ≤ γ ≤ 4.
+    """
+
+    alpha: Float[Array, "*p"]
+    gamma: Float[Array, "*p"]
+    name: ClassVar[str] = "gtr"
+
+    def _a(self):
+        a = jnp.clip(self.alpha, WIDTH_MIN, 1.0)
+        return a, 2.0 * jnp.log(a)
+
+    def D(self, phi, cos_phi):
+        a, l = self._a()
+        g = self.gamma
+        t2, c = _tan2_from_phi(phi)
+        live = c > 0
+        c_s = jnp.where(live, c, 1.0)
+        t2_s = jnp.where(live, t2, 0.0)
+        log_c = _log_exprel(l) - _log_exprel((1.0 - g) * l) - math.log(math.pi)
+        log_d = log_c - 2.0 * g * jnp.log(c_s) - g * jnp.log(a * a + t2_s)
+        return jnp.where(live, jnp.exp(jnp.minimum(log_d, 80.0)), 0.0)
+
+    def G(self, cos_r, cos_i):
+        a, _ = self._a()
+        return _smith_g1_ggx(cos_r, a) * _smith_g1_ggx(cos_i, a)
+
+    def sample_h(self, u):
+        u1, u2 = _split(u)
+        u1 = jnp.minimum(u1, U_MAX)
+        _, l = self._a()
+        s = 1.0 - self.gamma
+        sl = s * l
+        # q = ln(α^{2(1−γ)}(1−u) + u)/(1−γ), the log of the bracket raised to 1/(1−γ)
+        near = jnp.abs(sl) < 1.0  # γ ≈ 1 or α ≈ 1: series-safe form
+        sl_n = jnp.where(near, sl, 0.0)
+        y = jnp.expm1(sl_n) * (1.0 - u1)
+        q_over_l = (1.0 - u1) * _exprel(sl_n) * _log1prel(y)
+        sl_f = jnp.where(near, 1.0, sl)
+        s_f = jnp.where(near, 1.0, s)
+        log_t = jnp.logaddexp(sl_f + jnp.log1p(-u1), jnp.log(jnp.maximum(u1, 1e-38)))
+        q_far = log_t / s_f
+        l_n = jnp.where(jnp.abs(l) > 0, l, -1.0)
+        # cos² = expm1(q)/expm1(l) = (q/l) exprel(q)/exprel(l)
+        q = jnp.where(near, q_over_l * l, q_far)
+        ratio = jnp.where(near, q_over_l, q_far / l_n)
+        c2 = jnp.where(jnp.abs(l) > 0, ratio * _exprel(q) / _exprel(l), 1.0 - u1)
+        c2 = jnp.clip(c2, 0.0, 1.0)
+        return _from_polar(jnp.sqrt(c2), safe_sqrt(1.0 - c2), 2 * jnp.pi * u2)
+
+
+# ---------------------------------------------------------------- mixtures
+
+
+class Mixture(Lobe):
+    """Two lobes summed with weights ``weight`` and ``1 − weight``, sampled by that mixture.
+
+    f = w f₁ + (1 − w) f₂; pdf = w p₁ + (1 − w) p₂ (one-sample MIS by the mixture,
+    Veach 1997, §9.2.4). ``uc < w`` picks the first part. The sharp + haze lobe of
+    polished metal is ``Mixture(GGX(α₁), GTR(α₂, γ), w)``; the paper's blend (eq. 5)
+    is ``Mixture(Gaussian(μ0), GaussianVCavity(μ1), w)``. Two parts of the same
+    class draw ONE facet normal from the per-sample selected parameters.
+    """
+
+    first: Lobe
+    second: Lobe
+    weight: Float[Array, "*p"]
+    name: ClassVar[str] = "mixture"
+
+    def terms(self, L, V):
+        w = self.weight
+        return (tuple((w * a, c) for a, c in self.first.terms(L, V))
+                + tuple(((1.0 - w) * a, c) for a, c in self.second.terms(L, V)))
+
+    def pdf(self, L, V):
+        return self.weight * self.first.pdf(L, V) + (1.0 - self.weight) * self.second.pdf(L, V)
+
+    def pdf_h(self, phi, cos_phi):
+        return self.weight * self.first.pdf_h(phi, cos_phi) + (1.0 - self.weight) * self.second.pdf_h(phi, cos_phi)
+
+    def sample_h(self, u, uc):
+        """Facet normal of the part ``uc`` picks."""
+        use1 = uc < self.weight
+        a, b = self.first, self.second
+        if type(a) is type(b) and jax.tree.structure(a) == jax.tree.structure(b):
+            sel = jax.tree.map(lambda x, y: jnp.where(use1, x, y), a, b)
+            return sel.sample_h(u)
+        return jnp.where(use1[..., None], a.sample_h(u), b.sample_h(u))
+
+    def sample(self, V, u, uc=None):
+        if uc is None:
+            raise ValueError("a Mixture needs the lobe-choice uniform uc")
+        return _sampled(self, V, self.sample_h(u, uc))
+
+
+#: Lobes by name (``to_params()["lobe"]``).
+LOBES: dict[str, type[Lobe]] = {c.name: c for c in (Gaussian, GaussianVCavity, Beckmann, GGX, GTR, Mixture)}
+
+
+def lobe_from_params(params: dict, dtype=None) -> Lobe:
+    """The lobe a ``to_params()`` dict describes (its ``"lobe"`` key names the class in :data:`LOBES`)."""
+    name = params.get("lobe")
+    if name not in LOBES:
+        raise ValueError(f"unknown lobe {name!r}; known: {sorted(LOBES)}")
+    return LOBES[name].from_params(params, dtype)
+
+
+__all__ = ["LOBES", "Lobe", "Gaussian", "GaussianVCavity", "Beckmann", "GGX", "GTR", "Mixture", "reflect",
+           "lobe_from_params"]
