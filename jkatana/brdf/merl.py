@@ -21,7 +21,10 @@ Indices (Rusinkiewicz angles, :mod:`jkatana.brdf.geometry`):
 
 The reference reader takes the sample at the index rounded down
 (``method="nearest"``); ``method="linear"`` interpolates trilinearly in
-index space (φd periodic), which is what round-trips of analytic BRDFs need.
+index space (φd periodic) — geometrically, i.e. linearly in log f, where all
+eight neighbours are positive, so that the exponential fall-off of a sharp
+lobe between the samples is followed rather than overestimated, and
+linearly elsewhere.
 The writer samples a BRDF at the index nodes.
 """
 
@@ -72,7 +75,7 @@ class MerlBRDF:
         """BRDF (1/sr) of ``channel`` at direction pairs ``(..., 3)``; 0 below the horizon.
 
         `method`: ``"nearest"`` (the reference reader: index rounded down) or
-        ``"linear"`` (trilinear in index space).
+        ``"linear"`` (trilinear in index space, in log f where positive).
         """
         if channel not in CHANNELS:
             raise InputError(f"MERL channels are {CHANNELS}, got {channel!r}", path=self.source, field="channel")
@@ -92,11 +95,17 @@ class MerlBRDF:
             d0 = np.minimum(np.floor(xd).astype(np.int64), RES_THETA_D - 2)
             p0 = np.floor(xp).astype(np.int64) % RES_PHI_D
             th_, td_, tp_ = xh - h0, xd - d0, xp - np.floor(xp)
-            out = np.zeros(np.shape(xh))
+            lin = np.zeros(np.shape(xh))
+            logs = np.zeros(np.shape(xh))
+            positive = np.ones(np.shape(xh), bool)
             for a, wa in ((0, 1 - th_), (1, th_)):
                 for b, wb in ((0, 1 - td_), (1, td_)):
                     for c, wc in ((0, 1 - tp_), (1, tp_)):
-                        out = out + wa * wb * wc * vol[h0 + a, d0 + b, (p0 + c) % RES_PHI_D]
+                        v = vol[h0 + a, d0 + b, (p0 + c) % RES_PHI_D]
+                        lin = lin + wa * wb * wc * v
+                        positive &= v > 0
+                        logs = logs + wa * wb * wc * np.log(np.where(v > 0, v, 1.0))
+            out = np.where(positive, np.exp(logs), lin)
         else:
             raise InputError(f"method must be 'nearest' or 'linear', got {method!r}", field="method")
         visible = (wi[..., 2] > 0) & (wo[..., 2] > 0)

@@ -18,8 +18,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.errors import InputError
-from jkatana.fit._model import ModelSpec, Terms, from_natural, green, prepare, to_natural
-from jkatana.fit._solve import (NoiseModel, closed_form_start, estimate_noise, laplace, residuals, solve,
+from jkatana.fit._model import MODELS, ModelSpec, Terms, from_natural, green, prepare, to_natural
+from jkatana.fit._solve import (NoiseModel, estimate_noise, grid_start, laplace, residuals, solve, start_vector,
                                 verdict)
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
 
@@ -37,9 +37,13 @@ class FitData:
     usable: np.ndarray | None = None
     region: str = "hiraji"
     source: str | None = None
+    azimuth_deg: np.ndarray | None = None
 
     def __post_init__(self):
         self.theta_i_deg = np.asarray(self.theta_i_deg, np.float64).ravel()
+        if self.azimuth_deg is not None:
+            self.azimuth_deg = np.broadcast_to(np.asarray(self.azimuth_deg, np.float64),
+                                               self.theta_i_deg.shape).copy()
         self.theta_r_deg = np.asarray(self.theta_r_deg, np.float64).ravel()
         self.value = np.asarray(self.value, np.float64).ravel()
         n = self.value.size
@@ -91,7 +95,24 @@ class FitData:
         mask = np.asarray(mask, bool)
         return FitData(self.theta_i_deg[mask], self.theta_r_deg[mask], self.value[mask],
                        None if self.sigma is None else self.sigma[mask], self.usable[mask],
-                       region=self.region, source=self.source)
+                       region=self.region, source=self.source,
+                       azimuth_deg=None if self.azimuth_deg is None else self.azimuth_deg[mask])
+
+    @classmethod
+    def from_brdf_table(cls, table, channel: str | None = None, region: str = "hiraji", source=None) -> "FitData":
+        """From a :class:`~jkatana.brdf.table.BRDFTable`: value = f_r cos θi (σ likewise), azimuth kept."""
+        if channel is None:
+            if len(table.channels) != 1:
+                raise InputError(f"table has channels {table.channels}: choose one with --channel",
+                                 path=source, field="channel")
+            channel = table.channels[0]
+        t = table.select(channel)
+        c = np.cos(np.deg2rad(t.theta_i_deg))
+        sigma = t.sigma * c
+        return cls(t.theta_i_deg, t.theta_o_deg, t.value * c,
+                   sigma if np.all(np.isfinite(sigma) & (sigma > 0)) else None, None, region=region,
+                   source=None if source is None else str(source),
+                   azimuth_deg=t.azimuth_deg if np.any(t.azimuth_deg != 0) else None)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -178,6 +199,10 @@ class RegionFit:
     terms: Terms = dataclasses.field(repr=False)
     weight: np.ndarray = dataclasses.field(repr=False)
     emcee: dict | None = None
+    robust: dict | None = None
+    bootstrap: dict | None = None
+    misfit: dict | None = None
+    loss: str = "squared"
 
     def model(self, p=None) -> np.ndarray:
         """Model green values at the data's geometry (at ``p`` or the optimum)."""
@@ -190,30 +215,12 @@ def default_model(region: str) -> str:
 
 def _start(start, terms, y, w, spec, dtype):
     if start is None or (isinstance(start, str) and start == "closed"):
-        return closed_form_start(terms, y, w, spec)
+        return start_vector(terms, y, w, spec)
     if isinstance(start, str) and start == "grid":
         return grid_start(terms, y, w, spec)
     if isinstance(start, dict):
         return jnp.asarray(from_natural(start, spec), dtype)
     return jnp.asarray(start, dtype)
-
-
-def grid_start(terms, y, w, spec: ModelSpec, mus=None):
-    """Coarse-grid start: for each μ on a log grid the best scale is linear; pick the lowest cost."""
-    mus = jnp.geomspace(1e-3, 0.5, 48) if mus is None else jnp.asarray(mus)
-    base = jnp.zeros(spec.size, y.dtype)
-
-    def cost_at(mu):
-        p = base.at[1].set(jnp.log(mu))
-        m1 = green(p, terms, spec)  # scale 1
-        a = jnp.sum(m1 * y * w * w) / jnp.maximum(jnp.sum((m1 * w) ** 2), jnp.finfo(y.dtype).tiny)
-        a = jnp.maximum(a, jnp.finfo(y.dtype).tiny)
-        r = (a * m1 - y) * w
-        return jnp.sum(r * r), jnp.log(a)
-
-    costs, logs = jax.vmap(cost_at)(mus)
-    i = jnp.argmin(jnp.where(jnp.isfinite(costs), costs, jnp.inf))
-    return base.at[0].set(logs[i]).at[1].set(jnp.log(mus[i]))
 
 
 def fit_arrays(terms: Terms, y, w, spec: ModelSpec, *, start=None, solver: str = "lm",
@@ -235,13 +242,17 @@ def fit_arrays(terms: Terms, y, w, spec: ModelSpec, *, start=None, solver: str =
 def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(), tilt: bool = False,
                floor: bool = False, solver: str = "lm", noise: NoiseModel | str = "auto", start=None,
                multistart: bool = False, max_steps: int = 200, per_incidence: bool = True,
-               birge: bool = True, dtype=jnp.float64, irls: bool = True) -> RegionFit:
-    """Fit eq. (3) (hiraji) or eq. (4) (hamon) to one region's data.
+               birge: bool = True, dtype=jnp.float64, irls: bool = True, loss: str = "squared",
+               instrument: tuple[float, float, int] | None = None, robust: bool = True,
+               bootstrap: int = 0, seed: int = 0) -> RegionFit:
+    """Fit a model (the paper's eq. 3 / eq. 4, or any lobe of :data:`jkatana.fit._model.FIT_MODELS`) to one region.
 
     **Arguments:**
 
     - `data`: :class:`FitData` (e.g. ``FitData.from_table(table, "hiraji")``).
-    - `model`: ``"hiraji"`` or ``"hamon"`` (default: the region's own).
+    - `model`: a name of :data:`~jkatana.fit._model.FIT_MODELS` (``"hiraji"``,
+      ``"hamon"``, ``"beckmann"``, ``"ggx"``, ``"gtr"``, ``"two-lobe"``;
+      default: the region's own paper model).
     - `setup`: optical constants, grid, camera, light (:class:`Setup`).
     - `tilt`, `floor`: free sample tilt (degrees, towards the light) / constant floor.
     - `solver`: ``"lm"`` (optimistix Levenberg–Marquardt), ``"dogleg"``, ``"gn"``
@@ -261,16 +272,34 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
     - `irls`: with a noise model, re-evaluate σ at the fitted model and refit
       once (σ from the data biases the fit towards low-fluctuating points).
 
+    - `loss`: ``"squared"`` (default), ``"huber"`` or ``"cauchy"``: robust
+      losses by iteratively reweighted least squares
+      (:func:`~jkatana.fit.uncertainty.irls_weights`).
+    - `instrument`: ``(source_radius, aperture_radius, points)`` in radians:
+      the model convolved with the instrument's angular response
+      (:mod:`jkatana.fit._model`).
+    - `robust`: also compute the sandwich covariance and intervals
+      (:func:`~jkatana.fit.uncertainty.sandwich`).
+    - `bootstrap`: number of cluster-bootstrap replicates over incidences
+      (0: none; :func:`~jkatana.fit.uncertainty.bootstrap_incidences`), with `seed`.
+
     **Returns:** :class:`RegionFit`.
     """
+    from jkatana.fit import uncertainty as U
+
     t0 = time.perf_counter()
     model = model or default_model(data.region)
-    spec = ModelSpec(model, tilt, floor)
+    if model not in MODELS:
+        raise InputError(f"unknown model {model!r}; known: {list(MODELS)}", field="model")
+    if loss not in U.LOSSES:
+        raise InputError(f"loss must be one of {list(U.LOSSES)}, got {loss!r}", field="loss")
+    spec = ModelSpec(model, tilt, floor, instrument)
     if dtype == jnp.float32 and jax.config.jax_enable_x64:
         raise ValueError("float32 fits need jax_enable_x64 off (lineax fails on mixed dtypes); "
                          "run them in a separate process")
     n, k = setup.nk()
-    terms = prepare(model, data.theta_i_deg, data.theta_r_deg, n, k, setup.weights(), dtype)
+    terms = prepare(model, data.theta_i_deg, data.theta_r_deg, n, k, setup.weights(), dtype,
+                    azimuth_deg=data.azimuth_deg)
     given = None
     if isinstance(noise, str):
         if noise not in ("auto", "given", "model"):
@@ -302,6 +331,20 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
         out2["p0"] = out["p0"]
         steps += int(out2["steps"])
         out = out2
+    if loss != "squared" and np.all(np.isfinite(out["p"])):
+        w_base = w
+        for _ in range(5):
+            r = residuals(jnp.asarray(out["p"]), (terms, y, w_base, spec))
+            w = (w_base * jnp.sqrt(U.irls_weights(r, loss))).astype(dtype)
+            nxt = fit_arrays(terms, y, w, spec, start=out["p"], solver=solver, max_steps=max_steps)
+            steps += int(nxt["steps"])
+            nxt["p0"] = out["p0"]
+            r0 = np.asarray(residuals(jnp.asarray(out["p0"]), (terms, y, w, spec)))
+            nxt["cost0"] = 0.5 * float(np.sum(r0 * r0))
+            done = np.allclose(nxt["p"], out["p"], rtol=1e-8, atol=1e-10)
+            out = nxt
+            if done:
+                break
     ok, reasons = verdict(out, np.dtype(dtype))
     n_used = int(np.sum(data.usable))
     lap = laplace(out["jtj"], float(out["cost"]), n_used, out["p"], spec, birge=birge)
@@ -318,7 +361,12 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
                        dtype=str(np.dtype(dtype)), reasons=reasons)
     fit = RegionFit(region=data.region, spec=spec, p=np.asarray(out["p"], np.float64), values=values,
                     converged=ok, reasons=reasons, laplace=lap, noise=noise, diagnostics=diagnostics,
-                    per_incidence=[], setup=setup, data=data, terms=terms, weight=np.asarray(w))
+                    per_incidence=[], setup=setup, data=data, terms=terms, weight=np.asarray(w), loss=loss)
+    fit.misfit = U.misfit(lap["chi2_dof"], diagnostics["dof"])
+    if robust and np.all(np.isfinite(fit.p)):
+        fit.robust = U.sandwich(fit)
+    if bootstrap:
+        fit.bootstrap = U.bootstrap_incidences(fit, bootstrap, seed=seed, solver=solver, max_steps=max_steps)
     if per_incidence:
         from jkatana.fit.quality import per_incidence as _pi
 
@@ -332,4 +380,4 @@ def fit_table(table, region: str | None = None, **kwargs) -> RegionFit:
     return fit_region(FitData.from_table(table, region), **kwargs)
 
 
-__all__ = ["FitData", "Setup", "RegionFit", "fit_region", "fit_table", "fit_arrays", "grid_start", "residuals"]
+__all__ = ["FitData", "Setup", "RegionFit", "fit_region", "fit_table", "fit_arrays", "residuals"]
