@@ -15,8 +15,8 @@ reference), named ``<material>-<source>`` and selectable by that name:
   chromium ``Cr-Johnson``, ``Cr-Rakic-BB``, ``Cr-Rakic-LD``, ``Cr-Sytchkova``;
   nickel ``Ni-Johnson``, ``Ni-Rakic-BB``, ``Ni-Rakic-LD``, ``Ni-Werner``, ``Ni-Werner-DFT``;
   molybdenum ``Mo-Kirillova``, ``Mo-Querry``, ``Mo-Werner``, ``Mo-Werner-DFT``;
-  tungsten ``W-Rakic-BB``, ``W-Rakic-LD``, ``W-Weaver``, ``W-Werner``, ``W-Werner-DFT``;
-  oxides ``Fe2O3-Querry-e`` (extraordinary ray), ``Fe3O4-Querry``;
+  tungsten ``W-Rakic-BB``, ``W-Rakic-LD``, ``W-Werner``, ``W-Werner-DFT``;
+  magnetite ``Fe3O4-Querry``;
   stainless steel ``SS-Karlsson-austenitic``, ``SS-Karlsson-ferritic``.
 - Sources: P. B. Johnson and R. W. Christy (1974), Phys. Rev. B 9, 5056–5070;
   M. R. Querry (1985), Contractor Report CRDC-CR-85034, and (1987)
@@ -25,12 +25,12 @@ reference), named ``<material>-<source>`` and selectable by that name:
   A. D. Rakić, A. B. Djurišić, J. M. Elazar, M. L. Majewski (1998), Appl. Opt.
   37, 5271–5283 (Brendel–Bormann and Lorentz–Drude fits); A. Sytchkova et al.
   (2021), Opt. Mater. 121, 111530; M. M. Kirillova, L. V. Nomerovannaya,
-  M. M. Noskov (1971), Sov. Phys. JETP 33, 1210–1214; J. H. Weaver, C. G. Olson,
-  D. W. Lynch (1975), Phys. Rev. B 12, 1293–1297; B. Karlsson and C. G. Ribbing
-  (1982), J. Appl. Phys. 53, 6340–6346.
+  M. M. Noskov (1971), Sov. Phys. JETP 33, 1210–1214; B. Karlsson and
+  C. G. Ribbing (1982), J. Appl. Phys. 53, 6340–6346.
 
-Only tables covering 380–780 nm are shipped (the database's Ordal and Windt
-tables of these metals do not reach the visible).
+Only tables covering 380–780 nm with one value per wavelength are shipped
+(the database's Ordal and Windt tables of these metals do not reach the
+visible; its Fe2O3 Querry and W Weaver tables repeat wavelengths).
 """
 
 from __future__ import annotations
