@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import struct
 
 import jax
@@ -201,3 +202,45 @@ def test_round_trip_every_lobe_every_format(kind, model, tmp_path):
     for name, v in TRUTH[model].items():
         lo, hi = fit.laplace["ci95"][name]
         assert lo <= v <= hi, (kind, model, name, v, lo, hi)
+
+
+def _cli(module, prefix, argv):
+    import argparse
+
+    p = argparse.ArgumentParser()
+    getattr(module, f"{prefix}_add_arguments")(p)
+    return getattr(module, f"{prefix}_run")(p.parse_args(argv))
+
+
+def test_brdf_slice_command_writes_tables_fit_reads(merl_file, tmp_path, capsys):
+    from jkatana.brdf import commands as bc
+    from jkatana.fit.commands import load_fit_data
+    from jkatana.measure.table import read_table
+
+    path, _ = merl_file
+    assert _cli(bc, "brdf", ["slice", str(path), "-o", str(tmp_path / "t.csv"), "--incidences", "15,45",
+                             "--seed", "1"]) == 0
+    t = read_table(tmp_path / "t.csv")
+    assert t.incidences() == [15.0, 45.0] and np.all(t.sigma > 0)
+    assert _cli(bc, "brdf", ["slice", str(path), "-o", str(tmp_path / "o.csv"), "--incidences", "30",
+                             "--azimuth", "0,2"]) == 0
+    d = load_fit_data(tmp_path / "o.csv")  # a BRDF table: azimuth kept for the fit
+    assert set(np.unique(d.azimuth_deg)) == {0.0, 2.0}
+    with pytest.raises(InputError) as err:
+        _cli(bc, "brdf", ["slice", str(path), "-o", str(tmp_path / "x.csv"), "--incidences", "15,abc"])
+    assert err.value.field == "incidences"
+    with pytest.raises(InputError):
+        _cli(bc, "brdf", ["slice", str(tmp_path / "nope.xyz"), "-o", str(tmp_path / "x.csv")])
+
+
+@pytest.mark.slow
+def test_compare_command_on_a_gtr_merl_slice(tmp_path):
+    from jkatana.brdf import commands as bc
+    from jkatana.fit import commands as fc
+
+    merl.write_merl(merl.merl_from_function(analytic_brdf("gtr", TRUTH["gtr"])), tmp_path / "g.binary")
+    _cli(bc, "brdf", ["slice", str(tmp_path / "g.binary"), "-o", str(tmp_path / "t.csv"), "--seed", "1"])
+    assert _cli(fc, "compare", [str(tmp_path / "t.csv"), "-o", str(tmp_path / "cmp")]) == 0
+    res = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    assert res["best_aic"] == "gtr" and res["best_loio"] == "gtr"
+    assert (tmp_path / "cmp" / "compare.png").is_file()
