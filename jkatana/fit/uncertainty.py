@@ -14,10 +14,11 @@ measured metal the model is not right (χ²/dof of 20–60), and then
   estimation of misspecified models", Econometrica 50, 1–25). The bread H is
   the *full* Hessian of ½Σr² (Gauss–Newton JᵀJ plus Σ r ∇²r, which matters
   when residuals are systematic); the meat B = ŝ² JᵀJ, with the noise scale
-  ŝ² estimated from successive differences of the residuals along θr within
-  each incidence, ŝ² = Σ(Δr)² / 2nΔ (Rice 1984, "Bandwidth choice for
-  nonparametric regression", Ann. Stat. 12, 1215–1230): the smooth
-  systematic misfit cancels in the differences, the white noise does not. It
+  ŝ² estimated from local second differences of the residuals along θr
+  within each incidence (Gasser, Sroka & Jennen-Steinmetz 1986, "Residual
+  variance and residual pattern in nonlinear regression", Biometrika 73,
+  625–633; :func:`difference_noise_scale`): the smooth systematic misfit
+  cancels in the differences, the white noise does not. It
   describes how the fitted parameters would scatter over repeated campaigns
   on the same rig, around the parameters the model would give without noise
   (the pseudo-true values).
@@ -79,21 +80,32 @@ def _hessian_parts(p, terms, y, w, spec: ModelSpec):
 
 
 def difference_noise_scale(r, theta_i_deg, theta_r_deg, usable, azimuth_deg=None) -> tuple[float, int]:
-    """ŝ² = Σ(Δr)²/2nΔ over neighbours in θr within each incidence (and receiver azimuth; Rice 1984).
+    """Noise scale ŝ² of the residuals from local second differences along θr (Gasser et al. 1986).
 
-    Returns ``(ŝ², nΔ)``.
+    Within each incidence (and receiver azimuth), for consecutive points
+    x₋, x, x₊ the pseudo-residual e = a r₋ + b r₊ − r with a = (x₊ − x)/(x₊ − x₋),
+    b = (x − x₋)/(x₊ − x₋) removes any locally linear trend (the smooth
+    systematic misfit) and keeps the white noise; ŝ² = mean(e² / (a² + b² + 1)).
+    Returns ``(ŝ², number of pseudo-residuals)``.
     """
     r = np.asarray(r, np.float64)
     az = np.zeros_like(np.asarray(theta_i_deg, np.float64)) if azimuth_deg is None else np.asarray(azimuth_deg)
     total, count = 0.0, 0
     keys = np.unique(np.stack([np.round(theta_i_deg[usable], 6), np.round(az[usable], 6)], 1), axis=0)
-    for inc, a in keys:
-        m = usable & np.isclose(theta_i_deg, inc) & np.isclose(az, a)
+    for inc, a_ in keys:
+        m = usable & np.isclose(theta_i_deg, inc) & np.isclose(az, a_)
         o = np.argsort(theta_r_deg[m])
-        d = np.diff(r[m][o])
-        total += float(np.sum(d * d))
-        count += d.size
-    return (total / (2 * count) if count else float("nan")), count
+        x, y = theta_r_deg[m][o], r[m][o]
+        if x.size < 3:
+            continue
+        span = x[2:] - x[:-2]
+        ok = span > 0
+        a = np.where(ok, (x[2:] - x[1:-1]) / np.where(ok, span, 1.0), 0.5)
+        b = 1.0 - a
+        e = a * y[:-2] + b * y[2:] - y[1:-1]
+        total += float(np.sum(e * e / (a * a + b * b + 1.0)))
+        count += e.size
+    return (total / count if count else float("nan")), count
 
 
 def sandwich(fit) -> dict:
@@ -117,7 +129,7 @@ def sandwich(fit) -> dict:
         cov = np.full_like(jtj, np.nan)
         reasons.append("singular Hessian")
     se, ci, ok = natural_intervals(fit.p, cov, spec)
-    return dict(method="sandwich H^-1 (s2 J^T J) H^-1, s2 from successive differences", ok=ok, noise_scale2=s2,
+    return dict(method="sandwich H^-1 (s2 J^T J) H^-1, s2 from second differences", ok=ok, noise_scale2=s2,
                 n_differences=n_diff, cov_log=cov.tolist(), se=se, ci95=ci, reasons=reasons)
 
 
