@@ -67,8 +67,12 @@ def analytic_brdf(model: str, values: dict, *, setup=None, channels=("red", "gre
     return f
 
 
-def lobe_ndf(model: str, values: dict, floor: float = 1e-9):
-    """``D(cos θm)`` of the model's lobe (relative), plus ``floor`` × its peak so tails stay tabulated."""
+def lobe_ndf(model: str, values: dict, floor: float = 1e-3):
+    """``D(cos θm)`` of the model's lobe (relative), plus ``floor`` × its peak.
+
+    The floor gives the ``.bsdf`` writer's warp some mass in the lobe's tails,
+    so its tables resolve them (the reflectance table compensates exactly).
+    """
     from jkatana.models import lobes as LB
     from jkatana.models.microfacet import gaussian_facet
 
