@@ -1,4 +1,10 @@
-"""Fitting benchmarks: region fit time, per-pixel throughput, emcee, float32 vs float64, solvers, intervals.
+"""Fitting benchmarks: region fit time, per-pixel throughput, emcee, float32 vs float64, solvers, intervals, lobes.
+
+Lobes: the solve time of every fitted lobe after compilation (goal ≤ 1 ms per
+region), the cost of a second fit of another table of the same shape (no
+recompilation), the first and second call of ``jkatana fit`` (the second
+reads JAX's persistent compilation cache), and ``compare`` on 6 incidences ×
+all lobes (first and second call).
 
 Every approximation is measured against a reference with error and time side
 by side: solvers against the float64 LM optimum, the fixed-step per-pixel fit
@@ -28,7 +34,7 @@ def _campaign(region="hiraji", seed=0):
     from jkatana.measure.protocol import paper_protocol
 
     table, _ = synthetic.simulate_table(paper_protocol(), region, seed=seed,
-                                        noise=synthetic.NoiseModel(relative=0.02, floor=20.0))
+                                        noise=synthetic.NoiseModel(relative=0.02, absolute=20.0))
     return FitData.from_table(table, region)
 
 
@@ -83,6 +89,101 @@ def _float32_worker():
     print("JSON" + json.dumps(out))
 
 
+LOBE_TRUTH = {"hiraji": {"chi": 79000.0, "mu": 0.05}, "hamon": {"beta": 43000.0, "mu": 0.1},
+              "beckmann": {"scale": 2000.0, "alpha": 0.2}, "ggx": {"scale": 2000.0, "alpha": 0.05},
+              "gtr": {"scale": 2000.0, "alpha": 0.05, "gamma": 1.5},
+              "two-lobe": {"scale": 2000.0, "alpha": 0.03, "alpha_haze": 0.3, "weight": 0.8}}
+
+
+def _lobe_campaign(model, seed=0):
+    import jax.numpy as jnp
+
+    from jkatana.fit import FitData, Setup
+    from jkatana.fit._model import ModelSpec, from_natural, green, prepare
+    from jkatana.measure.protocol import as_pairs, paper_protocol
+
+    setup = Setup()
+    n, k = setup.nk()
+    pairs = np.asarray(as_pairs(paper_protocol()), np.float64)
+    spec = ModelSpec(model)
+    m = np.asarray(green(jnp.asarray(from_natural(LOBE_TRUTH[model], spec)),
+                         prepare(model, pairs[:, 0], pairs[:, 1], n, k, setup.weights()), spec))
+    sig = np.sqrt((0.05 * m) ** 2 + (1e-3 * m.max()) ** 2)
+    y = m + sig * np.random.default_rng(seed).standard_normal(m.size)
+    return FitData(pairs[:, 0], pairs[:, 1], y, sig)
+
+
+def _lobes(quick: bool, rows: list, log) -> None:
+    import os
+    import tempfile
+    from pathlib import Path
+
+    import jax.numpy as jnp
+
+    from jkatana.fit._model import MODELS
+    from jkatana.fit._solve import solve, start_vector
+    from jkatana.fit.compare import compare_models
+    from jkatana.fit.region import fit_region
+
+    for model in MODELS:
+        data = _lobe_campaign(model)
+        t0 = time.perf_counter()
+        ref = fit_region(data, model=model, per_incidence=False, robust=False)
+        first = time.perf_counter() - t0
+        other = _lobe_campaign(model, seed=1)
+        t0 = time.perf_counter()
+        fit_region(other, model=model, per_incidence=False, robust=False)
+        second = time.perf_counter() - t0
+        y = jnp.asarray(data.value)
+        w = jnp.asarray(ref.weight)
+        terms, spec = ref.terms, ref.spec
+        p0 = start_vector(terms, y, w, spec)
+        out = solve(terms, y, w, p0, spec=spec)
+        t = timeit(lambda: solve(terms, y, w, p0, spec=spec), repeats=10 if quick else 30)
+        t_start = timeit(lambda: start_vector(terms, y, w, spec), repeats=10 if quick else 30)
+        rows.append(record(B, dict(method=f"lobe {model}: LM solve after compilation", model=model,
+                                   n_points=int(data.value.size)), time_s=t, steps=int(out["steps"]),
+                           start_time_s=t_start["median"], goal="<= 1 ms per region fit",
+                           first_fit_region_s=first, second_fit_region_other_table_s=second,
+                           converged=bool(ref.converged)))
+        log("lobe", model, "solve", t["median"], "start", t_start["median"], "first", first, "second", second)
+    # jkatana fit, first and second call (fresh persistent compilation cache)
+    with tempfile.TemporaryDirectory() as tmp:
+        from jkatana.measure.table import MeasurementTable, write_table
+
+        d = _lobe_campaign("ggx")
+        table = MeasurementTable.from_columns(capture=[f"c{i}" for i in range(d.value.size)],
+                                              region=["hiraji"] * d.value.size, theta_i_deg=d.theta_i_deg,
+                                              theta_r_deg=d.theta_r_deg, value=d.value, sigma=d.sigma)
+        write_table(table, Path(tmp) / "t.csv")
+        env = {**os.environ, "JKATANA_CACHE": tmp}
+        times = []
+        for _ in range(2):
+            t0 = time.perf_counter()
+            proc = subprocess.run([sys.executable, "-m", "jkatana.cli", "fit", str(Path(tmp) / "t.csv"), "-o",
+                                   str(Path(tmp) / "p.json"), "--model", "ggx"], capture_output=True, text=True,
+                                  env=env)
+            times.append(time.perf_counter() - t0)
+            if proc.returncode not in (0, 1):
+                rows.append(record(B, dict(method="jkatana fit CLI"), failed=proc.stderr[-1500:]))
+                break
+        rows.append(record(B, dict(method="jkatana fit CLI (ggx, 1188 rows, per-incidence refits, sandwich)"),
+                           first_call_s=times[0], second_call_s=times[-1],
+                           note="second call: same table shape, JAX persistent compilation cache warm"))
+        log("CLI fit", times)
+    # compare: 6 incidences x all lobes
+    data = _lobe_campaign("gtr")
+    times = []
+    for _ in range(2):
+        t0 = time.perf_counter()
+        res = compare_models(data, list(MODELS))
+        times.append(time.perf_counter() - t0)
+    rows.append(record(B, dict(method="compare: 6 incidences x all lobes (fits, per-incidence, LOIO)",
+                               models=len(MODELS)), first_call_s=times[0], second_call_s=times[1],
+                       selected_aic=res["best_aic"], selected_loio=res["best_loio"]))
+    log("compare", times, res["best_aic"], res["best_loio"])
+
+
 def run(quick: bool) -> list[dict]:
     import jax
 
@@ -95,6 +196,7 @@ def run(quick: bool) -> list[dict]:
 
     rows = []
     log = lambda *a: print(*a, file=sys.stderr, flush=True)  # noqa: E731
+    _lobes(quick, rows, log)
 
     # ---- region fits: solvers after JIT, error vs the LM optimum
     for region in ("hiraji", "hamon"):

@@ -41,7 +41,7 @@ TILT = 0.3
 
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
-    noise = synthetic.NoiseModel(relative=0.02, floor=20.0)
+    noise = synthetic.NoiseModel(relative=0.02, absolute=20.0)
     results = []
     for region in ("hiraji", "hamon"):
         for tilt in (0.0, TILT):

@@ -41,7 +41,7 @@ def main(argv=None):
     ap.add_argument("--emcee-regions", nargs="+", default=None)
     args = ap.parse_args(argv)
     OUT.mkdir(parents=True, exist_ok=True)
-    noise = synthetic.NoiseModel(relative=0.02, floor=20.0)
+    noise = synthetic.NoiseModel(relative=0.02, absolute=20.0)
     results = {}
     for region in args.regions:
         do_emcee = not args.no_emcee and (args.emcee_regions is None or region in args.emcee_regions)

@@ -40,6 +40,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "measure": ("jkatana.measure.commands", "measure"),
     "fit": ("jkatana.fit.commands", "fit"),
     "report": ("jkatana.fit.commands", "report"),
+    "compare": ("jkatana.fit.commands", "compare"),
+    "brdf": ("jkatana.brdf.commands", "brdf"),
     "shape": ("jkatana.shape.commands", "shape"),
     "map": ("jkatana.maps.commands", "map"),
     "light": ("jkatana.light.commands", "light"),

@@ -21,7 +21,7 @@ from jkatana.measure.protocol import paper_protocol
 from jkatana.measure.synthetic import simulate_table
 
 TRUTH = {"hiraji": {"chi": 79000.0, "mu": 0.05}, "hamon": {"beta": 43000.0, "mu": 0.05}}
-SIM_NOISE = synthetic.NoiseModel(relative=0.02, floor=20.0)
+SIM_NOISE = synthetic.NoiseModel(relative=0.02, absolute=20.0)
 
 
 def campaign(region="hiraji", seed=0, **kw):
@@ -95,7 +95,7 @@ def _value_grad(p, terms, spec):
 
 
 def test_noise_estimate_recovers_simulator():
-    data, _ = campaign("hiraji", seed=3, noise=synthetic.NoiseModel(relative=0.03, shot=2.0, floor=15.0))
+    data, _ = campaign("hiraji", seed=3, noise=synthetic.NoiseModel(relative=0.03, shot=2.0, absolute=15.0))
     nm = estimate_noise(data.value, data.sigma)
     assert nm.relative == pytest.approx(0.03, rel=0.05)
     assert nm.absolute == pytest.approx(15.0, rel=0.1)
@@ -384,7 +384,7 @@ from jkatana.fit import FitData, fit_region
 from jkatana.measure import synthetic
 from jkatana.measure.protocol import paper_protocol
 t, _ = synthetic.simulate_table(paper_protocol(), "hamon", seed=1,
-                                noise=synthetic.NoiseModel(relative=0.02, floor=20.0))
+                                noise=synthetic.NoiseModel(relative=0.02, absolute=20.0))
 d = FitData.from_table(t, "hamon")
 out = {}
 for solver in ("lm", "dogleg"):

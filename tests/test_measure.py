@@ -86,7 +86,7 @@ def test_band_weights_keep_chi_in_camera_units():
 # --------------------------------------------------------------------------- table
 
 def test_table_csv_round_trip_is_exact(tmp_path):
-    table, _ = simulate_table(reduced_protocol(), "hamon", noise=NoiseModel(relative=0.02, floor=3.0))
+    table, _ = simulate_table(reduced_protocol(), "hamon", noise=NoiseModel(relative=0.02, absolute=3.0))
     path = write_table(table, tmp_path / "t.csv")
     back = read_table(path)
     for name, col in table.columns().items():
@@ -136,7 +136,7 @@ def test_read_table_names_row_and_column(tmp_path, row, column, bad, field):
 # --------------------------------------------------------------------------- in-memory simulator
 
 def test_simulate_table_noise_is_what_it_says():
-    noise = NoiseModel(relative=0.01, shot=2.0, floor=5.0)
+    noise = NoiseModel(relative=0.01, shot=2.0, absolute=5.0)
     table, truth = simulate_table(None, "hiraji", noise=noise, seed=3)
     z = (table.value - truth) / table.sigma
     assert abs(np.mean(z ** 2) - 1.0) < chi2_bound(len(z))
@@ -358,7 +358,7 @@ def test_toml_manifest_and_multiple_rois(tmp_path, campaign):
 
 def test_parquet_round_trip_is_exact(tmp_path):
     pytest.importorskip("pyarrow")
-    table, _ = simulate_table(reduced_protocol(), "hiraji", noise=NoiseModel(floor=1.0))
+    table, _ = simulate_table(reduced_protocol(), "hiraji", noise=NoiseModel(absolute=1.0))
     back = read_table(write_table(table, tmp_path / "t.parquet"))
     for name, col in table.columns().items():
         assert np.array_equal(getattr(back, name), col), name

@@ -1,6 +1,9 @@
-"""Fitting eqs. (3)–(4) with uncertainty: optimistix least squares, Laplace and emcee, quality per incidence.
+"""Fitting the paper's eqs. (3)–(4) and every lobe of :mod:`jkatana.models.lobes`, with honest uncertainty.
 
-- :func:`fit_region` / :func:`fit_table` — one region's fit (:class:`RegionFit`).
+- :func:`fit_region` / :func:`fit_table` — one region's fit (:class:`RegionFit`), any model of
+  :data:`jkatana.fit._model.FIT_MODELS`, optional instrument response and robust loss.
+- :mod:`jkatana.fit.uncertainty` — misfit flag, sandwich covariance, bootstrap over incidences.
+- :mod:`jkatana.fit.compare` — every model on one table: per-incidence χ²/dof, AIC/BIC, leave-one-incidence-out.
 - :func:`sample` — emcee posterior around a fit.
 - :func:`per_incidence` — fit quality and refits per incidence angle.
 - :func:`fit_pixels` — vmapped per-pixel fits for spatially varying maps.

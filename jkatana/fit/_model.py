@@ -1,31 +1,45 @@
-"""The green-channel forward models of eqs. (3)–(4), with parameter-free terms precomputed.
+"""The fitted forward model: a lobe of :mod:`jkatana.models.lobes` in camera units, with the instrument's response.
 
-Mochizuki et al. fit, per region, the camera's green value ρg of
+Every model is ``ρ = s · Σ_j a_j(L, V) · F̄(cos_F_j) [+ floor]``, where the
+lobe's :meth:`~jkatana.models.lobes.Lobe.terms` give f_r cos θi without the
+Fresnel factor as terms ``(a_j, cos_F_j)``, F̄(cos θ) = F(n(λ), k(λ), θ) @ w
+is the Fresnel reflectance integrated against the band weights w(λ) (camera
+sensitivity × light, :func:`jkatana.measure.camera.band_weights`; SPEC §4),
+tabulated once per table on a uniform grid of cos θ (4097 nodes, linear
+interpolation) and s is a scale in camera units. The lobe formulas live in
+:mod:`jkatana.models.lobes` only; this module chooses how each lobe's
+parameters are fitted (:data:`FIT_MODELS`):
 
-- eq. (3), hiraji: ρ = χ · D(φ, μ0) · F̄(θi)
-- eq. (4), hamon:  ρ = β · D(φ, μ1) · F̄(θH) · G / cos θr
+| model | lobe | natural parameters | fitted as |
+| --- | --- | --- | --- |
+| ``hiraji`` | paper eq. (1), calibrated ``Gaussian`` | χ, μ | log χ, log μ |
+| ``hamon`` | paper eq. (2), calibrated ``GaussianVCavity`` | β, μ | log β, log μ |
+| ``beckmann`` | ``Beckmann`` | scale, α | log, log |
+| ``ggx`` | ``GGX`` | scale, α | log, log |
+| ``gtr`` | ``GTR`` (heavy tails for γ < 2) | scale, α, γ | log, log, γ = 1 + 3·sigmoid |
+| ``two-lobe`` | ``Mixture(GGX(α), GGX(α_haze), w)`` | scale, α, α_haze, w | log, log, α_haze = α(1 + eᵗ), w = sigmoid |
 
-where D(φ, μ) = exp(−ln2 φ²/μ²) and F̄(θ) = F(n(λ), k(λ), θ) @ w is the
-Fresnel reflectance integrated against the band weights w(λ) (camera green
-sensitivity × light, :func:`jkatana.measure.camera.band_weights`; SPEC §4).
+The paper's models are eqs. (3)–(4) of Mochizuki et al. exactly: ρ = χ D(φ, μ0)
+F̄(θi) and ρ = β D(φ, μ1) F̄(θH) G / cos θr.
 
-Everything that does not depend on the fitted parameters — F̄, G/cos θr and
-φ — is computed once per table in float64 (:func:`prepare`); the model is then
-``scale · D(φ, μ) · a`` with a per-point amplitude ``a`` and costs a few flops
-per point. Two optional parameters beyond the paper's:
+Options beyond the paper (:class:`ModelSpec`):
 
 - **tilt** t (radians; reported in degrees): the sample is rotated by t in
   the plane of incidence, *positive towards the light* (the convention of
-  :mod:`jkatana.measure.synthetic`). The surface sees θi' = θi − t,
-  θr' = θr + t, so φ' = φ + t, θH unchanged, and the peak moves to
-  θr = θi − 2t. With tilt on, F̄(θi') and G/cos θr' depend on δ
-  and are evaluated from a fine 1-D table of F̄ (linear interpolation,
-  4097 nodes over 0–90°, error < 1e-7 relative, measured in the tests).
+  :mod:`jkatana.measure.synthetic`): L and V are rotated about the y axis by
+  t, so θi' = θi − t, θr' = θr + t and the peak moves to θr = θi − 2t.
 - **floor** (camera units): a constant added to every value (stray light,
   black-level error).
+- **instrument** ``(source_radius, aperture_radius, n)`` (radians): the
+  source's angular radius and the detector aperture's angular radius seen
+  from the sample. The model is averaged over uniform disks of directions
+  around L and around V, each by an n-point Vogel (1979) sunflower rule
+  (equal weights; deterministic, so fits stay smooth), i.e. the lobe
+  convolved with the instrument's angular response: a lobe narrower than the
+  instrument is fitted as what the instrument saw.
 
-Parameter vector (the fit's unknowns, in this order): ``[log scale, log μ,
-tilt (rad), floor]`` where the last two are present only when switched on.
+Parameter vector (the fit's unknowns, in this order): ``[log scale, log width,
+shape…, tilt (rad), floor]`` where tilt and floor are present only when on.
 """
 
 from __future__ import annotations
@@ -39,30 +53,116 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jkatana.models.microfacet import vcavity_over_cos
+from jkatana.models.microfacet import LN2, gaussian_facet as _facet, vcavity_over_cos  # noqa: F401
 
-LN2 = math.log(2.0)
-MODELS = ("hiraji", "hamon")
-SCALE_NAME = {"hiraji": "chi", "hamon": "beta"}
 _TABLE_NODES = 4097
+
+
+def _sigmoid(t):
+    return jax.nn.sigmoid(t)
+
+
+def _logit(x):
+    return math.log(x / (1.0 - x))
+
+
+@dataclasses.dataclass(frozen=True)
+class FitModel:
+    """How one lobe is fitted: its natural parameter names and the maps to/from the fit vector."""
+
+    name: str
+    lobe: str
+    scale_name: str
+    names: tuple[str, ...]  # natural shape parameters after the scale (width first)
+    defaults: tuple[float, ...]  # natural defaults of the shape parameters after the width
+
+    def build(self, q):
+        """The lobe for shape vector ``q`` (fit space: ``q[0]`` = log width)."""
+        from jkatana.models import lobes as L
+
+        width = jnp.exp(q[0])
+        if self.name == "hiraji":
+            return L.Gaussian(width, jnp.ones_like(width), normalised=False)
+        if self.name == "hamon":
+            return L.GaussianVCavity(width, jnp.ones_like(width), normalised=False)
+        if self.name == "beckmann":
+            return L.Beckmann(width)
+        if self.name == "ggx":
+            return L.GGX(width)
+        if self.name == "gtr":
+            return L.GTR(width, 1.0 + 3.0 * _sigmoid(q[1]))
+        if self.name == "two-lobe":
+            return L.Mixture(L.GGX(width), L.GGX(width * (1.0 + jnp.exp(q[1]))), _sigmoid(q[2]))
+        raise ValueError(self.name)
+
+    def shape_to_natural(self, q) -> dict:
+        q = np.asarray(q, np.float64)
+        out = {self.names[0]: float(np.exp(q[0]))}
+        from scipy.special import expit
+
+        if self.name == "gtr":
+            out["gamma"] = float(1.0 + 3.0 * expit(q[1]))
+        if self.name == "two-lobe":
+            out["alpha_haze"] = float(np.exp(q[0] + np.logaddexp(0.0, q[1])))
+            out["weight"] = float(expit(q[2]))
+        return out
+
+    def shape_from_natural(self, values: dict) -> list[float]:
+        width = float(values[self.names[0]])
+        out = [math.log(width)]
+        if self.name == "gtr":
+            out.append(_logit((float(values.get("gamma", self.defaults[0])) - 1.0) / 3.0))
+        if self.name == "two-lobe":
+            haze = float(values.get("alpha_haze", width * 10.0))
+            out.append(math.log(max(haze / width - 1.0, 1e-12)))
+            out.append(_logit(float(values.get("weight", self.defaults[1]))))
+        return out
+
+
+FIT_MODELS: dict[str, FitModel] = {m.name: m for m in (
+    FitModel("hiraji", "gaussian", "chi", ("mu",), ()),
+    FitModel("hamon", "gaussian-vcavity", "beta", ("mu",), ()),
+    FitModel("beckmann", "beckmann", "scale", ("alpha",), ()),
+    FitModel("ggx", "ggx", "scale", ("alpha",), ()),
+    FitModel("gtr", "gtr", "scale", ("alpha", "gamma"), (1.5,)),
+    FitModel("two-lobe", "mixture", "scale", ("alpha", "alpha_haze", "weight"), (10.0, 0.9)),
+)}
+MODELS = tuple(FIT_MODELS)
+SCALE_NAME = {k: m.scale_name for k, m in FIT_MODELS.items()}
+#: Natural shape parameters each model reports (width first), for readers of parameter files.
+SHAPE_NAMES = {k: m.names for k, m in FIT_MODELS.items()}
 
 
 @dataclasses.dataclass(frozen=True)
 class ModelSpec:
-    """Which model and which optional parameters (static, hashable)."""
+    """Which model and which optional parameters (static, hashable: one compiled program per spec)."""
 
     model: str = "hiraji"
     tilt: bool = False
     floor: bool = False
+    instrument: tuple[float, float, int] | None = None
 
     def __post_init__(self):
-        if self.model not in MODELS:
+        if self.model not in FIT_MODELS:
             raise ValueError(f"model must be one of {MODELS}, got {self.model!r}")
+        if self.instrument is not None:
+            src, ap, n = self.instrument
+            if not (src >= 0 and ap >= 0 and int(n) >= 1):
+                raise ValueError(f"instrument radii must be >= 0 and n >= 1, got {self.instrument}")
+            object.__setattr__(self, "instrument", (float(src), float(ap), int(n)))
+
+    @property
+    def fit_model(self) -> FitModel:
+        return FIT_MODELS[self.model]
+
+    @property
+    def n_shape(self) -> int:
+        return len(self.fit_model.names)
 
     @property
     def names(self) -> tuple[str, ...]:
         """Natural-unit names of the parameters, in vector order."""
-        out = [SCALE_NAME[self.model], "mu"]
+        out = [self.fit_model.scale_name, *self.fit_model.names]
         if self.tilt:
             out.append("tilt_deg")
         if self.floor:
@@ -71,15 +171,38 @@ class ModelSpec:
 
     @property
     def size(self) -> int:
-        return 2 + int(self.tilt) + int(self.floor)
+        return 1 + self.n_shape + int(self.tilt) + int(self.floor)
+
+    @property
+    def tilt_index(self) -> int | None:
+        return 1 + self.n_shape if self.tilt else None
+
+    @property
+    def floor_index(self) -> int | None:
+        return 1 + self.n_shape + int(self.tilt) if self.floor else None
+
+    @property
+    def log_names(self) -> list[str]:
+        """Names of the fit-vector entries (what ``cov_log`` is the covariance of)."""
+        m = self.fit_model
+        shape = {"gtr": ["log_alpha", "logit_gamma"],
+                 "two-lobe": ["log_alpha", "log_haze_ratio_m1", "logit_weight"]}.get(
+            m.name, ["log_" + m.names[0]])
+        return ["log_" + m.scale_name] + shape + (["tilt_rad"] if self.tilt else []) + (
+            ["floor"] if self.floor else [])
 
 
 class Terms(eqx.Module):
-    """Parameter-free terms of one table (one point per entry; padded entries have weight 0).
+    """Parameter-free arrays of one table (one point per entry; padded entries have weight 0).
 
-    ``phi`` signed in-plane facet angle (rad); ``amp`` the amplitude F̄ (hiraji)
-    or F̄(θH)·G/cos θr (hamon) at the nominal geometry; ``theta_i``, ``theta_r``
-    (rad) for the tilt path; ``f_table`` F̄ on a uniform θ grid over [0, π/2].
+    ``L``, ``V`` unit directions ``(n, 3)`` at the nominal geometry; ``phi``
+    the signed in-plane facet angle (rad) and ``amp`` the paper models'
+    amplitude (F̄ for hiraji, F̄(θH)·G/cos θr for hamon; 1 for other lobes) at
+    the nominal geometry, used by the closed-form start; ``theta_i``,
+    ``theta_r`` (rad); ``f_table`` F̄ on a uniform grid of cos θ over [0, 1];
+    ``f_exact`` ``[cos, F̄, dF̄/dcos]`` exact at the nominal cos θi and cos θH
+    of each point, so that models evaluated at the nominal geometry use F̄
+    to float64 rounding rather than to the table's interpolation error (~1e-9).
     """
 
     phi: Float[Array, " n"]
@@ -87,6 +210,9 @@ class Terms(eqx.Module):
     theta_i: Float[Array, " n"]
     theta_r: Float[Array, " n"]
     f_table: Float[Array, " t"]
+    L: Float[Array, "n 3"]
+    V: Float[Array, "n 3"]
+    f_exact: Float[Array, "2 3 n"]
 
 
 def _fbar_numpy(cos_theta, n, k, w):
@@ -99,9 +225,11 @@ def _fbar_numpy(cos_theta, n, k, w):
 
 
 def _amplitude_numpy(model, theta_i, theta_r, fbar):
-    """Amplitude a(θi, θr) for the model, numpy float64, from an F̄(θ) callable."""
+    """Amplitude a(θi, θr) of the paper's models (numpy float64) for the closed-form start."""
     if model == "hiraji":
         return fbar(np.cos(theta_i))
+    if model != "hamon":
+        return np.ones_like(theta_i)
     phi = 0.5 * (theta_r - theta_i)
     theta_h = 0.5 * (theta_i + theta_r)
     g = np.asarray(vcavity_over_cos(np.cos(phi), np.maximum(np.cos(theta_r), 0.0),
@@ -109,95 +237,139 @@ def _amplitude_numpy(model, theta_i, theta_r, fbar):
     return fbar(np.cos(theta_h)) * g
 
 
-def prepare(model: str, theta_i_deg, theta_r_deg, n, k, weights, dtype=jnp.float64) -> Terms:
+def prepare(model: str, theta_i_deg, theta_r_deg, n, k, weights, dtype=jnp.float64, *,
+            azimuth_deg=None) -> Terms:
     """Precompute the parameter-free terms for a table's geometry.
 
     **Arguments:**
 
-    - `model`: ``"hiraji"`` or ``"hamon"``.
+    - `model`: a name of :data:`FIT_MODELS`.
     - `theta_i_deg`, `theta_r_deg`: ``(N,)`` incidence and receiving angles in
       degrees, goniometer plane (:func:`jkatana.models.in_plane`; θr = θi is
       specular).
     - `n`, `k`: optical constants on the spectral grid, ``(wl,)``.
     - `weights`: band weights ``(wl,)`` (:func:`jkatana.measure.camera.band_weights`).
     - `dtype`: dtype of the returned arrays (the terms are computed in float64).
+    - `azimuth_deg`: receiver azimuth out of the plane of incidence
+      (:mod:`jkatana.brdf.geometry`; default 0, in plane).
 
     **Returns:** :class:`Terms`.
     """
+    from jkatana.brdf.geometry import goniometer_vectors
+
     ti = np.deg2rad(np.asarray(theta_i_deg, np.float64))
     tr = np.deg2rad(np.asarray(theta_r_deg, np.float64))
-    grid_theta = np.linspace(0.0, np.pi / 2, _TABLE_NODES)
+    az = np.zeros_like(ti) if azimuth_deg is None else np.asarray(azimuth_deg, np.float64)
+    grid_cos = np.linspace(0.0, 1.0, _TABLE_NODES)
     with jax.enable_x64(True):
-        table = _fbar_numpy(np.cos(grid_theta), n, k, weights)
-        amp = np.asarray(_amplitude_numpy(model, ti, tr, lambda c: _fbar_numpy(c, n, k, weights)),
-                         np.float64)
+        table = _fbar_numpy(grid_cos, n, k, weights)
+        amp = np.asarray(_amplitude_numpy(model, ti, tr, lambda c: _fbar_numpy(c, n, k, weights)), np.float64)
     visible = (np.cos(ti) >= 0) & (np.cos(tr) >= 0)
     amp = np.where(visible, amp, 0.0)
-    return Terms(phi=jnp.asarray(0.5 * (tr - ti), dtype), amp=jnp.asarray(amp, dtype),
+    Lv, Vv = goniometer_vectors(np.rad2deg(ti), np.rad2deg(tr), az)
+    from jkatana.models.geometry import half_vector_terms
+
+    with jax.enable_x64(True):
+        cos_h = np.asarray(half_vector_terms(jnp.asarray(Lv, dtype), jnp.asarray(Vv, dtype))[2], np.float64)
+        exact = []
+        for c in (Lv[:, 2].astype(dtype), cos_h):
+            c = np.asarray(c, np.float64)
+            h = 1e-6
+            d = (_fbar_numpy(np.minimum(c + h, 1.0), n, k, weights) - _fbar_numpy(np.maximum(c - h, 0.0), n, k, weights)
+                 ) / (np.minimum(c + h, 1.0) - np.maximum(c - h, 0.0))
+            exact.append(np.stack([c, _fbar_numpy(c, n, k, weights), d]))
+    return Terms(f_exact=jnp.asarray(np.stack(exact), dtype), phi=jnp.asarray(0.5 * (tr - ti), dtype), amp=jnp.asarray(amp, dtype),
                  theta_i=jnp.asarray(ti, dtype), theta_r=jnp.asarray(tr, dtype),
-                 f_table=jnp.asarray(table, dtype))
+                 f_table=jnp.asarray(table, dtype), L=jnp.asarray(Lv, dtype), V=jnp.asarray(Vv, dtype))
 
 
-def _interp_fbar(theta, table):
-    theta = jnp.clip(jnp.abs(theta), 0.0, jnp.pi / 2)
-    x = theta * ((table.shape[0] - 1) / (jnp.pi / 2))
+def fbar(cos_theta, table):
+    """F̄ at ``cos_theta`` from the uniform-in-cos table (linear interpolation, clipped to [0, 1])."""
+    c = jnp.clip(cos_theta, 0.0, 1.0)
+    x = c * (table.shape[0] - 1)
     i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, table.shape[0] - 2)
     t = x - i.astype(x.dtype)
     return table[i] * (1 - t) + table[i + 1] * t
 
 
-def _facet(phi, mu):
-    """D(φ, μ) with the exponent clipped where exp underflows (finite value and gradient)."""
-    dtype = jnp.result_type(phi, mu)
-    cut = float(-np.log(np.finfo(dtype).tiny)) * 0.99
-    x = LN2 * (phi / mu) ** 2
-    xs = jnp.minimum(x, cut)
-    return jnp.where(x < cut, jnp.exp(-xs), 0.0)
+def _rot_y(v, t):
+    c, s = jnp.cos(t), jnp.sin(t)
+    return jnp.stack([v[..., 0] * c + v[..., 2] * s, v[..., 1], -v[..., 0] * s + v[..., 2] * c], axis=-1)
+
+
+def disk_offsets(radius: float, n: int) -> np.ndarray:
+    """``(n, 2)`` tangent-plane offsets (radians) filling a disk of ``radius`` uniformly (Vogel 1979 spiral)."""
+    j = np.arange(n) + 0.5
+    r = radius * np.sqrt(j / n)
+    a = j * math.pi * (3.0 - math.sqrt(5.0))
+    return np.stack([r * np.cos(a), r * np.sin(a)], -1) if n > 1 else np.zeros((1, 2))
+
+
+def _perturb(d, offsets):
+    """Directions ``(k, n, 3)``: unit ``d (n, 3)`` moved by tangent-plane ``offsets (k, 2)`` (radians)."""
+    y = jnp.asarray([0.0, 1.0, 0.0], d.dtype)
+    e1 = jnp.cross(y, d)
+    e1 = e1 / jnp.linalg.norm(e1, axis=-1, keepdims=True)
+    e2 = jnp.cross(d, e1)
+    off = jnp.asarray(offsets, d.dtype)
+    out = d[None] + off[:, 0, None, None] * e1[None] + off[:, 1, None, None] * e2[None]
+    return out / jnp.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def _fbar_point(c, terms):
+    """F̄ at the terms' cosines: exact (first-order about the nominal cos θi or cos θH) within 1e-9, else the table."""
+    out = fbar(c, terms.f_table)
+    for j in range(2):
+        c0, f0, d0 = terms.f_exact[j, 0], terms.f_exact[j, 1], terms.f_exact[j, 2]
+        out = jnp.where(jnp.abs(c - c0) < 1e-9, f0 + d0 * (c - c0), out)
+    return out
+
+
+def _lobe_value(lobe, L, V, terms):
+    total = 0.0
+    for a, c in lobe.terms(L, V):
+        total = total + a * _fbar_point(c, terms)
+    return total
 
 
 def green(p: Float[Array, " p"], terms: Terms, spec: ModelSpec) -> Float[Array, " n"]:
-    """Model green values for the parameter vector ``p`` (module docstring)."""
+    """Model values in camera units for the parameter vector ``p`` (module docstring)."""
+    fm = spec.fit_model
     scale = jnp.exp(p[0])
-    mu = jnp.exp(p[1])
-    j = 2
+    lobe = fm.build(p[1:1 + spec.n_shape])
+    L, V = terms.L, terms.V
     if spec.tilt:
-        delta = p[j]
-        j += 1
-        ti = terms.theta_i - delta
-        tr = terms.theta_r + delta
-        phi = terms.phi + delta
-        if spec.model == "hiraji":
-            amp = _interp_fbar(ti, terms.f_table)
-        else:
-            th = 0.5 * (ti + tr)
-            g = vcavity_over_cos(jnp.cos(phi), jnp.maximum(jnp.cos(tr), 0.0),
-                                 jnp.maximum(jnp.cos(ti), 0.0), jnp.cos(th))
-            amp = _interp_fbar(th, terms.f_table) * g
-        amp = jnp.where((jnp.cos(ti) >= 0) & (jnp.cos(tr) >= 0), amp, 0.0)
+        delta = p[spec.tilt_index]
+        L, V = _rot_y(L, delta), _rot_y(V, delta)
+    if spec.instrument is not None:
+        src, ap, n = spec.instrument
+        Ls = _perturb(L, disk_offsets(src, n if src > 0 else 1))
+        Vs = _perturb(V, disk_offsets(ap, n if ap > 0 else 1))
+        vals = _lobe_value(lobe, Ls[:, None], Vs[None, :], terms)
+        val = jnp.mean(vals, axis=(0, 1))
     else:
-        phi, amp = terms.phi, terms.amp
-    out = scale * _facet(phi, mu) * amp
+        val = _lobe_value(lobe, L, V, terms)
+    out = scale * val
     if spec.floor:
-        out = out + p[j]
+        out = out + p[spec.floor_index]
     return out
 
 
 def to_natural(p, spec: ModelSpec) -> dict[str, float]:
     """Parameter vector → natural units (``tilt_deg`` in degrees)."""
     p = np.asarray(p, np.float64)
-    out = {spec.names[0]: float(np.exp(p[0])), "mu": float(np.exp(p[1]))}
-    j = 2
+    out = {spec.fit_model.scale_name: float(np.exp(p[0]))}
+    out |= spec.fit_model.shape_to_natural(p[1:1 + spec.n_shape])
     if spec.tilt:
-        out["tilt_deg"] = float(np.rad2deg(p[j]))
-        j += 1
+        out["tilt_deg"] = float(np.rad2deg(p[spec.tilt_index]))
     if spec.floor:
-        out["floor"] = float(p[j])
+        out["floor"] = float(p[spec.floor_index])
     return out
 
 
 def from_natural(values: dict, spec: ModelSpec) -> np.ndarray:
-    """Natural units → parameter vector (inverse of :func:`to_natural`)."""
-    out = [math.log(values[spec.names[0]]), math.log(values["mu"])]
+    """Natural units → parameter vector (inverse of :func:`to_natural`; missing shape values → defaults)."""
+    out = [math.log(values[spec.fit_model.scale_name])] + spec.fit_model.shape_from_natural(values)
     if spec.tilt:
         out.append(math.radians(values.get("tilt_deg", 0.0)))
     if spec.floor:
@@ -205,4 +377,13 @@ def from_natural(values: dict, spec: ModelSpec) -> np.ndarray:
     return np.asarray(out, np.float64)
 
 
-__all__ = ["ModelSpec", "Terms", "prepare", "green", "to_natural", "from_natural", "MODELS", "SCALE_NAME"]
+def default_shape(spec: ModelSpec, log_width, dtype):
+    """Fit-space shape vector at width ``exp(log_width)`` with the model's default extra parameters."""
+    fm = spec.fit_model
+    width = 1.0
+    extra = fm.shape_from_natural({fm.names[0]: width} | dict(zip(fm.names[1:], fm.defaults)))[1:]
+    return jnp.concatenate([jnp.reshape(log_width, (1,)).astype(dtype), jnp.asarray(extra, dtype)])
+
+
+__all__ = ["ModelSpec", "Terms", "FitModel", "FIT_MODELS", "prepare", "green", "to_natural", "from_natural",
+           "MODELS", "SCALE_NAME", "SHAPE_NAMES", "fbar", "disk_offsets", "default_shape"]

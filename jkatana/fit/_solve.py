@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from jkatana.fit._model import LN2, ModelSpec, Terms, green, to_natural
+from jkatana.fit._model import LN2, ModelSpec, Terms, default_shape, green, to_natural
 
 SOLVERS = ("lm", "dogleg", "gn", "jaxopt")
 Z95 = 1.959963984540054
@@ -52,20 +52,41 @@ Z95 = 1.959963984540054
 class NoiseModel:
     """σ(ρ)² = (relative·ρ)² + shot·|ρ| + absolute² (camera units).
 
-    The same form as :class:`jkatana.measure.synthetic.NoiseModel`: a
-    multiplicative term (flicker), a Poisson-like term and an absolute floor
+    One noise model for simulation and fitting: a multiplicative term (source
+    flicker), a Poisson-like term (variance ∝ signal) and an absolute floor
     (read noise, quantisation, stray light). Without the floor the far tail of
     a mirror lobe (values at 1e-55 of the peak) would count as exact
-    information.
+    information. All terms default to 0 (no noise); every term must be finite
+    and ≥ 0.
+
+    **Arguments:**
+
+    - `relative`: multiplicative standard deviation (e.g. 0.02 = 2 %).
+    - `absolute`: absolute standard deviation (camera units).
+    - `shot`: variance per unit signal (camera units).
     """
 
-    relative: float = 0.02
-    absolute: float = 1.0
+    relative: float = 0.0
+    absolute: float = 0.0
     shot: float = 0.0
 
+    def __post_init__(self):
+        from jkatana.errors import InputError
+
+        for name in ("relative", "absolute", "shot"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
+                raise InputError(f"noise parameter must be finite and >= 0, got {v!r}", field=name)
+
     def sigma(self, rho):
-        rho = jnp.abs(rho)
-        return jnp.sqrt((self.relative * rho) ** 2 + self.shot * rho + self.absolute**2)
+        """σ at ``rho``: a jax array for a jax input, numpy float64 otherwise."""
+        xp = jnp if isinstance(rho, jax.Array) else np
+        rho = xp.abs(rho if xp is jnp else np.asarray(rho, np.float64))
+        return xp.sqrt((self.relative * rho) ** 2 + self.shot * rho + self.absolute**2)
+
+    @property
+    def is_zero(self) -> bool:
+        return self.relative == 0 and self.shot == 0 and self.absolute == 0
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -117,6 +138,36 @@ def _jac(p, args):
 
 
 # --------------------------------------------------------------------------- closed form
+
+
+@functools.partial(jax.jit, static_argnames=("spec",))
+def start_vector(terms: Terms, y, w, spec: ModelSpec):
+    """The default start: closed form for the paper's Gaussian models, a width grid for other lobes."""
+    if spec.model in ("hiraji", "hamon"):
+        return closed_form_start(terms, y, w, spec)
+    return grid_start(terms, y, w, spec)
+
+
+@functools.partial(jax.jit, static_argnames=("spec",))
+def grid_start(terms: Terms, y, w, spec: ModelSpec, mus=None):
+    """Coarse-grid start: for each width on a log grid (other shape parameters at their defaults) the
+    best scale is linear; the lowest cost wins (jit/vmap-able)."""
+    mus = jnp.geomspace(1e-3, 0.5, 48).astype(y.dtype) if mus is None else jnp.asarray(mus, y.dtype)
+    tail = jnp.zeros(int(spec.tilt) + int(spec.floor), y.dtype)
+
+    def vec(log_s, log_mu):
+        return jnp.concatenate([jnp.reshape(log_s, (1,)), default_shape(spec, log_mu, y.dtype), tail])
+
+    def cost_at(mu):
+        m1 = green(vec(jnp.zeros((), y.dtype), jnp.log(mu)), terms, spec)  # scale 1
+        a = jnp.sum(m1 * y * w * w) / jnp.maximum(jnp.sum((m1 * w) ** 2), jnp.finfo(y.dtype).tiny)
+        a = jnp.maximum(a, jnp.finfo(y.dtype).tiny)
+        r = (a * m1 - y) * w
+        return jnp.sum(r * r), jnp.log(a)
+
+    costs, logs = jax.vmap(cost_at)(mus)
+    i = jnp.argmin(jnp.where(jnp.isfinite(costs), costs, jnp.inf))
+    return vec(logs[i], jnp.log(mus[i]))
 
 
 @functools.partial(jax.jit, static_argnames=("spec", "snr_min", "rel_min", "mu_fallback"))
@@ -262,8 +313,47 @@ def verdict(out: dict, dtype=np.float64, *, tol: float | None = None) -> tuple[b
 # --------------------------------------------------------------------------- Laplace
 
 
+def natural_intervals(p, cov, spec: ModelSpec, z: float = Z95) -> tuple[dict, dict, bool]:
+    """Natural-unit standard errors and intervals from a covariance of the fit vector.
+
+    Each natural parameter v is a monotone function of one scalar u(p) that is
+    close to normal: log v for positive parameters (scale, widths, the haze
+    width), the logit for γ and the mixture weight, v itself for tilt and
+    floor. The interval is v(u ± z·sd(u)) (so it stays inside the parameter's
+    domain), sd(u)² = ∇uᵀ Σ ∇u (delta method), and the standard error is
+    |dv/du|·sd(u). Returns ``(se, ci, ok)``.
+    """
+    p = np.asarray(p, np.float64)
+    cov = np.asarray(cov, np.float64)
+    ok = bool(np.all(np.isfinite(cov)) and np.all(np.diag(cov) > 0))
+    ns = spec.n_shape
+    fm = spec.fit_model
+    from scipy.special import expit as sig
+    exp = lambda t: math.exp(min(t, 700.0))  # noqa: E731
+    items = [(fm.scale_name, np.eye(spec.size)[0], p[0], exp)]
+    items.append((fm.names[0], np.eye(spec.size)[1], p[1], exp))
+    if spec.model == "gtr":
+        items.append(("gamma", np.eye(spec.size)[2], p[2], lambda t: 1.0 + 3.0 * sig(t)))
+    if spec.model == "two-lobe":
+        g = np.eye(spec.size)[1] + np.eye(spec.size)[2] * sig(p[2])
+        items.append(("alpha_haze", g, p[1] + float(np.logaddexp(0.0, p[2])), exp))
+        items.append(("weight", np.eye(spec.size)[3], p[3], sig))
+    if spec.tilt:
+        items.append(("tilt_deg", np.eye(spec.size)[spec.tilt_index], p[spec.tilt_index], math.degrees))
+    if spec.floor:
+        items.append(("floor", np.eye(spec.size)[spec.floor_index], p[spec.floor_index], lambda t: t))
+    se, ci = {}, {}
+    for name, g, u, f in items:
+        sd = math.sqrt(abs(float(g @ cov @ g))) if ok else float("nan")
+        lo, hi = (f(u - z * sd), f(u + z * sd)) if math.isfinite(sd) else (float("nan"), float("nan"))
+        h = 1e-6 * max(1.0, abs(u))
+        se[name] = float(abs(f(u + h) - f(u - h)) / (2 * h) * sd)
+        ci[name] = [float(lo), float(hi)]
+    return se, ci, ok
+
+
 def laplace(jtj, cost: float, n_eff: int, p, spec: ModelSpec, *, birge: bool = True) -> dict:
-    """Gauss–Newton covariance at the optimum, natural-unit errors and log-normal 95 % intervals."""
+    """Gauss–Newton covariance at the optimum, natural-unit errors and 95 % intervals (:func:`natural_intervals`)."""
     jtj = np.asarray(jtj, np.float64)
     p = np.asarray(p, np.float64)
     dof = max(1, n_eff - spec.size)
@@ -271,27 +361,12 @@ def laplace(jtj, cost: float, n_eff: int, p, spec: ModelSpec, *, birge: bool = T
     scale = max(1.0, chi2_dof) if birge else 1.0
     try:
         cov = np.linalg.inv(jtj) * scale
-        ok = bool(np.all(np.isfinite(cov)) and np.all(np.diag(cov) > 0))
     except np.linalg.LinAlgError:
-        cov, ok = np.full_like(jtj, np.nan), False
-    sd = np.sqrt(np.abs(np.diag(cov)))
-    names = spec.names
-    ci, se = {}, {}
-    for i, name in enumerate(names):
-        if i < 2:  # log-space parameters
-            lo, hi = math.exp(p[i] - Z95 * sd[i]), math.exp(p[i] + Z95 * sd[i])
-            se[name] = math.exp(p[i]) * sd[i]
-        elif name == "tilt_deg":
-            lo, hi = (math.degrees(p[i] - Z95 * sd[i]), math.degrees(p[i] + Z95 * sd[i]))
-            se[name] = math.degrees(sd[i])
-        else:
-            lo, hi = p[i] - Z95 * sd[i], p[i] + Z95 * sd[i]
-            se[name] = sd[i]
-        ci[name] = [float(lo), float(hi)]
-    params = ["log_" + names[0], "log_mu"] + (["tilt_rad"] if spec.tilt else []) + (["floor"] if spec.floor else [])
-    return dict(ok=ok, names=list(names), params=params, cov_log=cov.tolist(), se=se, ci95=ci,
+        cov = np.full_like(jtj, np.nan)
+    se, ci, ok = natural_intervals(p, cov, spec)
+    return dict(ok=ok, names=list(spec.names), params=spec.log_names, cov_log=cov.tolist(), se=se, ci95=ci,
                 chi2_dof=chi2_dof, covariance_scale=scale)
 
 
-__all__ = ["NoiseModel", "estimate_noise", "residuals", "closed_form_start", "solve", "verdict",
-           "laplace", "SOLVERS", "to_natural"]
+__all__ = ["NoiseModel", "estimate_noise", "residuals", "closed_form_start", "grid_start", "start_vector", "solve",
+           "verdict", "laplace", "natural_intervals", "SOLVERS", "to_natural"]

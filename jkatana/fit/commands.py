@@ -6,31 +6,119 @@ import argparse
 import sys
 from pathlib import Path
 
-FIT_HELP = "Fit eq. (3)/(4) to a measurement table: values, Laplace and emcee intervals, quality per incidence."
+FIT_HELP = ("Fit a lobe (the paper's eq. 3/4, Beckmann, GGX, GTR, two-lobe) to a measurement or BRDF table: values, "
+            "Laplace, robust and optional bootstrap/emcee intervals, misfit flag, quality per incidence.")
 REPORT_HELP = "Write a Markdown report with plots (fit per incidence, residuals, quality, corner) from a parameter file."
 
 
+def _models():
+    from jkatana.fit._model import MODELS
+
+    return list(MODELS)
+
+
 def fit_add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("table", help="measurement table (CSV or Parquet, jkatana.measure.table)")
+    parser.add_argument("table", help="measurement table (CSV/Parquet, jkatana.measure.table) or a BRDF table "
+                                      "(CSV, jkatana.brdf.table)")
     parser.add_argument("-o", "--output", required=True, help="parameter file to write (JSON)")
     parser.add_argument("--region", default=None, help="region to fit (default: the table's only region)")
-    parser.add_argument("--model", choices=["hiraji", "hamon"], default=None,
-                        help="model (default: the region's own: hiraji → eq. 3, hamon → eq. 4)")
+    parser.add_argument("--model", choices=_models(), default=None,
+                        help="model (default: the region's own: hiraji -> eq. 3, hamon -> eq. 4)")
+    parser.add_argument("--channel", default=None, help="channel of a BRDF table (default: its only channel)")
     parser.add_argument("--solver", choices=["lm", "dogleg", "gn", "jaxopt"], default="lm")
     parser.add_argument("--tilt", action="store_true", help="free sample tilt (degrees, towards the light)")
     parser.add_argument("--floor", action="store_true", help="free constant floor (camera units)")
+    parser.add_argument("--noise", choices=["auto", "given", "model"], default="auto",
+                        help="per-row sigma as given (auto: when every row has one) or a fitted noise model")
+    parser.add_argument("--loss", choices=["squared", "huber", "cauchy"], default="squared",
+                        help="robust loss for outlying captures (IRLS)")
+    parser.add_argument("--source-radius-deg", type=float, default=0.0,
+                        help="angular radius of the source seen from the sample (instrument response)")
+    parser.add_argument("--aperture-radius-deg", type=float, default=0.0,
+                        help="angular radius of the detector aperture seen from the sample (instrument response)")
+    parser.add_argument("--instrument-points", type=int, default=12,
+                        help="quadrature points per disk of the instrument response")
+    parser.add_argument("--bootstrap", type=int, default=0, help="cluster-bootstrap replicates over incidences")
     parser.add_argument("--emcee", action="store_true", help="also sample the posterior with emcee")
-    parser.add_argument("--optical-constants", default="Fe-Johnson", help="Fe-Johnson, Fe-Querry or a YAML path")
-    parser.add_argument("--camera", default="Nikon 5100 (NPL)", help="colour-science camera name")
+    parser.add_argument("--optical-constants", default="Fe-Johnson",
+                        help="a shipped table (Fe-Johnson, Fe-Querry, Cr-Johnson, Ni-Johnson, SS-Karlsson-austenitic, "
+                             "...) or a refractiveindex.info YAML path")
+    parser.add_argument("--camera", default="Nikon 5100 (NPL)",
+                        help="colour-science camera name (green), 'NAME:red|green|blue', 'band:LO-HI' (nm), "
+                             "or a CSV/JSON sensitivity file")
     parser.add_argument("--light", default="D65", help="illuminant name or CCT")
     parser.add_argument("--multistart", action="store_true", help="also try a coarse-grid start")
-    parser.add_argument("--seed", type=int, default=0, help="emcee seed")
+    parser.add_argument("--seed", type=int, default=0, help="emcee / bootstrap seed")
 
 
 def _x64():
+    """float64 fits (DESIGN: numerical core) and JAX's persistent compilation cache.
+
+    The cache (``$JKATANA_CACHE``, else ``~/.cache/jkatana``, folder ``jax``)
+    keeps the compiled solvers between runs, so the second ``jkatana fit`` of a
+    table of the same shape and model pays tracing, not XLA compilation.
+    Set ``JKATANA_NO_JAX_CACHE=1`` to switch it off.
+    """
+    import os
+
     import jax
 
-    jax.config.update("jax_enable_x64", True)  # fits are float64 (DESIGN: numerical core)
+    jax.config.update("jax_enable_x64", True)
+    if not os.environ.get("JKATANA_NO_JAX_CACHE"):
+        root = Path(os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana") / "jax"
+        try:
+            root.mkdir(parents=True, exist_ok=True)
+            jax.config.update("jax_compilation_cache_dir", str(root))
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+        except OSError:  # a read-only home: compile every time
+            pass
+
+
+def load_fit_data(path, region=None, channel=None):
+    """FitData from a measurement table or a BRDF table (told apart by the header)."""
+    from jkatana.brdf.table import is_brdf_table, read_brdf_table
+    from jkatana.fit.region import FitData
+    from jkatana.measure.table import read_table
+
+    if str(path).lower().endswith(".csv") and is_brdf_table(path):
+        return FitData.from_brdf_table(read_brdf_table(path), channel, region=region or "hiraji", source=path)
+    return FitData.from_table(read_table(path), region, source=path)
+
+
+def instrument_from_args(args):
+    import math
+
+    from jkatana.errors import InputError
+
+    src, ap = args.source_radius_deg, args.aperture_radius_deg
+    for name, v in (("source-radius-deg", src), ("aperture-radius-deg", ap)):
+        if not (math.isfinite(v) and 0 <= v < 10):
+            raise InputError(f"must be in [0, 10) degrees, got {v}", field=name)
+    if args.instrument_points < 1:
+        raise InputError(f"must be >= 1, got {args.instrument_points}", field="instrument-points")
+    if src == 0 and ap == 0:
+        return None
+    return (math.radians(src), math.radians(ap), int(args.instrument_points))
+
+
+def summary(fit, output=None) -> str:
+    """The lines ``jkatana fit`` prints: model, χ²/dof and misfit, every method's 95 % intervals."""
+    f = lambda x: f"{x:.6g}"  # noqa: E731
+    head = f"{fit.region} (model {fit.spec.model}): chi2/dof={fit.diagnostics['chi2_dof']:.3f}"
+    if fit.misfit and fit.misfit["flag"]:
+        head += " -- " + fit.misfit["note"]
+    lines = [head]
+    methods = [("Laplace", fit.laplace), ("robust", fit.robust), ("bootstrap", fit.bootstrap), ("emcee", fit.emcee)]
+    for name, v in fit.values.items():
+        cells = [f"  {name} = {f(v)}"]
+        for label, m in methods:
+            ci = ((m or {}).get("ci95") or {}).get(name)
+            if ci is not None:
+                cells.append(f"{label} [{f(ci[0])}, {f(ci[1])}]")
+        lines.append(" | ".join(cells))
+    status = "converged" if fit.converged else "NOT CONVERGED: " + "; ".join(fit.reasons)
+    lines.append(status + (f" -> {output}" if output else ""))
+    return "\n".join(lines)
 
 
 def _check_fit_data(data, args) -> None:
@@ -61,22 +149,22 @@ def fit_run(args: argparse.Namespace) -> int:
     from jkatana.errors import InputError
     from jkatana.fit.params import write_params
     from jkatana.fit.posterior import sample
-    from jkatana.fit.region import FitData, Setup, fit_region
-    from jkatana.measure.table import read_table
+    from jkatana.fit.region import Setup, fit_region
 
     from jkatana.io.limits import number
     from jkatana.io.outputs import Output, check_outputs
 
     number(args.seed, "--seed", lo=0, hi=2 ** 32 - 1, integer=True)
     check_outputs([Output(args.output, "--output", (".json",))], inputs=[args.table])
-    table = read_table(args.table)
-    data = FitData.from_table(table, args.region, source=args.table)
+    data = load_fit_data(args.table, args.region, args.channel)
     _check_fit_data(data, args)
     setup = Setup(optical_constants=args.optical_constants, camera=args.camera, light=args.light)
+    setup.weights()  # bad camera / light names fail here, before any compilation
     with tqdm(total=2 + int(args.emcee), desc=f"fit {data.region}", file=sys.stderr) as bar:
         bar.set_postfix_str("least squares + per-incidence refits")
         fit = fit_region(data, model=args.model, setup=setup, tilt=args.tilt, floor=args.floor,
-                         solver=args.solver, multistart=args.multistart)
+                         solver=args.solver, multistart=args.multistart, noise=args.noise, loss=args.loss,
+                         instrument=instrument_from_args(args), bootstrap=args.bootstrap, seed=args.seed)
         bar.update(2)
         if args.emcee:
             bar.set_postfix_str("emcee")
@@ -87,10 +175,7 @@ def fit_run(args: argparse.Namespace) -> int:
     except OSError:
         raise InputError("cannot resolve", path=args.table) from None
     write_params(fit, args.output, table_path=rel)
-    status = "converged" if fit.converged else "NOT CONVERGED: " + "; ".join(fit.reasons)
-    vals = ", ".join(f"{k}={v:.6g} [{fit.laplace['ci95'][k][0]:.6g}, {fit.laplace['ci95'][k][1]:.6g}]"
-                     for k, v in fit.values.items())
-    print(f"{data.region}: {vals}; chi2/dof={fit.diagnostics['chi2_dof']:.3f}; {status} -> {args.output}")
+    print(summary(fit, args.output))
     return 0 if fit.converged else 1
 
 
@@ -129,4 +214,43 @@ def report_run(args: argparse.Namespace) -> int:
     _check_report_params(args.params)
     md = write_report(args.params, args.output, table=args.table)
     print(md)
+    return 0
+
+
+COMPARE_HELP = ("Compare every lobe on one table: per-incidence chi2/dof, AIC/BIC and leave-one-incidence-out "
+                "prediction error, as a table and a plot.")
+
+
+def compare_add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("table", help="measurement table or BRDF table (as for `jkatana fit`)")
+    parser.add_argument("-o", "--output", required=True, help="directory for compare.md, compare.json, compare.png")
+    parser.add_argument("--region", default=None, help="region (default: the table's only region)")
+    parser.add_argument("--channel", default=None, help="channel of a BRDF table")
+    parser.add_argument("--models", default=",".join(_models()),
+                        help=f"comma-separated models (default: all of {','.join(_models())})")
+    parser.add_argument("--noise", choices=["auto", "given", "model"], default="auto")
+    parser.add_argument("--optical-constants", default="Fe-Johnson")
+    parser.add_argument("--camera", default="Nikon 5100 (NPL)")
+    parser.add_argument("--light", default="D65")
+
+
+def compare_run(args: argparse.Namespace) -> int:
+    _x64()
+    from jkatana.errors import InputError
+    from jkatana.fit.compare import compare_models, write_comparison
+    from jkatana.fit.region import Setup
+
+    models = [m.strip() for m in args.models.split(",") if m.strip()]
+    bad = [m for m in models if m not in _models()]
+    if bad or not models:
+        raise InputError(f"unknown models {bad} (known: {_models()})", field="models")
+    data = load_fit_data(args.table, args.region, args.channel)
+    setup = Setup(optical_constants=args.optical_constants, camera=args.camera, light=args.light)
+    setup.weights()
+    result = compare_models(data, models, setup=setup, noise=args.noise)
+    md = write_comparison(result, args.output)
+    for r in result["models"]:
+        print(f"{r['model']:>9}: chi2/dof={r['chi2_dof']:.4g} dAIC={r['daic']:.4g} dBIC={r['dbic']:.4g} "
+              f"LOIO={r['loio_mean']:.4g} converged={r['converged']}")
+    print(f"best: AIC {result['best_aic']}, BIC {result['best_bic']}, LOIO {result['best_loio']} -> {md}")
     return 0

@@ -2,17 +2,24 @@
 
 Shape::
 
-    {"format": "jkatana-params/1", "region": "hiraji"|"hamon", "model": "hiraji"|"hamon",
-     "values": {"chi"|"beta": float, "mu": float, ["tilt_deg": float], ["floor": float]},
-     "laplace": {"names": [...], "cov_log": [[...]], "ci95": {name: [lo, hi]}, "se": {...}, ...},
-     "emcee": {"median": ..., "ci95": ..., "diagnostics": {...}} | null,
+    {"format": "jkatana-params/1", "region": str, "model": one of jkatana.fit._model.MODELS,
+     "lobe": {"lobe": name, ...} (the fitted lobe's ``to_params()``, jkatana.models.lobes),
+     "values": {scale name: float, shape parameters..., ["tilt_deg": float], ["floor": float]},
+     "laplace": {"names": [...], "params": [...], "cov_log": [[...]], "ci95": {name: [lo, hi]}, "se": {...}, ...},
+     "robust": {...} | null, "bootstrap": {...} | null, "emcee": {"median", "ci95", "diagnostics"} | null,
+     "misfit": {"flag": bool, "chi2_dof": float, "note": str},
      "optical_constants": "Fe-Johnson", "grid": {"start", "stop", "step", "size"},
-     "camera": str, "light": str, "converged": bool, "diagnostics": {...},
+     "camera": str, "light": str, "camera_sensitivity": [...], "light_spectrum": [...],
+     "converged": bool, "diagnostics": {...}, "options": {...},
      "per_incidence": [{"incidence_deg", "n", "chi2_dof", "rms_rel", "refit": {...}}, ...],
      "data": {"table": path or null, "region": str}}
 
-``cov_log`` is the covariance of (log scale, log μ[, tilt rad][, floor]).
-Written atomically (:func:`jkatana.io.atomic.write_text`).
+The scale is ``chi`` (hiraji), ``beta`` (hamon) or ``scale`` (other lobes),
+in camera units. ``cov_log`` is the covariance of the fit vector named by
+``laplace.params`` (:class:`jkatana.fit._model.ModelSpec`). Only ``format``,
+``region``, ``model``, ``values``, ``optical_constants`` and ``converged``
+are required; files written by the API without ``diagnostics`` or camera
+arrays are read too. Written atomically (:func:`jkatana.io.atomic.write_text`).
 """
 
 from __future__ import annotations
@@ -49,14 +56,24 @@ def _clean(x):
 
 def to_dict(fit, table_path: str | None = None) -> dict:
     """The parameter-file dict of a :class:`~jkatana.fit.region.RegionFit`."""
+    import jax.numpy as jnp
+
     setup = fit.setup.describe()
+    spec = fit.spec
+    lobe = spec.fit_model.build(jnp.asarray(fit.p[1:1 + spec.n_shape])).to_params()
     return _clean(dict(
-        format=FORMAT, region=fit.region, model=fit.spec.model, values=fit.values,
+        format=FORMAT, region=fit.region, model=spec.model, lobe=lobe, values=fit.values,
+        robust=getattr(fit, "robust", None), bootstrap=getattr(fit, "bootstrap", None),
+        misfit=getattr(fit, "misfit", None),
         laplace={k: v for k, v in fit.laplace.items() if k != "ok"} | {"ok": fit.laplace["ok"]},
         emcee=fit.emcee, optical_constants=setup["optical_constants"], grid=setup["grid"],
-        camera=setup["camera"], light=setup["light"], converged=bool(fit.converged),
+        camera=setup["camera"], light=setup["light"], camera_sensitivity=setup["camera_sensitivity"],
+        light_spectrum=setup["light_spectrum"], converged=bool(fit.converged),
         diagnostics=fit.diagnostics, per_incidence=fit.per_incidence,
-        options=dict(tilt=fit.spec.tilt, floor=fit.spec.floor),
+        options=dict(tilt=spec.tilt, floor=spec.floor, loss=getattr(fit, "loss", "squared"),
+                     instrument=None if spec.instrument is None else dict(
+                         source_radius_deg=math.degrees(spec.instrument[0]),
+                         aperture_radius_deg=math.degrees(spec.instrument[1]), points=spec.instrument[2])),
         data=dict(table=table_path, region=fit.data.region),
     ))
 
@@ -73,9 +90,11 @@ def write_params(fit_or_dict, path, table_path: str | None = None) -> Path:
 class Params:
     """What a renderer needs from a parameter file (validated by :func:`read_params`).
 
-    ``scale`` is χ (hiraji) or β (hamon) in camera units; ``mu`` in radians;
-    ``ci95`` maps names to (lo, hi) from the Laplace approximation; ``raw``
-    is the whole file.
+    ``scale`` is χ (hiraji), β (hamon) or the lobe's scale, in camera units;
+    ``mu`` the lobe's width (μ in radians for the paper's lobes, α for the
+    microfacet lobes); ``lobe`` the fitted lobe's ``to_params()`` dict
+    (:func:`jkatana.models.lobes.lobe_from_params` rebuilds it); ``ci95`` maps
+    names to (lo, hi) from the Laplace approximation; ``raw`` is the whole file.
     """
 
     region: str
@@ -87,7 +106,8 @@ class Params:
     optical_constants: str
     converged: bool
     ci95: dict
-    raw: dict = dataclasses.field(repr=False, compare=False)
+    lobe: dict | None = None
+    raw: dict = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def values(self) -> dict:
@@ -113,16 +133,18 @@ def params_from_dict(d, path=None) -> Params:
         raise InputError("top level must be an object", path=path)
     if d.get("format") != FORMAT:
         raise InputError(f"expected format {FORMAT!r}, got {d.get('format')!r}", path=path, field="format")
+    from jkatana.fit._model import MODELS, SCALE_NAME, SHAPE_NAMES
+
     model = d.get("model")
-    if model not in ("hiraji", "hamon"):
-        raise InputError(f"must be 'hiraji' or 'hamon', got {model!r}", path=path, field="model")
+    if model not in MODELS:
+        raise InputError(f"must be one of {list(MODELS)}, got {model!r}", path=path, field="model")
     region = d.get("region")
     if not isinstance(region, str) or not region:
         raise InputError("missing or not a string", path=path, field="region")
     values = d.get("values")
     if not isinstance(values, dict):
         raise InputError("missing or not an object", path=path, field="values")
-    scale_name = "chi" if model == "hiraji" else "beta"
+    scale_name = SCALE_NAME[model]
 
     def num(name, positive=False, default=None):
         v = values.get(name, default)
@@ -133,7 +155,9 @@ def params_from_dict(d, path=None) -> Params:
         return float(v)
 
     scale = num(scale_name, positive=True)
-    mu = num("mu", positive=True)
+    mu = num(SHAPE_NAMES[model][0], positive=True)
+    for extra in SHAPE_NAMES[model][1:]:
+        num(extra)
     tilt = num("tilt_deg", default=0.0)
     floor = num("floor", default=0.0)
     oc = d.get("optical_constants")
@@ -146,8 +170,11 @@ def params_from_dict(d, path=None) -> Params:
     if not isinstance(lap, dict):
         raise InputError("not an object", path=path, field="laplace")
     ci = {k: tuple(v) for k, v in (lap.get("ci95") or {}).items() if isinstance(v, list) and len(v) == 2}
+    lobe = d.get("lobe")
+    if lobe is not None and not (isinstance(lobe, dict) and isinstance(lobe.get("lobe"), str)):
+        raise InputError("must be an object naming its lobe", path=path, field="lobe")
     return Params(region=region, model=model, scale=scale, mu=mu, tilt_deg=tilt, floor=floor,
-                  optical_constants=oc, converged=conv, ci95=ci, raw=d)
+                  optical_constants=oc, converged=conv, ci95=ci, lobe=lobe, raw=d)
 
 
 __all__ = ["FORMAT", "Params", "read_params", "write_params", "to_dict", "params_from_dict"]

@@ -114,7 +114,7 @@ def fit_pixels(values, terms: Terms, *, model: str = "hiraji", noise: NoiseModel
     if sigma is not None:
         S, noise = jnp.asarray(sigma, dtype), None
     else:
-        S, noise = jnp.zeros((), dtype), (noise or NoiseModel())
+        S, noise = jnp.zeros((), dtype), (noise or NoiseModel(relative=0.02, absolute=1.0))
     P = Y.shape[0]
     chunk = chunk or P
     outs = [_batch(Y[i:i + chunk], S if S.ndim == 0 else S[i:i + chunk], terms, spec, steps, noise)

@@ -39,11 +39,14 @@ def log_prob_fn(fit):
     p_hat = jnp.asarray(fit.p, w.dtype)
     lo = p_hat.at[0].add(-20.0).at[1].set(math.log(1e-5))
     hi = p_hat.at[0].add(20.0).at[1].set(math.log(1.5))
+    for j in range(2, 1 + spec.n_shape):  # transformed shape parameters (logit / log-ratio)
+        lo = lo.at[j].set(-20.0)
+        hi = hi.at[j].set(20.0)
     if spec.tilt:
-        lo = lo.at[2].set(-0.3)
-        hi = hi.at[2].set(0.3)
+        lo = lo.at[spec.tilt_index].set(-0.3)
+        hi = hi.at[spec.tilt_index].set(0.3)
     if spec.floor:
-        j = 2 + int(spec.tilt)
+        j = spec.floor_index
         span = 10.0 * float(np.max(np.abs(fit.data.value[fit.data.usable]))) + 1.0
         lo = lo.at[j].set(-span)
         hi = hi.at[j].set(span)
@@ -142,12 +145,11 @@ def sample(fit, *, walkers: int = 32, chunk: int = 500, max_steps: int = 10000, 
 
 def to_natural_samples(chain, spec) -> np.ndarray:
     """(n, p) log-space samples → natural units in ``spec.names`` order."""
-    nat = np.array(chain, np.float64, copy=True)
-    nat[:, 0] = np.exp(nat[:, 0])
-    nat[:, 1] = np.exp(nat[:, 1])
-    if spec.tilt:
-        nat[:, 2] = np.rad2deg(nat[:, 2])
-    return nat
+    from jkatana.fit._model import to_natural
+
+    chain = np.asarray(chain, np.float64)
+    return np.array([[to_natural(row, spec)[n] for n in spec.names] for row in chain], np.float64).reshape(
+        chain.shape[0], len(spec.names))
 
 
 __all__ = ["sample", "log_prob_fn", "to_natural_samples"]

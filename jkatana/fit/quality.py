@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.fit._model import to_natural
-from jkatana.fit._solve import closed_form_start, laplace, residuals, solve, verdict
+from jkatana.fit._solve import laplace, residuals, solve, start_vector, verdict
 
 
 def per_incidence(fit, *, solver: str = "lm", max_steps: int = 200, refit: bool = True) -> list[dict]:
@@ -47,7 +47,7 @@ def per_incidence(fit, *, solver: str = "lm", max_steps: int = 200, refit: bool 
     W = jnp.where(jnp.asarray(masks), w[None, :], 0.0)
 
     def one(wk):
-        p0 = closed_form_start(terms, y, wk, spec)
+        p0 = start_vector(terms, y, wk, spec)
         p0 = jnp.where(jnp.all(jnp.isfinite(p0)), p0, jnp.asarray(fit.p, w.dtype))
         return solve(terms, y, wk, p0, spec=spec, solver=solver, max_steps=max_steps)
 

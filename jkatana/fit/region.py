@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -17,8 +18,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.errors import InputError
-from jkatana.fit._model import ModelSpec, Terms, from_natural, green, prepare, to_natural
-from jkatana.fit._solve import (NoiseModel, closed_form_start, estimate_noise, laplace, residuals, solve,
+from jkatana.fit._model import MODELS, ModelSpec, Terms, from_natural, green, prepare, to_natural
+from jkatana.fit._solve import (NoiseModel, estimate_noise, grid_start, laplace, residuals, solve, start_vector,
                                 verdict)
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
 
@@ -36,9 +37,13 @@ class FitData:
     usable: np.ndarray | None = None
     region: str = "hiraji"
     source: str | None = None
+    azimuth_deg: np.ndarray | None = None
 
     def __post_init__(self):
         self.theta_i_deg = np.asarray(self.theta_i_deg, np.float64).ravel()
+        if self.azimuth_deg is not None:
+            self.azimuth_deg = np.broadcast_to(np.asarray(self.azimuth_deg, np.float64),
+                                               self.theta_i_deg.shape).copy()
         self.theta_r_deg = np.asarray(self.theta_r_deg, np.float64).ravel()
         self.value = np.asarray(self.value, np.float64).ravel()
         n = self.value.size
@@ -74,6 +79,14 @@ class FitData:
                    usable, region=region, source=None if source is None else str(source))
 
     @property
+    def has_sigma(self) -> bool:
+        """True when every usable row has a positive, finite σ (then fits use it as given)."""
+        if self.sigma is None:
+            return False
+        s = self.sigma[self.usable]
+        return bool(np.all(np.isfinite(s) & (s > 0)))
+
+    @property
     def incidences(self) -> np.ndarray:
         """Incidence angles (degrees) that have usable rows."""
         return np.unique(np.round(self.theta_i_deg[self.usable], 6))
@@ -82,7 +95,24 @@ class FitData:
         mask = np.asarray(mask, bool)
         return FitData(self.theta_i_deg[mask], self.theta_r_deg[mask], self.value[mask],
                        None if self.sigma is None else self.sigma[mask], self.usable[mask],
-                       region=self.region, source=self.source)
+                       region=self.region, source=self.source,
+                       azimuth_deg=None if self.azimuth_deg is None else self.azimuth_deg[mask])
+
+    @classmethod
+    def from_brdf_table(cls, table, channel: str | None = None, region: str = "hiraji", source=None) -> "FitData":
+        """From a :class:`~jkatana.brdf.table.BRDFTable`: value = f_r cos θi (σ likewise), azimuth kept."""
+        if channel is None:
+            if len(table.channels) != 1:
+                raise InputError(f"table has channels {table.channels}: choose one with --channel",
+                                 path=source, field="channel")
+            channel = table.channels[0]
+        t = table.select(channel)
+        c = np.cos(np.deg2rad(t.theta_i_deg))
+        sigma = t.sigma * c
+        return cls(t.theta_i_deg, t.theta_o_deg, t.value * c,
+                   sigma if np.all(np.isfinite(sigma) & (sigma > 0)) else None, None, region=region,
+                   source=None if source is None else str(source),
+                   azimuth_deg=t.azimuth_deg if np.any(t.azimuth_deg != 0) else None)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,11 +136,48 @@ class Setup:
         return load(self.optical_constants).on_grid(self.grid)
 
     def describe(self) -> dict:
+        """The setup as the parameter file stores it.
+
+        Names are kept as given; the camera sensitivity and light spectrum on
+        the grid are stored too (``camera_sensitivity``, ``light_spectrum``), so
+        a file fitted with an array or a sensitivity file that has since moved
+        can still be re-read by :func:`Setup.from_dict`.
+        """
+        from jkatana.measure.camera import camera_sensitivity, light_spectrum
+
         g = self.grid
         return dict(optical_constants=str(self.optical_constants),
                     grid=dict(start=float(g.start), stop=float(g.stop), step=float(g.step), size=int(g.size)),
-                    camera=self.camera if isinstance(self.camera, str) else "array",
-                    light=self.light if isinstance(self.light, (str, int, float)) else "array")
+                    camera=str(self.camera) if isinstance(self.camera, (str, Path)) else "array",
+                    light=self.light if isinstance(self.light, (str, int, float)) else "array",
+                    camera_sensitivity=np.asarray(camera_sensitivity(self.camera, g), np.float64).tolist(),
+                    light_spectrum=np.asarray(light_spectrum(self.light, g), np.float64).tolist())
+
+    @classmethod
+    def from_dict(cls, d: dict, path=None) -> "Setup":
+        """The setup of a parameter file (inverse of :meth:`describe`; older files without arrays too)."""
+        from jkatana.spectral.grid import WavelengthGrid
+
+        g = d.get("grid") or {}
+        try:
+            grid = WavelengthGrid(g["start"], g["stop"], g["step"]) if g else DEFAULT_GRID
+        except (KeyError, TypeError, ValueError):
+            raise InputError(f"not a wavelength grid: {g!r}", path=path, field="grid") from None
+
+        def arr(key, name_key, default):
+            a = d.get(key)
+            if isinstance(a, list) and len(a) == grid.size:
+                return np.asarray(a, np.float64)
+            name = d.get(name_key)
+            if name is None:
+                return default
+            if name == "array":
+                raise InputError(f"{name_key} was an array and the file lacks {key!r}", path=path, field=key)
+            return name
+
+        return cls(optical_constants=d.get("optical_constants") or "Fe-Johnson", grid=grid,
+                   camera=arr("camera_sensitivity", "camera", DEFAULT_CAMERA),
+                   light=arr("light_spectrum", "light", "D65"))
 
 
 @dataclasses.dataclass
@@ -132,6 +199,10 @@ class RegionFit:
     terms: Terms = dataclasses.field(repr=False)
     weight: np.ndarray = dataclasses.field(repr=False)
     emcee: dict | None = None
+    robust: dict | None = None
+    bootstrap: dict | None = None
+    misfit: dict | None = None
+    loss: str = "squared"
 
     def model(self, p=None) -> np.ndarray:
         """Model green values at the data's geometry (at ``p`` or the optimum)."""
@@ -144,30 +215,12 @@ def default_model(region: str) -> str:
 
 def _start(start, terms, y, w, spec, dtype):
     if start is None or (isinstance(start, str) and start == "closed"):
-        return closed_form_start(terms, y, w, spec)
+        return start_vector(terms, y, w, spec)
     if isinstance(start, str) and start == "grid":
         return grid_start(terms, y, w, spec)
     if isinstance(start, dict):
         return jnp.asarray(from_natural(start, spec), dtype)
     return jnp.asarray(start, dtype)
-
-
-def grid_start(terms, y, w, spec: ModelSpec, mus=None):
-    """Coarse-grid start: for each μ on a log grid the best scale is linear; pick the lowest cost."""
-    mus = jnp.geomspace(1e-3, 0.5, 48) if mus is None else jnp.asarray(mus)
-    base = jnp.zeros(spec.size, y.dtype)
-
-    def cost_at(mu):
-        p = base.at[1].set(jnp.log(mu))
-        m1 = green(p, terms, spec)  # scale 1
-        a = jnp.sum(m1 * y * w * w) / jnp.maximum(jnp.sum((m1 * w) ** 2), jnp.finfo(y.dtype).tiny)
-        a = jnp.maximum(a, jnp.finfo(y.dtype).tiny)
-        r = (a * m1 - y) * w
-        return jnp.sum(r * r), jnp.log(a)
-
-    costs, logs = jax.vmap(cost_at)(mus)
-    i = jnp.argmin(jnp.where(jnp.isfinite(costs), costs, jnp.inf))
-    return base.at[0].set(logs[i]).at[1].set(jnp.log(mus[i]))
 
 
 def fit_arrays(terms: Terms, y, w, spec: ModelSpec, *, start=None, solver: str = "lm",
@@ -189,19 +242,26 @@ def fit_arrays(terms: Terms, y, w, spec: ModelSpec, *, start=None, solver: str =
 def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(), tilt: bool = False,
                floor: bool = False, solver: str = "lm", noise: NoiseModel | str = "auto", start=None,
                multistart: bool = False, max_steps: int = 200, per_incidence: bool = True,
-               birge: bool = True, dtype=jnp.float64, irls: bool = True) -> RegionFit:
-    """Fit eq. (3) (hiraji) or eq. (4) (hamon) to one region's data.
+               birge: bool = True, dtype=jnp.float64, irls: bool = True, loss: str = "squared",
+               instrument: tuple[float, float, int] | None = None, robust: bool = True,
+               bootstrap: int = 0, seed: int = 0) -> RegionFit:
+    """Fit a model (the paper's eq. 3 / eq. 4, or any lobe of :data:`jkatana.fit._model.FIT_MODELS`) to one region.
 
     **Arguments:**
 
     - `data`: :class:`FitData` (e.g. ``FitData.from_table(table, "hiraji")``).
-    - `model`: ``"hiraji"`` or ``"hamon"`` (default: the region's own).
+    - `model`: a name of :data:`~jkatana.fit._model.FIT_MODELS` (``"hiraji"``,
+      ``"hamon"``, ``"beckmann"``, ``"ggx"``, ``"gtr"``, ``"two-lobe"``;
+      default: the region's own paper model).
     - `setup`: optical constants, grid, camera, light (:class:`Setup`).
     - `tilt`, `floor`: free sample tilt (degrees, towards the light) / constant floor.
     - `solver`: ``"lm"`` (optimistix Levenberg–Marquardt), ``"dogleg"``, ``"gn"``
       (Gauss–Newton) or ``"jaxopt"`` (jaxopt LM, Madsen–Nielsen stop).
-    - `noise`: a :class:`NoiseModel`, or ``"auto"`` to estimate it from the
-      table (:func:`~jkatana.fit._solve.estimate_noise`).
+    - `noise`: ``"auto"`` (default): the table's per-row σ as given when every
+      usable row has a positive finite σ, else a :class:`NoiseModel` estimated
+      from the table (:func:`~jkatana.fit._solve.estimate_noise`);
+      ``"given"``: the per-row σ (an error without it); ``"model"``: always
+      the estimated noise model; or a :class:`NoiseModel`.
     - `start`: None/"closed" (log-linear closed form), "grid", a dict of
       natural values, or a parameter vector. `multistart`: also try the grid start.
     - `per_incidence`: compute per-incidence quality and refits.
@@ -209,31 +269,59 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
     - `dtype`: float64 (default). float32 works only with ``jax_enable_x64`` off
       (lineax crashes on mixed dtypes otherwise; see the issue's trap):
       run float32 fits in a separate process.
-    - `irls`: re-evaluate σ at the fitted model and refit once (σ from the data
-      biases the fit towards low-fluctuating points).
+    - `irls`: with a noise model, re-evaluate σ at the fitted model and refit
+      once (σ from the data biases the fit towards low-fluctuating points).
+
+    - `loss`: ``"squared"`` (default), ``"huber"`` or ``"cauchy"``: robust
+      losses by iteratively reweighted least squares
+      (:func:`~jkatana.fit.uncertainty.irls_weights`).
+    - `instrument`: ``(source_radius, aperture_radius, points)`` in radians:
+      the model convolved with the instrument's angular response
+      (:mod:`jkatana.fit._model`).
+    - `robust`: also compute the sandwich covariance and intervals
+      (:func:`~jkatana.fit.uncertainty.sandwich`).
+    - `bootstrap`: number of cluster-bootstrap replicates over incidences
+      (0: none; :func:`~jkatana.fit.uncertainty.bootstrap_incidences`), with `seed`.
 
     **Returns:** :class:`RegionFit`.
     """
+    from jkatana.fit import uncertainty as U
+
     t0 = time.perf_counter()
     model = model or default_model(data.region)
-    spec = ModelSpec(model, tilt, floor)
+    if model not in MODELS:
+        raise InputError(f"unknown model {model!r}; known: {list(MODELS)}", field="model")
+    if loss not in U.LOSSES:
+        raise InputError(f"loss must be one of {list(U.LOSSES)}, got {loss!r}", field="loss")
+    spec = ModelSpec(model, tilt, floor, instrument)
     if dtype == jnp.float32 and jax.config.jax_enable_x64:
         raise ValueError("float32 fits need jax_enable_x64 off (lineax fails on mixed dtypes); "
                          "run them in a separate process")
     n, k = setup.nk()
-    terms = prepare(model, data.theta_i_deg, data.theta_r_deg, n, k, setup.weights(), dtype)
+    terms = prepare(model, data.theta_i_deg, data.theta_r_deg, n, k, setup.weights(), dtype,
+                    azimuth_deg=data.azimuth_deg)
+    given = None
     if isinstance(noise, str):
-        if noise != "auto":
-            raise InputError(f"noise must be 'auto' or a NoiseModel, got {noise!r}", field="noise")
+        if noise not in ("auto", "given", "model"):
+            raise InputError(f"noise must be 'auto', 'given', 'model' or a NoiseModel, got {noise!r}",
+                             field="noise")
+        if noise in ("auto", "given") and data.has_sigma:
+            given = np.where(data.usable, data.sigma, 1.0)
+        elif noise == "given":
+            raise InputError("noise='given' needs a positive finite σ on every usable row", path=data.source,
+                             field="sigma")
         noise = estimate_noise(data.value[data.usable],
                                None if data.sigma is None else data.sigma[data.usable])
     y_np = np.where(data.usable, data.value, 0.0)
     y = jnp.asarray(y_np, dtype)
     use = jnp.asarray(data.usable)
-    w = jnp.where(use, 1.0 / noise.sigma(y), 0.0).astype(dtype)
+    if given is not None:
+        w = jnp.where(use, 1.0 / jnp.asarray(given, dtype), 0.0).astype(dtype)
+    else:
+        w = jnp.where(use, 1.0 / noise.sigma(y), 0.0).astype(dtype)
     out = fit_arrays(terms, y, w, spec, start=start, solver=solver, max_steps=max_steps, multistart=multistart)
     steps = int(out["steps"])
-    if irls and np.all(np.isfinite(out["p"])):
+    if irls and given is None and np.all(np.isfinite(out["p"])):
         m = green(jnp.asarray(out["p"]), terms, spec)
         w = jnp.where(use, 1.0 / noise.sigma(m), 0.0).astype(dtype)
         out2 = fit_arrays(terms, y, w, spec, start=out["p"], solver=solver, max_steps=max_steps)
@@ -243,6 +331,20 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
         out2["p0"] = out["p0"]
         steps += int(out2["steps"])
         out = out2
+    if loss != "squared" and np.all(np.isfinite(out["p"])):
+        w_base = w
+        for _ in range(5):
+            r = residuals(jnp.asarray(out["p"]), (terms, y, w_base, spec))
+            w = (w_base * jnp.sqrt(U.irls_weights(r, loss))).astype(dtype)
+            nxt = fit_arrays(terms, y, w, spec, start=out["p"], solver=solver, max_steps=max_steps)
+            steps += int(nxt["steps"])
+            nxt["p0"] = out["p0"]
+            r0 = np.asarray(residuals(jnp.asarray(out["p0"]), (terms, y, w, spec)))
+            nxt["cost0"] = 0.5 * float(np.sum(r0 * r0))
+            done = np.allclose(nxt["p"], out["p"], rtol=1e-8, atol=1e-10)
+            out = nxt
+            if done:
+                break
     ok, reasons = verdict(out, np.dtype(dtype))
     n_used = int(np.sum(data.usable))
     lap = laplace(out["jtj"], float(out["cost"]), n_used, out["p"], spec, birge=birge)
@@ -253,12 +355,18 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
     diagnostics = dict(solver=solver, steps=steps, cost=float(out["cost"]), cost_start=float(out["cost0"]),
                        gn_decrement=float(out["decrement"]), grad_inf_norm=float(out["grad_norm"]),
                        chi2_dof=lap["chi2_dof"], n_points=n_used, n_excluded=int(data.value.size - n_used),
-                       dof=max(1, n_used - spec.size), noise=noise.as_dict(),
+                       dof=max(1, n_used - spec.size),
+                       noise=noise.as_dict() | dict(sigma="per-row (given)" if given is not None else "model"),
                        start=to_natural(out["p0"], spec) if np.all(np.isfinite(out["p0"])) else None,
                        dtype=str(np.dtype(dtype)), reasons=reasons)
     fit = RegionFit(region=data.region, spec=spec, p=np.asarray(out["p"], np.float64), values=values,
                     converged=ok, reasons=reasons, laplace=lap, noise=noise, diagnostics=diagnostics,
-                    per_incidence=[], setup=setup, data=data, terms=terms, weight=np.asarray(w))
+                    per_incidence=[], setup=setup, data=data, terms=terms, weight=np.asarray(w), loss=loss)
+    fit.misfit = U.misfit(lap["chi2_dof"], diagnostics["dof"])
+    if robust and np.all(np.isfinite(fit.p)):
+        fit.robust = U.sandwich(fit)
+    if bootstrap:
+        fit.bootstrap = U.bootstrap_incidences(fit, bootstrap, seed=seed, solver=solver, max_steps=max_steps)
     if per_incidence:
         from jkatana.fit.quality import per_incidence as _pi
 
@@ -272,4 +380,4 @@ def fit_table(table, region: str | None = None, **kwargs) -> RegionFit:
     return fit_region(FitData.from_table(table, region), **kwargs)
 
 
-__all__ = ["FitData", "Setup", "RegionFit", "fit_region", "fit_table", "fit_arrays", "grid_start", "residuals"]
+__all__ = ["FitData", "Setup", "RegionFit", "fit_region", "fit_table", "fit_arrays", "residuals"]

@@ -33,23 +33,24 @@ def _table_path(d: dict, params_path: Path, table=None) -> Path | None:
 
 
 def _refit_from_params(d: dict, table_path: Path):
-    """Rebuild the RegionFit's arrays (no solve) to plot the model at the file's values."""
-    from jkatana.fit._model import ModelSpec, from_natural
-    from jkatana.fit.region import FitData, Setup, default_model
-    from jkatana.fit._model import prepare
-    from jkatana.measure.table import read_table
-    from jkatana.spectral.grid import WavelengthGrid
+    """Rebuild the fit's arrays (no solve) to plot the model at the file's values."""
+    import math
 
-    table = read_table(table_path)
-    data = FitData.from_table(table, d["region"], source=table_path)
-    g = d.get("grid") or {}
-    grid = WavelengthGrid(g["start"], g["stop"], g["step"]) if g else WavelengthGrid(400, 700, 5)
-    setup = Setup(optical_constants=d["optical_constants"], grid=grid,
-                  camera=d.get("camera") or "Nikon 5100 (NPL)", light=d.get("light") or "D65")
+    from jkatana.fit._model import ModelSpec, from_natural, prepare
+    from jkatana.fit.commands import load_fit_data
+    from jkatana.fit.region import Setup, default_model
+
+    data = load_fit_data(table_path, d["region"], (d.get("data") or {}).get("channel"))
+    setup = Setup.from_dict(d)
     opts = d.get("options") or {}
-    spec = ModelSpec(d.get("model") or default_model(d["region"]), bool(opts.get("tilt")), bool(opts.get("floor")))
+    inst = opts.get("instrument")
+    instrument = None if not inst else (math.radians(inst["source_radius_deg"]),
+                                        math.radians(inst["aperture_radius_deg"]), int(inst["points"]))
+    spec = ModelSpec(d.get("model") or default_model(d["region"]), bool(opts.get("tilt")), bool(opts.get("floor")),
+                     instrument)
     n, k = setup.nk()
-    terms = prepare(spec.model, data.theta_i_deg, data.theta_r_deg, n, k, setup.weights())
+    terms = prepare(spec.model, data.theta_i_deg, data.theta_r_deg, n, k, setup.weights(),
+                    azimuth_deg=data.azimuth_deg)
     p = from_natural(d["values"], spec)
     return data, spec, terms, p
 
@@ -82,17 +83,24 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
         plt.close(fig)
         figs.append(name)
 
+    from jkatana.fit._model import SCALE_NAME, SHAPE_NAMES
+
     tpath = _table_path(d, params_path, table)
-    scale_name = "chi" if P.model == "hiraji" else "beta"
+    scale_name = SCALE_NAME[P.model]
+    width_name = SHAPE_NAMES[P.model][0]
+    diag = d.get("diagnostics") or {}
     if tpath is not None:
         if not tpath.exists():
             raise InputError("table named in the parameter file not found (pass --table)", path=tpath,
                              field="data.table")
         data, spec, terms, p = _refit_from_params(d, tpath)
         m = np.asarray(green(jnp.asarray(p), terms, spec))
-        nz = d["diagnostics"].get("noise") or {}
-        noise = NoiseModel(**{k: nz[k] for k in ("relative", "absolute", "shot") if k in nz})
-        sig = np.asarray(noise.sigma(jnp.asarray(m)))
+        nz = diag.get("noise") or {}
+        if nz.get("sigma") == "per-row (given)" and data.has_sigma:
+            sig = np.where(data.usable, data.sigma, np.inf)
+        else:
+            noise = NoiseModel(**{k: nz[k] for k in ("relative", "absolute", "shot") if k in nz})
+            sig = np.asarray(noise.sigma(jnp.asarray(m)))
         incs = data.incidences
         ncol = min(3, len(incs))
         nrow = int(np.ceil(len(incs) / ncol))
@@ -130,6 +138,30 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
         fig2.suptitle(f"{P.region}: normalised residuals (±2σ dashed)", fontsize=10)
         fig2.tight_layout()
         save(fig2, "residuals.png")
+        # where the lobe lives: ±(4 widths, at least 1°) around each incidence's model peak, log scale
+        half = max(1.0, 4.0 * float(np.degrees(P.mu)))
+        fig3, axes3 = plt.subplots(2, len(incs), figsize=(3.0 * len(incs), 5.2), squeeze=False, sharex="col")
+        for j, inc in enumerate(incs):
+            mk = np.isclose(data.theta_i_deg, inc)
+            o = np.argsort(data.theta_r_deg[mk])
+            tr, y, mm, sg = data.theta_r_deg[mk][o], data.value[mk][o], m[mk][o], sig[mk][o]
+            pk = tr[np.argmax(mm)]
+            z = np.abs(tr - pk) <= half
+            top = max(float(np.max(np.abs(y[z]))) if z.any() else 1.0, 1e-300)
+            a = axes3[0, j]
+            a.semilogy(tr[z], np.clip(y[z], 1e-6 * top, None), ".", ms=3, color="0.3", label="measured")
+            a.semilogy(tr[z], np.clip(mm[z], 1e-6 * top, None), "-", color="C3", lw=1.0, label="model")
+            a.set_title(f"θi = {inc:g}°", fontsize=9)
+            b = axes3[1, j]
+            b.plot(tr[z], ((mm - y) / sg)[z], ".", ms=3, color="C0")
+            b.axhline(0, color="k", lw=0.6)
+            b.set_xlabel("θr (°)", fontsize=8)
+        axes3[0, 0].set_ylabel("value (log)", fontsize=8)
+        axes3[1, 0].set_ylabel("(model − data)/σ", fontsize=8)
+        axes3[0, 0].legend(fontsize=7)
+        fig3.suptitle(f"{P.region}: around the peak (±{half:.2g}°), model {P.model}", fontsize=10)
+        fig3.tight_layout()
+        save(fig3, "peak_zoom.png")
 
     rows = d.get("per_incidence") or []
     if rows:
@@ -143,7 +175,7 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
         ax0b = ax[0].twinx()
         ax0b.plot(inc, [r["rms_rel"] for r in rows], "s--", color="C1", ms=4)
         ax0b.set_ylabel("RMS misfit / peak", color="C1")
-        for j, (name, axj) in enumerate(zip([scale_name, "mu"], ax[1:])):
+        for j, (name, axj) in enumerate(zip([scale_name, width_name], ax[1:])):
             v = [((r.get("refit") or {}).get("values") or {}).get(name, np.nan) for r in rows]
             ci = [((r.get("refit") or {}).get("ci95") or {}).get(name, [np.nan, np.nan]) for r in rows]
             v = np.array(v, float)
@@ -155,8 +187,9 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
             if (~conv).any():
                 axj.plot(inc[~conv], v[~conv], "x", color="C3", label="refit NOT converged")
             gv = d["values"][name]
-            glo, ghi = d["laplace"]["ci95"][name]
-            axj.axhspan(glo, ghi, color="C2", alpha=0.25)
+            glo, ghi = ((d.get("laplace") or {}).get("ci95") or {}).get(name) or (None, None)
+            if glo is not None and ghi is not None:
+                axj.axhspan(glo, ghi, color="C2", alpha=0.25)
             axj.axhline(gv, color="C2", lw=1, label="global fit (95 %)")
             axj.set_xlabel("incidence θi (°)")
             axj.set_ylabel(name)
@@ -175,27 +208,37 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
                             title_fmt=".4g", title_kwargs=dict(fontsize=8))
         axes = np.array(fig.axes).reshape(len(names), len(names))
         for i, n in enumerate(names):
-            lo, hi = d["laplace"]["ci95"][n]
-            axes[i, i].axvspan(lo, hi, color="C2", alpha=0.2)
+            lo, hi = ((d.get("laplace") or {}).get("ci95") or {}).get(n) or (None, None)
+            if lo is not None and hi is not None:
+                axes[i, i].axvspan(lo, hi, color="C2", alpha=0.2)
         fig.suptitle("emcee posterior (Laplace 95 % in green)", fontsize=9, y=1.0)
         save(fig, "corner.png", tight=True)
 
     # ---- Markdown
+    f = lambda x: "—" if x is None else f"{x:.6g}"  # noqa: E731
+    chi2 = diag.get("chi2_dof")
+    mis = d.get("misfit") or {}
     lines = [f"# jkatana fit report — {P.region}", "",
-             f"- model: **{P.model}**, optical constants **{P.optical_constants}**, "
-             f"camera {d.get('camera')}, light {d.get('light')}",
+             f"- model: **{P.model}** (lobe {(d.get('lobe') or {}).get('lobe', P.model)}), optical constants "
+             f"**{P.optical_constants}**, camera {d.get('camera')}, light {d.get('light')}",
              f"- converged: **{P.converged}**" + ("" if P.converged else
-                                                  " — " + "; ".join(d["diagnostics"].get("reasons", []))),
-             f"- points: {d['diagnostics'].get('n_points')}, χ²/dof = {d['diagnostics'].get('chi2_dof'):.3f}, "
-             f"solver {d['diagnostics'].get('solver')}, {d['diagnostics'].get('steps')} steps",
-             f"- noise model: {d['diagnostics'].get('noise')}", "",
-             "| parameter | value | Laplace 95 % | emcee median | emcee 95 % |", "|---|---|---|---|---|"]
+                                                  " — " + "; ".join(diag.get("reasons", []))),
+             f"- points: {diag.get('n_points', '—')}, χ²/dof = {f(chi2)}, "
+             f"solver {diag.get('solver', '—')}, {diag.get('steps', '—')} steps",
+             f"- noise model: {diag.get('noise', '—')}"]
+    if mis:
+        lines.append(f"- {'**' + mis['note'] + '**' if mis.get('flag') else mis.get('note')}")
+    methods = [("Laplace", d.get("laplace")), ("robust (sandwich)", d.get("robust")),
+               ("bootstrap", d.get("bootstrap")), ("emcee", em)]
+    methods = [(k, v) for k, v in methods if v and v.get("ci95")]
+    lines += ["", "| parameter | value | " + " | ".join(f"{k} 95 %" for k, _ in methods) + " |",
+              "|---|---|" + "---|" * len(methods)]
     for name, v in d["values"].items():
-        lci = d["laplace"]["ci95"].get(name, [None, None])
-        med = (em or {}).get("median", {}).get(name)
-        eci = (em or {}).get("ci95", {}).get(name, [None, None])
-        f = lambda x: "—" if x is None else f"{x:.6g}"  # noqa: E731
-        lines.append(f"| {name} | {f(v)} | [{f(lci[0])}, {f(lci[1])}] | {f(med)} | [{f(eci[0])}, {f(eci[1])}] |")
+        cells = []
+        for _, m_ in methods:
+            ci = m_["ci95"].get(name) or [None, None]
+            cells.append(f"[{f(ci[0])}, {f(ci[1])}]")
+        lines.append(f"| {name} | {f(v)} | " + " | ".join(cells) + " |")
     if em:
         dg = em["diagnostics"]
         lines += ["", f"emcee: {dg['walkers']} walkers × {dg['steps']} steps, burn-in {dg['burn_in']}, "
@@ -204,7 +247,7 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
                       f"chain long enough (N > 50 τ): **{dg['long_enough']}**"]
     if rows:
         lines += ["", "## Per incidence", "",
-                  f"| θi (°) | n | χ²/dof | RMS/peak | refit {scale_name} [95 %] | refit μ [95 %] | converged |",
+                  f"| θi (°) | n | χ²/dof | RMS/peak | refit {scale_name} [95 %] | refit {width_name} [95 %] | converged |",
                   "|---|---|---|---|---|---|---|"]
         for r in rows:
             rf = r.get("refit") or {}
@@ -216,7 +259,7 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
                 lo, hi = ci.get(nm, [None, None])
                 return f"{vals[nm]:.5g} [{lo:.5g}, {hi:.5g}]" if lo is not None else f"{vals[nm]:.5g}"
             lines.append(f"| {r['incidence_deg']:g} | {r['n']} | {r['chi2_dof']:.3g} | {r['rms_rel']:.3g} | "
-                         f"{cell(scale_name)} | {cell('mu')} | {rf.get('converged')} |")
+                         f"{cell(scale_name)} | {cell(width_name)} | {rf.get('converged')} |")
     lines += [""] + [f"![{f}]({f})" for f in figs] + [""]
     md = out / "report.md"
     write_text(md, "\n".join(lines))

@@ -33,6 +33,7 @@ inside ``jit``.
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 
 import numpy as np
 from jaxtyping import Float
@@ -126,10 +127,93 @@ def light_spectrum(light="D65", grid: WavelengthGrid = DEFAULT_GRID) -> Float[np
     return _on_grid(light, grid, "light spectrum", "light")
 
 
+def _read_curve(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(wavelengths nm, values) from a CSV (two columns, optional header) or JSON file."""
+    import json
+
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as err:
+        raise InputError(f"cannot read: {err.strerror or err}", path=path, field="camera") from None
+    if path.suffix.lower() == ".json":
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise InputError(f"not JSON ({err.msg} at line {err.lineno})", path=path) from None
+        if not isinstance(doc, dict):
+            raise InputError("top level must be an object with 'wavelength' and 'sensitivity'", path=path)
+        wl = doc.get("wavelength", doc.get("wavelengths"))
+        val = doc.get("sensitivity", doc.get("values"))
+        if wl is None or val is None:
+            raise InputError("needs 'wavelength' and 'sensitivity' arrays", path=path, field="sensitivity")
+        try:
+            wl, val = np.asarray(wl, np.float64), np.asarray(val, np.float64)
+        except (TypeError, ValueError):
+            raise InputError("'wavelength' and 'sensitivity' must be arrays of numbers", path=path,
+                             field="sensitivity") from None
+    else:
+        rows = []
+        for i, line in enumerate(text.splitlines(), start=1):
+            parts = [c.strip() for c in line.replace(";", ",").split(",") if c.strip()]
+            if not parts or parts[0].startswith("#"):
+                continue
+            try:
+                rows.append([float(parts[0]), float(parts[1])])
+            except (ValueError, IndexError):
+                if rows:
+                    raise InputError(f"expected 'wavelength,value', got {line!r}", path=path,
+                                     row=i) from None
+        if not rows:
+            raise InputError("no 'wavelength,value' rows", path=path)
+        wl, val = np.asarray(rows).T
+    if wl.ndim != 1 or wl.shape != val.shape or wl.size < 2:
+        raise InputError(f"wavelength {wl.shape} and sensitivity {val.shape} must be equal-length 1-D arrays",
+                         path=path, field="sensitivity")
+    if not (np.all(np.isfinite(wl)) and np.all(np.isfinite(val)) and np.all(np.diff(wl) > 0)):
+        raise InputError("wavelengths must be finite and increasing, values finite", path=path,
+                         field="sensitivity")
+    return wl, val
+
+
+def _band(spec: str, grid: WavelengthGrid) -> np.ndarray:
+    """A box band ``band:LO-HI`` (nm): sensitivity 1 inside [LO, HI], 0 outside."""
+    try:
+        lo, hi = (float(v) for v in spec.split(":", 1)[1].split("-"))
+    except ValueError:
+        raise InputError(f"expected 'band:LO-HI' in nm, got {spec!r}", field="camera") from None
+    wl = np.asarray(grid.wavelengths, np.float64)
+    out = ((wl >= lo - 1e-9) & (wl <= hi + 1e-9)).astype(np.float64)
+    if not out.any():
+        raise InputError(f"band {spec!r} holds no wavelength of the grid {wl[0]:g}–{wl[-1]:g} nm", field="camera")
+    return out
+
+
 def camera_sensitivity(camera=DEFAULT_CAMERA, grid: WavelengthGrid = DEFAULT_GRID) -> np.ndarray:
-    """A camera given by colour-science name (green channel) or as an array on ``grid``."""
-    if isinstance(camera, str):
-        return green_sensitivity(grid, camera)
+    """One channel's relative sensitivity on ``grid``, from any of the forms a fit accepts.
+
+    - ``"NAME"`` — the green channel of a colour-science camera
+      (``colour.MSDS_CAMERA_SENSITIVITIES``, e.g. ``"Nikon 5100 (NPL)"``);
+      ``"NAME:red"`` / ``"NAME:green"`` / ``"NAME:blue"`` chooses the channel;
+    - ``"band:LO-HI"`` — a box band in nm (a spectral band, e.g. a
+      monochromator or filter measurement);
+    - a path to a CSV (``wavelength,value`` rows, optional header) or a JSON
+      file (``{"wavelength": [...], "sensitivity": [...]}``), resampled onto
+      the grid without extrapolation;
+    - a ``(wl,)`` array on the grid.
+    """
+    if isinstance(camera, (str, Path)):
+        text = str(camera)
+        if text.lower().startswith("band:"):
+            return _band(text, grid)
+        path = Path(text)
+        if path.suffix.lower() in (".csv", ".json", ".txt"):
+            wl, val = _read_curve(path)
+            out = resample(wl, val, grid, name=f"camera {path}")
+            return np.clip(out, 0.0, None)
+        name, _, channel = text.rpartition(":")
+        if name and channel.lower() in ("red", "green", "blue"):
+            return green_sensitivity(grid, name, channel.lower())
+        return green_sensitivity(grid, text)
     return _on_grid(camera, grid, "camera sensitivity", "camera")
 
 

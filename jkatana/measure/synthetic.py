@@ -11,7 +11,7 @@ DNG files instead.
 Effects — each is off unless asked for:
 
 - **noise** (:class:`NoiseModel`): per-row standard deviation
-  σ² = (relative·ρ)² + shot·ρ + floor², i.e. a multiplicative term (source
+  σ² = (relative·ρ)² + shot·ρ + absolute², i.e. a multiplicative term (source
   flicker), a shot-like term (Poisson: variance ∝ signal) and an absolute
   floor (read noise, quantisation). ``sigma`` in the table is this σ at the
   truth; 0 when noiseless.
@@ -32,45 +32,15 @@ random noise — so ``(value − truth) / sigma`` is standard normal.
 
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 
 from jkatana.errors import InputError
+from jkatana.fit._solve import NoiseModel
 from jkatana.measure.camera import DEFAULT_CAMERA, band_weights, camera_sensitivity, light_spectrum
 from jkatana.measure.protocol import as_pairs
 from jkatana.measure.table import MeasurementTable, check_angles
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
-
-
-@dataclasses.dataclass(frozen=True)
-class NoiseModel:
-    """σ² = (relative·ρ)² + shot·|ρ| + floor² in camera units (module docstring).
-
-    **Arguments:**
-
-    - `relative`: multiplicative standard deviation (e.g. 0.01 = 1 %).
-    - `shot`: variance per unit signal (camera units), Poisson-like.
-    - `floor`: absolute standard deviation (camera units).
-    """
-
-    relative: float = 0.0
-    shot: float = 0.0
-    floor: float = 0.0
-
-    def __post_init__(self):
-        for name in ("relative", "shot", "floor"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise InputError(f"noise parameter must be finite and >= 0, got {v}", field=name)
-
-    def sigma(self, value) -> np.ndarray:
-        v = np.asarray(value, np.float64)
-        return np.sqrt((self.relative * v) ** 2 + self.shot * np.abs(v) + self.floor ** 2)
-
-    @property
-    def is_zero(self) -> bool:
-        return self.relative == 0 and self.shot == 0 and self.floor == 0
 
 
 def region_model(region: str, params=None):

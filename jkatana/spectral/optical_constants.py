@@ -8,13 +8,29 @@ the database is CC0 1.0). Supported ``DATA`` types: ``tabulated nk``,
 the files are micrometres; jkatana works in nanometres.
 
 Shipped with the package (``jkatana/data/optical_constants``, CC0, licence
-text beside the files):
+text beside the files; ``README.md`` there lists every table with its full
+reference), named ``<material>-<source>`` and selectable by that name:
 
-- iron, P. B. Johnson and R. W. Christy (1974), "Optical constants of
-  transition metals: Ti, V, Cr, Mn, Fe, Co, Ni, and Pd", Phys. Rev. B 9,
-  5056–5070 — 14 samples in 380–780 nm;
-- iron, M. R. Querry (1985), "Optical constants", Contractor Report
-  CRDC-CR-85034 — every 10 nm in the visible.
+- iron ``Fe-Johnson`` (the default), ``Fe-Querry``, ``Fe-Werner``, ``Fe-Werner-DFT``;
+  chromium ``Cr-Johnson``, ``Cr-Rakic-BB``, ``Cr-Rakic-LD``, ``Cr-Sytchkova``;
+  nickel ``Ni-Johnson``, ``Ni-Rakic-BB``, ``Ni-Rakic-LD``, ``Ni-Werner``, ``Ni-Werner-DFT``;
+  molybdenum ``Mo-Kirillova``, ``Mo-Querry``, ``Mo-Werner``, ``Mo-Werner-DFT``;
+  tungsten ``W-Rakic-BB``, ``W-Rakic-LD``, ``W-Werner``, ``W-Werner-DFT``;
+  magnetite ``Fe3O4-Querry``;
+  stainless steel ``SS-Karlsson-austenitic``, ``SS-Karlsson-ferritic``.
+- Sources: P. B. Johnson and R. W. Christy (1974), Phys. Rev. B 9, 5056–5070;
+  M. R. Querry (1985), Contractor Report CRDC-CR-85034, and (1987)
+  CRDEC-CR-88009 (Mo); W. S. M. Werner, K. Glantschnig, C. Ambrosch-Draxl
+  (2009), J. Phys. Chem. Ref. Data 38, 1013–1092 (measured and DFT);
+  A. D. Rakić, A. B. Djurišić, J. M. Elazar, M. L. Majewski (1998), Appl. Opt.
+  37, 5271–5283 (Brendel–Bormann and Lorentz–Drude fits); A. Sytchkova et al.
+  (2021), Opt. Mater. 121, 111530; M. M. Kirillova, L. V. Nomerovannaya,
+  M. M. Noskov (1971), Sov. Phys. JETP 33, 1210–1214; B. Karlsson and
+  C. G. Ribbing (1982), J. Appl. Phys. 53, 6340–6346.
+
+Only tables covering 380–780 nm with one value per wavelength are shipped
+(the database's Ordal and Windt tables of these metals do not reach the
+visible; its Fe2O3 Querry and W Weaver tables repeat wavelengths).
 """
 
 from __future__ import annotations
@@ -29,15 +45,28 @@ import yaml
 from jkatana.errors import InputError
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid, resample
 
-#: Shipped tables, by short name.
-SHIPPED = {
-    "Fe-Johnson": "Fe/Johnson.yml",
-    "Fe-Querry": "Fe/Querry.yml",
-}
-#: Aliases accepted by :func:`load`.
-ALIASES = {"johnson": "Fe-Johnson", "querry": "Fe-Querry", "iron": "Fe-Johnson",
-           "fe": "Fe-Johnson", "johnson1974": "Fe-Johnson", "querry1985": "Fe-Querry"}
+_DATA = resources.files("jkatana") / "data" / "optical_constants"
 
+
+def _shipped() -> dict[str, str]:
+    out = {}
+    for material in sorted(_DATA.iterdir(), key=lambda p: p.name):
+        if material.is_dir():
+            for f in sorted(material.iterdir(), key=lambda p: p.name):
+                if f.name.endswith(".yml"):
+                    out[f"{material.name}-{f.name[:-4]}"] = f"{material.name}/{f.name}"
+    return out
+
+
+#: Shipped tables, by name ``<material>-<source>`` → path inside the package data.
+SHIPPED = _shipped()
+#: Aliases accepted by :func:`load` (lower case).
+ALIASES = {"johnson": "Fe-Johnson", "querry": "Fe-Querry", "iron": "Fe-Johnson",
+           "fe": "Fe-Johnson", "johnson1974": "Fe-Johnson", "querry1985": "Fe-Querry",
+           "chromium": "Cr-Johnson", "cr": "Cr-Johnson", "nickel": "Ni-Johnson", "ni": "Ni-Johnson",
+           "molybdenum": "Mo-Kirillova", "mo": "Mo-Kirillova", "tungsten": "W-Rakic-LD", "w": "W-Rakic-LD",
+           "stainless": "SS-Karlsson-austenitic", "stainless-steel": "SS-Karlsson-austenitic",
+           "ss": "SS-Karlsson-austenitic"} | {name.lower(): name for name in SHIPPED}
 
 @dataclasses.dataclass(frozen=True)
 class OpticalTable:
@@ -146,7 +175,7 @@ def shipped_path(name: str) -> Path:
     if key not in SHIPPED:
         raise InputError(f"unknown optical-constant table {name!r}; shipped: {sorted(SHIPPED)}",
                          field="optical_constants")
-    return Path(str(resources.files("jkatana") / "data" / "optical_constants" / SHIPPED[key]))
+    return Path(str(_DATA / SHIPPED[key]))
 
 
 def load(name_or_path: str | Path = "Fe-Johnson") -> OpticalTable:
