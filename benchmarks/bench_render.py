@@ -17,6 +17,12 @@ Studies (records follow the convention in :mod:`benchmarks`):
   shared machine's load). ``noise estimate check`` validates the √2 rule on a
   48² frame against converged frames of each renderer; ``bias`` is the
   converged jkatana frame against the converged Mitsuba frame.
+- ``render vs Mitsuba 3 configurations (...)``: the peer at its best, every
+  Mitsuba sampler × integrator (quick mode: ``independent`` and
+  ``multijitter``, ``path``) as a series, at equal noise (as above) and at
+  equal error against Mitsuba's converged 48² frame; the ratio records
+  ``equal-noise/equal-error time per configuration`` and ``... vs fastest
+  configuration`` (goal ≤ 1/3) — see :func:`_peer_configs`.
 
 - ``render convergence (<scene>)``: each mode (MIS reference, the paper's
   jittered rays, low-rank spectra, prefiltered) at several sample counts, ΔE2000
@@ -326,7 +332,7 @@ def _mitsuba(quick: bool, budget: float = float("inf"), size: int | None = None)
                                          if name == "jkatana" else "render_mitsuba call: scene load + render"),
                                    cpu_s=cpu[name], load_avg_1min=os.getloadavg()[0], **extra))
                 curves[name].append((dt, err["dE2000_mean"]))
-                points[name].append((spp, dt, err))
+                points[name].append((spp, dt, err, cpu[name]))
                 cpu_curves[name].append((cpu[name], err["dE2000_mean"]))
                 _log(f"[render] {label} {size}²: {dt:.2f} s noise ΔE {err['dE2000_mean']:.3f} "
                      f"(p99 {err['dE2000_p99']:.2f}) load {os.getloadavg()[0]:.2f}")
@@ -356,13 +362,13 @@ def _mitsuba(quick: bool, budget: float = float("inf"), size: int | None = None)
                                load_avg_1min=os.getloadavg()[0]))
             _log(f"[render] equal noise, CPU time: jkatana {c_jk:.3g} s / Mitsuba {c_mi:.3g} s = {c_jk / c_mi:.3f}")
         rows += _peer_configs(quick, mitsuba, jkatana, mc, variant, spp_sets, points, size, ss, small, mi_conv,
-                              mask_s, mask, budget - (time.perf_counter() - t_start))
+                              mask_s, mask, cpu, budget - (time.perf_counter() - t_start))
         rows += _low_noise_extension(mitsuba, jkatana, mc, spp_sets, curves, size, ss,
                                      budget - (time.perf_counter() - t_start))
     return rows
 
 
-def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, small, conv, mask_s, mask,
+def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, small, conv, mask_s, mask, cpu,
                   budget) -> list[dict]:
     """The peer at its best: every Mitsuba sampler × integrator against jkatana, at equal noise and equal error.
 
@@ -383,7 +389,8 @@ def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, 
       between the renderers (the ``bias`` record), which counts against
       jkatana. The converged frame's own noise is a common floor.
 
-    Each measure gets jkatana's time over each configuration's at their
+    Each measure, in wall and in CPU seconds (all threads of the process; less
+    sensitive to a shared machine's load), gets jkatana's time over each configuration's at their
     smallest common ΔE, the fastest configuration at the smallest ΔE that all
     configurations and jkatana reach (log–log interpolation along each curve,
     no extrapolation), and jkatana's ratio against that fastest configuration
@@ -402,11 +409,11 @@ def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, 
     err_study = (f"render vs Mitsuba 3 configurations ({variant}, rough iron sphere, error against Mitsuba "
                  f"8192 spp at {small}², time at {size}²)")
     rows = []
-    noise_curves, err_curves = {}, {}
+    noise_curves, err_curves, cpu_noise, cpu_err = {}, {}, {}, {}
 
-    def add(series, label, spp, dt, noise, err, **extra):
+    def add(series, label, spp, dt, noise, err, cpu_s, **extra):
         common = dict(error_metric="dE2000_mean", series=series, time_s={"median": dt, "min": dt, "max": dt},
-                      load_avg_1min=os.getloadavg()[0], **extra)
+                      cpu_s=cpu_s, load_avg_1min=os.getloadavg()[0], **extra)
         rows.append(record(BENCH, {"study": "peer configurations", "series": series, "spp": spp, "size": size,
                                    "measure": "noise"}, study=noise_study, variant=label, error=noise,
                            reference="own noise: ΔE(seed 1, seed 2)/√2", **common))
@@ -415,14 +422,16 @@ def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, 
                            reference=f"Mitsuba independent + path 8192 spp, {small}², seed 100", **common))
         noise_curves.setdefault(series, []).append((dt, noise["dE2000_mean"]))
         err_curves.setdefault(series, []).append((dt, err["dE2000_mean"]))
+        cpu_noise.setdefault(series, []).append((cpu_s, noise["dE2000_mean"]))
+        cpu_err.setdefault(series, []).append((cpu_s, err["dE2000_mean"]))
         _log(f"[render] {label}: {dt:.2f} s noise ΔE {noise['dE2000_mean']:.3f} error ΔE {err['dE2000_mean']:.3f}")
 
-    for spp, dt, noise in points["jkatana"]:  # the main study's frames and times
+    for spp, dt, noise, c in points["jkatana"]:  # the main study's frames and times
         err = mc.compare(conv, jkatana(spp, small, 3)[0], mask_s)
-        add("jkatana", f"jkatana {spp} spp ×{ss * ss} subpixels", spp, dt, noise, err)
-    for spp, dt, noise in points["mitsuba"]:  # the main study's frames and times: independent + path
+        add("jkatana", f"jkatana {spp} spp ×{ss * ss} subpixels", spp, dt, noise, err, c)
+    for spp, dt, noise, c in points["mitsuba"]:  # the main study's frames and times: independent + path
         err = mc.compare(conv, mitsuba(spp, small, 3)[0], mask_s)
-        add("mitsuba independent + path", f"Mitsuba independent + path {spp} spp", spp, dt, noise, err,
+        add("mitsuba independent + path", f"Mitsuba independent + path {spp} spp", spp, dt, noise, err, c,
             sampler="independent", integrator="path", note="render_mitsuba call: scene load + render")
     for sampler, integrator in configs:
         series = f"mitsuba {sampler} + {integrator}"
@@ -436,23 +445,25 @@ def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, 
             n_spp = mc.mitsuba_sample_count(sampler, spp, variant)
             a, _ = mitsuba(spp, size, 1, sampler, integrator)  # also the warm-up (kernels compiled per spp)
             b, dt = mitsuba(spp, size, 2, sampler, integrator)
+            c = cpu["mitsuba"]
             noise = {k: (v / math.sqrt(2.0) if k.startswith("dE") else v) for k, v in mc.compare(a, b, mask).items()}
             err = mc.compare(conv, mitsuba(spp, small, 3, sampler, integrator)[0], mask_s)
-            add(series, f"Mitsuba {sampler} + {integrator} {n_spp} spp", n_spp, dt, noise, err,
+            add(series, f"Mitsuba {sampler} + {integrator} {n_spp} spp", n_spp, dt, noise, err, c,
                 sampler=sampler, integrator=integrator, note="render_mitsuba call: scene load + render")
 
-    for measure, cur, study in (("noise", noise_curves, noise_study), ("error", err_curves, err_study)):
+    for measure, clock, cur in (("noise", "wall", noise_curves), ("error", "wall", err_curves),
+                                ("noise", "CPU", cpu_noise), ("error", "CPU", cpu_err)):
         jk = cur["jkatana"]
         peers = {k: v for k, v in cur.items() if k != "jkatana" and len(v) >= 2}
         for series, c in peers.items():  # jkatana against each configuration, at their smallest common ΔE
             e = max(min(x for _, x in c), min(x for _, x in jk))
             t_jk, t_mi = _loglog_time_at(jk, e)[0], _loglog_time_at(c, e)[0]
-            rows.append(record(BENCH, {"study": f"equal-{measure} time per configuration", "series": series,
+            rows.append(record(BENCH, {"study": f"equal-{measure} {clock} time per configuration", "series": series,
                                        "size": size, "dE2000_mean": e},
-                               ratio=t_jk / t_mi, ratio_label=f"jkatana time / {series} time at equal {measure} "
+                               ratio=t_jk / t_mi, ratio_label=f"jkatana {clock} time / {series} {clock} time at equal {measure} "
                                                               f"ΔE2000 {e:.3f} ({size}²)",
                                t_jkatana=t_jk, t_mitsuba=t_mi, load_avg_1min=os.getloadavg()[0]))
-            _log(f"[render] equal {measure} ΔE {e:.3f}: jkatana {t_jk:.3g} s / {series} {t_mi:.3g} s = "
+            _log(f"[render] equal {measure} ({clock}) ΔE {e:.3f}: jkatana {t_jk:.3g} s / {series} {t_mi:.3g} s = "
                  f"{t_jk / t_mi:.3f}")
         if not peers:
             continue
@@ -462,16 +473,16 @@ def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, 
         times = {k: t for k, t in times.items() if math.isfinite(t)}
         t_jk = _loglog_time_at(jk, e)[0]
         if not times or not math.isfinite(t_jk):
-            _log(f"[render] equal {measure}: no ΔE common to every configuration and jkatana")
+            _log(f"[render] equal {measure} ({clock}): no ΔE common to every configuration and jkatana")
             continue
         best = min(times, key=times.get)
         # and at the smallest ΔE jkatana and the fastest configuration both reach (lower, where one exists)
         e2 = max(min(x for _, x in peers[best]), min(x for _, x in jk))
         t_jk2, t_b2 = _loglog_time_at(jk, e2)[0], _loglog_time_at(peers[best], e2)[0]
-        rows.append(record(BENCH, {"study": f"equal-{measure} time vs fastest configuration", "size": size,
+        rows.append(record(BENCH, {"study": f"equal-{measure} {clock} time vs fastest configuration", "size": size,
                                    "dE2000_mean": e},
                            ratio=t_jk / times[best], goal=1.0 / 3.0, met=bool(t_jk / times[best] <= 1.0 / 3.0),
-                           ratio_label=f"jkatana time / fastest Mitsuba 3 configuration ({best}) time at equal "
+                           ratio_label=f"jkatana {clock} time / fastest Mitsuba 3 configuration ({best}) {clock} time at equal "
                                        f"{measure} ΔE2000 {e:.3f} ({size}², goal ≤ 0.333)",
                            note=f"jkatana {t_jk:.3g} s; configurations at ΔE {e:.3f}: "
                                 + ", ".join(f"{k} {t:.3g} s" for k, t in sorted(times.items(), key=lambda x: x[1]))
@@ -479,7 +490,7 @@ def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, 
                                   f"= {t_jk2 / t_b2:.3f}",
                            fastest=best, t_jkatana=t_jk, t_fastest=times[best], times=times,
                            dE2000_low=e2, ratio_low=t_jk2 / t_b2, load_avg_1min=os.getloadavg()[0]))
-        _log(f"[render] equal {measure} ΔE {e:.3f}: fastest {best} {times[best]:.3g} s, jkatana {t_jk:.3g} s = "
+        _log(f"[render] equal {measure} ({clock}) ΔE {e:.3f}: fastest {best} {times[best]:.3g} s, jkatana {t_jk:.3g} s = "
              f"{t_jk / times[best]:.3f}; at ΔE {e2:.3f}: {t_jk2 / t_b2:.3f} (goal ≤ 0.333)")
     return rows
 
