@@ -390,8 +390,8 @@ def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, 
       jkatana. The converged frame's own noise is a common floor.
 
     Each measure, in wall and in CPU seconds (all threads of the process; less
-    sensitive to a shared machine's load), gets jkatana's time over each configuration's at their
-    smallest common ΔE, the fastest configuration at the smallest ΔE that all
+    sensitive to a shared machine's load), gets jkatana's time over each
+    configuration's at their smallest common ΔE, the fastest configuration at the smallest ΔE that all
     configurations and jkatana reach (log–log interpolation along each curve,
     no extrapolation), and jkatana's ratio against that fastest configuration
     (goal ≤ 1/3). A sampler may round the spp (``orthogonal``: a prime's
@@ -460,8 +460,9 @@ def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, 
             t_jk, t_mi = _loglog_time_at(jk, e)[0], _loglog_time_at(c, e)[0]
             rows.append(record(BENCH, {"study": f"equal-{measure} {clock} time per configuration", "series": series,
                                        "size": size, "dE2000_mean": e},
-                               ratio=t_jk / t_mi, ratio_label=f"jkatana {clock} time / {series} {clock} time at equal {measure} "
-                                                              f"ΔE2000 {e:.3f} ({size}²)",
+                               ratio=t_jk / t_mi,
+                               ratio_label=f"jkatana {clock} time / {series} {clock} time at equal {measure} "
+                                           f"ΔE2000 {e:.3f} ({size}²)",
                                t_jkatana=t_jk, t_mitsuba=t_mi, load_avg_1min=os.getloadavg()[0]))
             _log(f"[render] equal {measure} ({clock}) ΔE {e:.3f}: jkatana {t_jk:.3g} s / {series} {t_mi:.3g} s = "
                  f"{t_jk / t_mi:.3f}")
@@ -482,15 +483,16 @@ def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, 
         rows.append(record(BENCH, {"study": f"equal-{measure} {clock} time vs fastest configuration", "size": size,
                                    "dE2000_mean": e},
                            ratio=t_jk / times[best], goal=1.0 / 3.0, met=bool(t_jk / times[best] <= 1.0 / 3.0),
-                           ratio_label=f"jkatana {clock} time / fastest Mitsuba 3 configuration ({best}) {clock} time at equal "
-                                       f"{measure} ΔE2000 {e:.3f} ({size}², goal ≤ 0.333)",
+                           ratio_label=f"jkatana {clock} time / fastest Mitsuba 3 configuration ({best}) {clock} "
+                                       f"time at equal {measure} ΔE2000 {e:.3f} ({size}², goal ≤ 0.333)",
                            note=f"jkatana {t_jk:.3g} s; configurations at ΔE {e:.3f}: "
                                 + ", ".join(f"{k} {t:.3g} s" for k, t in sorted(times.items(), key=lambda x: x[1]))
                                 + f"; at ΔE {e2:.3f} (lowest both reach): jkatana {t_jk2:.3g} s, {best} {t_b2:.3g} s "
                                   f"= {t_jk2 / t_b2:.3f}",
                            fastest=best, t_jkatana=t_jk, t_fastest=times[best], times=times,
                            dE2000_low=e2, ratio_low=t_jk2 / t_b2, load_avg_1min=os.getloadavg()[0]))
-        _log(f"[render] equal {measure} ({clock}) ΔE {e:.3f}: fastest {best} {times[best]:.3g} s, jkatana {t_jk:.3g} s = "
+        _log(f"[render] equal {measure} ({clock}) ΔE {e:.3f}: fastest {best} {times[best]:.3g} s, "
+             f"jkatana {t_jk:.3g} s = "
              f"{t_jk / times[best]:.3f}; at ΔE {e2:.3f}: {t_jk2 / t_b2:.3f} (goal ≤ 0.333)")
     return rows
 
