@@ -17,6 +17,12 @@ Studies (records follow the convention in :mod:`benchmarks`):
   shared machine's load). ``noise estimate check`` validates the √2 rule on a
   48² frame against converged frames of each renderer; ``bias`` is the
   converged jkatana frame against the converged Mitsuba frame.
+- ``render vs Mitsuba 3 configurations (...)``: the peer at its best, every
+  Mitsuba sampler × integrator (quick mode: ``independent`` and
+  ``multijitter``, ``path``) as a series, at equal noise (as above) and at
+  equal error against Mitsuba's converged 48² frame; the ratio records
+  ``equal-noise/equal-error time per configuration`` and ``... vs fastest
+  configuration`` (goal ≤ 1/3) — see :func:`_peer_configs`.
 
 - ``render convergence (<scene>)``: each mode (MIS reference, the paper's
   jittered rays, low-rank spectra, prefiltered) at several sample counts, ΔE2000
@@ -204,7 +210,7 @@ def _loglog_time_at(points, e):
     return math.nan, math.nan
 
 
-def _mitsuba(quick: bool, budget: float = float("inf")) -> list[dict]:
+def _mitsuba(quick: bool, budget: float = float("inf"), size: int | None = None) -> list[dict]:
     """Rough (Beckmann α = 0.2) iron sphere: frame time of jkatana and Mitsuba 3 at equal noise.
 
     Same scene from :mod:`validation.mitsuba` (``render_mitsuba`` /
@@ -221,7 +227,9 @@ def _mitsuba(quick: bool, budget: float = float("inf")) -> list[dict]:
     whole ``render_mitsuba`` call (scene load + render; its spp = 1 call is
     recorded as the fixed part), jkatana's frame end to end (G-buffer, shading,
     background, film); the ratio record interpolates each renderer's time at a
-    common ΔE on a log–log line through its points.
+    common ΔE on a log–log line through its points. Then every Mitsuba
+    configuration (:func:`_peer_configs`). ``size``: the frame's side instead
+    of the mode's (a study of its own at another size).
     """
     import math
     from pathlib import Path
@@ -236,7 +244,7 @@ def _mitsuba(quick: bool, budget: float = float("inf")) -> list[dict]:
         return []
     rows = []
     # full: the pixel count of 800×600 (render_mitsuba's frame is square); quick: a CI-sized frame
-    size = 128 if quick else 692
+    size = size or (128 if quick else 692)
     small = 48
     ss = 2  # jkatana: 2×2 subpixels per pixel, each with `spp` MIS pairs (Mitsuba: spp box-filtered samples)
     mi_spps = [16, 64, 256] if quick else [16, 64, 256]
@@ -246,9 +254,10 @@ def _mitsuba(quick: bool, budget: float = float("inf")) -> list[dict]:
 
         cpu = {}  # CPU seconds (all threads of this process) of the last call of each renderer
 
-        def mitsuba(spp, sz, seed):
+        def mitsuba(spp, sz, seed, sampler="independent", integrator="path"):
             t0, c0 = time.perf_counter(), time.process_time()
-            img = mc.render_mitsuba(env, alpha=0.2, size=sz, spp=spp, variant=variant, seed=seed)
+            img = mc.render_mitsuba(env, alpha=0.2, size=sz, spp=spp, variant=variant, seed=seed,
+                                    sampler=sampler, integrator=integrator)
             cpu["mitsuba"] = time.process_time() - c0
             return img, time.perf_counter() - t0
 
@@ -296,6 +305,7 @@ def _mitsuba(quick: bool, budget: float = float("inf")) -> list[dict]:
         curves = {"mitsuba": [], "jkatana": []}
         spp_sets = {"mitsuba": mi_spps, "jkatana": jk_spps}
         cpu_curves = {"mitsuba": [], "jkatana": []}
+        points = {"mitsuba": [], "jkatana": []}  # (spp, time, noise record) for the configurations study
         mask = None
         for name, spps in (("jkatana", jk_spps), ("mitsuba", mi_spps)):  # jkatana first: its mask
             for spp in spps:
@@ -322,6 +332,7 @@ def _mitsuba(quick: bool, budget: float = float("inf")) -> list[dict]:
                                          if name == "jkatana" else "render_mitsuba call: scene load + render"),
                                    cpu_s=cpu[name], load_avg_1min=os.getloadavg()[0], **extra))
                 curves[name].append((dt, err["dE2000_mean"]))
+                points[name].append((spp, dt, err, cpu[name]))
                 cpu_curves[name].append((cpu[name], err["dE2000_mean"]))
                 _log(f"[render] {label} {size}²: {dt:.2f} s noise ΔE {err['dE2000_mean']:.3f} "
                      f"(p99 {err['dE2000_p99']:.2f}) load {os.getloadavg()[0]:.2f}")
@@ -350,8 +361,139 @@ def _mitsuba(quick: bool, budget: float = float("inf")) -> list[dict]:
                                note=f"jkatana {c_jk:.3g} CPU s (frame + film), Mitsuba {c_mi:.3g} CPU s (whole call)",
                                load_avg_1min=os.getloadavg()[0]))
             _log(f"[render] equal noise, CPU time: jkatana {c_jk:.3g} s / Mitsuba {c_mi:.3g} s = {c_jk / c_mi:.3f}")
+        rows += _peer_configs(quick, mitsuba, jkatana, mc, variant, spp_sets, points, size, ss, small, mi_conv,
+                              mask_s, mask, cpu, budget - (time.perf_counter() - t_start))
         rows += _low_noise_extension(mitsuba, jkatana, mc, spp_sets, curves, size, ss,
                                      budget - (time.perf_counter() - t_start))
+    return rows
+
+
+def _peer_configs(quick, mitsuba, jkatana, mc, variant, spps, points, size, ss, small, conv, mask_s, mask, cpu,
+                  budget) -> list[dict]:
+    """The peer at its best: every Mitsuba sampler × integrator against jkatana, at equal noise and equal error.
+
+    Mitsuba's configurations (:data:`validation.mitsuba.MITSUBA_SAMPLERS` ×
+    :data:`~validation.mitsuba.MITSUBA_INTEGRATORS`; quick mode: ``independent``
+    and ``multijitter``, both ``path``) each get the main study's two measures:
+
+    - *noise*: ΔE2000 between two seeds / √2 at the benchmark's size, against
+      the time of the second call (the first compiles); the ``independent`` +
+      ``path`` points and jkatana's are the main study's own;
+    - *error*: ΔE2000 against one converged frame, Mitsuba ``independent`` +
+      ``path`` at 8192 spp on the 48² check frame (another seed), at the same
+      spp, against the time at the benchmark's size for that spp (the noise
+      ΔE of a given spp does not depend on the frame size, see
+      :func:`_low_noise_extension`). The converged frame is Mitsuba's because
+      the peer is the independent renderer: its configurations are compared
+      with their own converged image, and jkatana's error includes the bias
+      between the renderers (the ``bias`` record), which counts against
+      jkatana. The converged frame's own noise is a common floor.
+
+    Each measure, in wall and in CPU seconds (all threads of the process; less
+    sensitive to a shared machine's load), gets jkatana's time over each
+    configuration's at their smallest common ΔE, the fastest configuration at the smallest ΔE that all
+    configurations and jkatana reach (log–log interpolation along each curve,
+    no extrapolation), and jkatana's ratio against that fastest configuration
+    (goal ≤ 1/3). A sampler may round the spp (``orthogonal``: a prime's
+    square); records carry the spp rendered.
+    """
+    import math
+
+    if len(points["jkatana"]) < 2 or len(points["mitsuba"]) < 2:
+        _log("[render] Mitsuba configurations skipped (the main study has < 2 points per renderer)")
+        return []
+    t_start = time.perf_counter()
+    configs = [("independent", "path"), ("multijitter", "path")] if quick else \
+        [(s, i) for i in mc.MITSUBA_INTEGRATORS for s in mc.MITSUBA_SAMPLERS]
+    noise_study = f"render vs Mitsuba 3 configurations ({variant}, rough iron sphere {size}², noise from two seeds)"
+    err_study = (f"render vs Mitsuba 3 configurations ({variant}, rough iron sphere, error against Mitsuba "
+                 f"8192 spp at {small}², time at {size}²)")
+    rows = []
+    noise_curves, err_curves, cpu_noise, cpu_err = {}, {}, {}, {}
+
+    def add(series, label, spp, dt, noise, err, cpu_s, **extra):
+        common = dict(error_metric="dE2000_mean", series=series, time_s={"median": dt, "min": dt, "max": dt},
+                      cpu_s=cpu_s, load_avg_1min=os.getloadavg()[0], **extra)
+        rows.append(record(BENCH, {"study": "peer configurations", "series": series, "spp": spp, "size": size,
+                                   "measure": "noise"}, study=noise_study, variant=label, error=noise,
+                           reference="own noise: ΔE(seed 1, seed 2)/√2", **common))
+        rows.append(record(BENCH, {"study": "peer configurations", "series": series, "spp": spp, "size": size,
+                                   "measure": "error"}, study=err_study, variant=label, error=err,
+                           reference=f"Mitsuba independent + path 8192 spp, {small}², seed 100", **common))
+        noise_curves.setdefault(series, []).append((dt, noise["dE2000_mean"]))
+        err_curves.setdefault(series, []).append((dt, err["dE2000_mean"]))
+        cpu_noise.setdefault(series, []).append((cpu_s, noise["dE2000_mean"]))
+        cpu_err.setdefault(series, []).append((cpu_s, err["dE2000_mean"]))
+        _log(f"[render] {label}: {dt:.2f} s noise ΔE {noise['dE2000_mean']:.3f} error ΔE {err['dE2000_mean']:.3f}")
+
+    for spp, dt, noise, c in points["jkatana"]:  # the main study's frames and times
+        err = mc.compare(conv, jkatana(spp, small, 3)[0], mask_s)
+        add("jkatana", f"jkatana {spp} spp ×{ss * ss} subpixels", spp, dt, noise, err, c)
+    for spp, dt, noise, c in points["mitsuba"]:  # the main study's frames and times: independent + path
+        err = mc.compare(conv, mitsuba(spp, small, 3)[0], mask_s)
+        add("mitsuba independent + path", f"Mitsuba independent + path {spp} spp", spp, dt, noise, err, c,
+            sampler="independent", integrator="path", note="render_mitsuba call: scene load + render")
+    for sampler, integrator in configs:
+        series = f"mitsuba {sampler} + {integrator}"
+        if series in noise_curves:
+            continue
+        for spp in spps["mitsuba"]:
+            left = budget - (time.perf_counter() - t_start)
+            if len(noise_curves.get(series, [])) >= 2 and left < 0:
+                _log(f"[render] {series} {spp} spp skipped: {left:.0f} s of the Mitsuba part's budget left")
+                break
+            n_spp = mc.mitsuba_sample_count(sampler, spp, variant)
+            a, _ = mitsuba(spp, size, 1, sampler, integrator)  # also the warm-up (kernels compiled per spp)
+            b, dt = mitsuba(spp, size, 2, sampler, integrator)
+            c = cpu["mitsuba"]
+            noise = {k: (v / math.sqrt(2.0) if k.startswith("dE") else v) for k, v in mc.compare(a, b, mask).items()}
+            err = mc.compare(conv, mitsuba(spp, small, 3, sampler, integrator)[0], mask_s)
+            add(series, f"Mitsuba {sampler} + {integrator} {n_spp} spp", n_spp, dt, noise, err, c,
+                sampler=sampler, integrator=integrator, note="render_mitsuba call: scene load + render")
+
+    for measure, clock, cur in (("noise", "wall", noise_curves), ("error", "wall", err_curves),
+                                ("noise", "CPU", cpu_noise), ("error", "CPU", cpu_err)):
+        jk = cur["jkatana"]
+        peers = {k: v for k, v in cur.items() if k != "jkatana" and len(v) >= 2}
+        for series, c in peers.items():  # jkatana against each configuration, at their smallest common ΔE
+            e = max(min(x for _, x in c), min(x for _, x in jk))
+            t_jk, t_mi = _loglog_time_at(jk, e)[0], _loglog_time_at(c, e)[0]
+            rows.append(record(BENCH, {"study": f"equal-{measure} {clock} time per configuration", "series": series,
+                                       "size": size, "dE2000_mean": e},
+                               ratio=t_jk / t_mi,
+                               ratio_label=f"jkatana {clock} time / {series} {clock} time at equal {measure} "
+                                           f"ΔE2000 {e:.3f} ({size}²)",
+                               t_jkatana=t_jk, t_mitsuba=t_mi, load_avg_1min=os.getloadavg()[0]))
+            _log(f"[render] equal {measure} ({clock}) ΔE {e:.3f}: jkatana {t_jk:.3g} s / {series} {t_mi:.3g} s = "
+                 f"{t_jk / t_mi:.3f}")
+        if not peers:
+            continue
+        # the fastest configuration at the smallest ΔE every configuration and jkatana reach
+        e = max(min(x for _, x in c) for c in list(peers.values()) + [jk])
+        times = {k: _loglog_time_at(c, e)[0] for k, c in peers.items()}
+        times = {k: t for k, t in times.items() if math.isfinite(t)}
+        t_jk = _loglog_time_at(jk, e)[0]
+        if not times or not math.isfinite(t_jk):
+            _log(f"[render] equal {measure} ({clock}): no ΔE common to every configuration and jkatana")
+            continue
+        best = min(times, key=times.get)
+        # and at the smallest ΔE jkatana and the fastest configuration both reach (lower, where one exists)
+        e2 = max(min(x for _, x in peers[best]), min(x for _, x in jk))
+        t_jk2, t_b2 = _loglog_time_at(jk, e2)[0], _loglog_time_at(peers[best], e2)[0]
+        rows.append(record(BENCH, {"study": f"equal-{measure} {clock} time vs fastest configuration", "size": size,
+                                   "dE2000_mean": e},
+                           ratio=t_jk / times[best], goal=1.0 / 3.0, met=bool(t_jk / times[best] <= 1.0 / 3.0),
+                           ratio_label=f"jkatana {clock} time / fastest Mitsuba 3 configuration ({best}) {clock} "
+                                       f"time at equal {measure} ΔE2000 {e:.3f} ({size}², goal ≤ 0.333)",
+                           note=f"jkatana {t_jk:.3g} s; configurations at ΔE {e:.3f}: "
+                                + ", ".join(f"{k} {t:.3g} s" for k, t in sorted(times.items(), key=lambda x: x[1]))
+                                + f"; at ΔE {e2:.3f} (lowest both reach): jkatana {t_jk2:.3g} s, {best} {t_b2:.3g} s "
+                                  f"= {t_jk2 / t_b2:.3f}",
+                           fastest=best, t_jkatana=t_jk, t_fastest=times[best], times=times,
+                           dE2000_low=e2, ratio_low=t_jk2 / t_b2, load_avg_1min=os.getloadavg()[0]))
+        _log(f"[render] equal {measure} ({clock}) ΔE {e:.3f}: fastest {best} {times[best]:.3g} s, "
+             f"jkatana {t_jk:.3g} s = "
+             f"{t_jk / times[best]:.3f}; at ΔE {e2:.3f}: {t_jk2 / t_b2:.3f} (goal ≤ 0.333)")
     return rows
 
 

@@ -173,3 +173,52 @@ def test_mitsuba_latlong_is_ours_turned_half_a_turn_with_corner_aligned_rows():
     ours_turned = np.asarray(bilinear_equirect(jnp.asarray(img, jnp.float64), jnp.asarray(turned)))
     ours = np.asarray(bilinear_equirect(jnp.asarray(img, jnp.float64), jnp.asarray(d)))
     assert np.max(np.abs(theirs - ours_turned)) > 0.05 and np.max(np.abs(theirs - ours)) > 0.1
+
+
+@pytest.fixture(scope="module")
+def jk_rough_converged(env_small):
+    """jkatana's converged rough sphere (the agreement test's settings): ``(rgb, mask)``."""
+    jk, mask, _ = mc.render_jkatana(env_small, alpha=0.2, size=64, samples=256, supersample=3, seed=0)
+    return jk, mask
+
+
+_LD_DIRECT = pytest.mark.xfail(strict=True, reason=(
+    "measured (seeds 0, deterministic): Mitsuba ldsampler + direct at 16384 spp vs jkatana's converged frame "
+    "mean 0.203, p99 1.034 > 1.0 (ldsampler + path 16384: passes; ldsampler at 4096: p99 1.41-1.54 where "
+    "stratified/multijitter give 1.05): the low-discrepancy pattern's residual is not analysed yet"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sampler, integrator", [
+    pytest.param(s, i, marks=[_LD_DIRECT] if (s, i) == ("ldsampler", "direct") else [])
+    for s in mc.MITSUBA_SAMPLERS for i in mc.MITSUBA_INTEGRATORS])
+def test_each_mitsuba_configuration_matches_jkatana(env_small, jk_rough_converged, sampler, integrator):
+    """Every sampler × integrator the benchmark times renders the same image: the rough sphere within
+    the agreement test's bars against jkatana's converged frame (mean ≤ 0.5, p99 ≤ 1.0, sums ≤ 0.3 %),
+    at the agreement test's 16384 spp (at 4096 the stratified and low-discrepancy samplers' p99 is
+    1.05–1.5: their advantage at a given spp does not reach 4× here).
+    """
+    spp = 16384
+    mi_img = mc.render_mitsuba(env_small, alpha=0.2, size=64, spp=spp, seed=0, sampler=sampler,
+                               integrator=integrator)
+    jk, mask = jk_rough_converged
+    err = mc.compare(mi_img, jk, mask)
+    ratio = _channel_ratios(mi_img, jk, mask)
+    assert err["dE2000_mean"] <= 0.5, err
+    assert err["dE2000_p99"] <= 1.0, err
+    assert abs(ratio - 1).max() <= 0.003, ratio
+
+
+def test_mitsuba_configuration_is_checked_and_sample_count_is_mitsubas(env_small):
+    """An unknown sampler or integrator is an :class:`InputError` naming the field; ``orthogonal``
+    rounds the spp up to a prime's square (Mitsuba's own rule), the others keep it."""
+    from jkatana.errors import InputError
+
+    with pytest.raises(InputError, match="sampler"):
+        mc.render_mitsuba(env_small, alpha=0.2, size=4, spp=1, sampler="sobol")
+    with pytest.raises(InputError, match="integrator"):
+        mc.render_mitsuba(env_small, alpha=0.2, size=4, spp=1, integrator="volpath")
+    assert mc.mitsuba_sample_count("orthogonal", 16) == 25
+    assert mc.mitsuba_sample_count("orthogonal", 49) == 49
+    assert [mc.mitsuba_sample_count(s, 64) for s in ("independent", "stratified", "multijitter", "ldsampler")] \
+        == [64, 64, 64, 64]

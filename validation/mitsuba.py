@@ -103,18 +103,54 @@ def small_envmap(src: str | Path, dst: str | Path, width: int = 256) -> Path:
     return write_exr(dst, {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2]})
 
 
+#: Mitsuba 3.9.1's sample generators (its ``src/samplers``): pseudo-random; jittered strata;
+#: correlated multi-jittered (Kensler 2013); orthogonal-array Latin hypercube (Jarosz et al. 2019;
+#: the count is rounded up to a prime's square); Sobol-based low discrepancy (Kollig & Keller 2002).
+MITSUBA_SAMPLERS = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
+#: Integrators that fit the scene (one bounce off the sphere into the environment): ``path``
+#: (``max_depth`` 2: one BSDF sample and one emitter sample per spp, combined by MIS) and ``direct``
+#: (one emitter and one BSDF sample per spp, MIS; Veach 1997).
+MITSUBA_INTEGRATORS = ("path", "direct")
+
+
+def _check_config(sampler: str, integrator: str) -> None:
+    from jkatana.errors import InputError
+
+    if sampler not in MITSUBA_SAMPLERS:
+        raise InputError(f"unknown Mitsuba sampler {sampler!r} (one of {', '.join(MITSUBA_SAMPLERS)})",
+                         field="sampler")
+    if integrator not in MITSUBA_INTEGRATORS:
+        raise InputError(f"unknown Mitsuba integrator {integrator!r} (one of {', '.join(MITSUBA_INTEGRATORS)})",
+                         field="integrator")
+
+
+def mitsuba_sample_count(sampler: str, spp: int, variant: str | None = None) -> int:
+    """The samples per pixel Mitsuba renders when ``sampler`` is asked for ``spp`` (its own rounding:
+    ``orthogonal`` needs the square of a prime)."""
+    import mitsuba as mi
+
+    _check_config(sampler, "path")
+    mi.set_variant(variant or mitsuba_variant())
+    return int(mi.load_dict({"type": sampler, "sample_count": int(spp)}).sample_count())
+
+
 def render_mitsuba(env_path, *, alpha: float | None, size: int = 96, spp: int = 256,
-                   variant: str | None = None, fov: float = 38.0, eye=(0.0, 0.3, 3.2), seed: int = 0) -> np.ndarray:
+                   variant: str | None = None, fov: float = 38.0, eye=(0.0, 0.3, 3.2), seed: int = 0,
+                   sampler: str = "independent", integrator: str = "path") -> np.ndarray:
     """Mitsuba 3: iron sphere (radius 1 at the origin), linear Rec. 709 ``(size, size, 3)``.
 
     ``seed`` seeds Mitsuba's sampler: two seeds give independent frames (their
-    difference estimates Mitsuba's own noise).
+    difference estimates Mitsuba's own noise). ``sampler`` (one of
+    :data:`MITSUBA_SAMPLERS`) and ``integrator`` (one of :data:`MITSUBA_INTEGRATORS`)
+    choose Mitsuba's configuration; a sampler may round ``spp``
+    (:func:`mitsuba_sample_count` says to what).
     """
     import mitsuba as mi
 
     from jkatana.spectral.optical_constants import load
     from jkatana.spectral.grid import WavelengthGrid
 
+    _check_config(sampler, integrator)
     mi.set_variant(variant or mitsuba_variant())
     grid = WavelengthGrid(360.0, 830.0, 5.0)
     n, k = load("Fe-Johnson").on_grid(grid)
@@ -125,14 +161,14 @@ def render_mitsuba(env_path, *, alpha: float | None, size: int = 96, spp: int = 
          "eta": spec(n), "k": spec(k)}
     scene = mi.load_dict({
         "type": "scene",
-        "integrator": {"type": "path", "max_depth": 2},
+        "integrator": {"type": "path", "max_depth": 2} if integrator == "path" else {"type": "direct"},
         "env": {"type": "envmap", "filename": str(env_path)},
         "sphere": {"type": "sphere", "radius": 1.0, "bsdf": bsdf},
         "sensor": {"type": "perspective", "fov": fov, "fov_axis": "y",
                    "to_world": mi.ScalarTransform4f().look_at(origin=list(eye), target=[0, 0, 0], up=[0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"},
                             "pixel_format": "rgb"},
-                   "sampler": {"type": "independent", "sample_count": spp}},
+                   "sampler": {"type": sampler, "sample_count": spp}},
     })
     return np.asarray(mi.render(scene, spp=spp, seed=seed), np.float64)[..., :3]
 
