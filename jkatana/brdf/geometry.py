@@ -43,8 +43,9 @@ def _rot_y(v, a):
     return np.stack([c * v[..., 0] + s * v[..., 2], v[..., 1], -s * v[..., 0] + c * v[..., 2]], axis=-1)
 
 
-def half_diff(wi, wo) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(θh, φh, θd, φd) in radians of direction pairs (Rusinkiewicz 1998; module docstring)."""
+def half_diff(wi, wo) -> tuple[np.ndarray | float, np.ndarray | float, np.ndarray | float, np.ndarray | float]:
+    """(θh, φh, θd, φd) in radians of direction pairs (Rusinkiewicz 1998; module docstring); floats for one
+    pair, arrays of the batch shape otherwise."""
     wi = np.asarray(wi, np.float64)
     wo = np.asarray(wo, np.float64)
     h = wi + wo

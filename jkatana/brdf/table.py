@@ -27,6 +27,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from jkatana.errors import InputError
 
@@ -35,14 +36,17 @@ HEADER = ("theta_i_deg", "theta_o_deg", "azimuth_deg", "channel", "value", "sigm
 
 @dataclasses.dataclass
 class BRDFTable:
-    """Rows of an isotropic BRDF table (module docstring); ``sigma`` NaN where unknown."""
+    """Rows of an isotropic BRDF table (module docstring); ``sigma`` NaN where unknown.
 
-    theta_i_deg: np.ndarray
-    theta_o_deg: np.ndarray
-    azimuth_deg: np.ndarray
-    channel: np.ndarray
-    value: np.ndarray
-    sigma: np.ndarray
+    Columns are given array-like and stored as 1-D NumPy arrays (``azimuth_deg``, ``channel`` and
+    ``sigma`` broadcast to the row count)."""
+
+    theta_i_deg: ArrayLike
+    theta_o_deg: ArrayLike
+    azimuth_deg: ArrayLike
+    channel: ArrayLike
+    value: ArrayLike
+    sigma: ArrayLike
     source: str | None = None
 
     def __post_init__(self):
