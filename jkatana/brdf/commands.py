@@ -50,6 +50,9 @@ def brdf_run(args: argparse.Namespace) -> int:
     from jkatana.measure.protocol import Protocol
     from jkatana.measure.table import write_table
 
+    from jkatana.io.outputs import Output, check_outputs
+
+    check_outputs([Output(args.output, "--output", (".csv", ".parquet"))], inputs=[args.brdf])
     src = load_brdf(args.brdf)
     az = _floats(args.azimuth, "azimuth")
     if isinstance(src, BRDFTable):

@@ -240,6 +240,9 @@ def compare_run(args: argparse.Namespace) -> int:
     from jkatana.fit.compare import compare_models, write_comparison
     from jkatana.fit.region import Setup
 
+    from jkatana.io.outputs import Output, check_outputs
+
+    check_outputs([Output(args.output, "--output", folder=True)], inputs=[args.table])
     models = [m.strip() for m in args.models.split(",") if m.strip()]
     bad = [m for m in models if m not in _models()]
     if bad or not models:
