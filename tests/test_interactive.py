@@ -15,6 +15,7 @@ import pytest
 from jkatana.interactive import bake as B
 from jkatana.interactive import scene as S
 from jkatana.interactive.gl import GLUnavailable, missing_package
+from jkatana.light.envmap import texel_directions_np
 from jkatana.models import Conductor, Hamon, Hiraji
 from validation import gl_agreement as A
 
@@ -43,7 +44,7 @@ def test_prefilter_keeps_constants_and_has_the_lobe_width():
     img = np.zeros((H, W, 1))
     img[H // 2, W // 2] = 1.0                   # a single texel on the horizon
     out = B.prefilter(img, 0.1)[..., 0]
-    d = B.texel_directions(H, W)
+    d = texel_directions_np(H, W)
     centre = d[H // 2, W // 2]
     ang = np.arccos(np.clip(d @ centre, -1, 1))
     half = out >= 0.5 * out.max()

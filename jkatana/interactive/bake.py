@@ -81,16 +81,6 @@ def fresnel_basis(conductor: Conductor, rank: int, n_cos: int = 256):
     return cos, a, b, rel_err
 
 
-def texel_directions(height: int, width: int) -> np.ndarray:
-    """World directions of equirectangular texel centres (Y up, u = 0.5 + atan2(x, −z)/2π, v = acos(y)/π)."""
-    v = (np.arange(height) + 0.5) / height
-    u = (np.arange(width) + 0.5) / width
-    theta = v[:, None] * np.pi
-    phi = 2.0 * np.pi * (u[None, :] - 0.5)
-    return np.stack(np.broadcast_arrays(np.sin(theta) * np.sin(phi), np.cos(theta),
-                                        -np.sin(theta) * np.cos(phi)), axis=-1)
-
-
 def _kernel_table(mu, n_table: int = 8192):
     """The prefilter kernel D(α/2, μ)/cos(α/2) tabulated on x = sin²(α/2) ∈ [0, sin²(top/2)], top = min(12 μ, π).
 
@@ -666,7 +656,7 @@ def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor
 
     **Arguments:**
 
-    - `radiance`: equirectangular spectral radiance (Y up, see :func:`texel_directions`).
+    - `radiance`: equirectangular spectral radiance (Y up, see :func:`jkatana.light.envmap.texel_directions_np`).
     - `conductor`: n, k (default iron, Johnson & Christy 1974).
     - `rank`: spectral basis rank (1–4); `mus`: prefilter levels.
     - `colourspace`, `transfer`: the display transform (as :func:`jkatana.spectral.to_display`).

@@ -7,7 +7,7 @@ across from mune 0 to ha 1) with its reflectance map
 (:func:`from_render_scene`) is loaded by :mod:`jkatana.render`'s own loaders.
 
 Built-in environments (equirectangular, Y up, see
-:func:`jkatana.interactive.bake.texel_directions`), spectral on the grid:
+:func:`jkatana.light.envmap.texel_directions_np`), spectral on the grid:
 
 - ``"sky"`` (default): CIE daylight sky, 12000 K at the zenith to 6500 K at the
   horizon, a grey ground, and a soft 5500 K sun (3° radius) at 35° elevation.
@@ -30,7 +30,7 @@ import numpy as np
 import trimesh
 
 from jkatana.errors import InputError
-from jkatana.interactive.bake import texel_directions
+from jkatana.light.envmap import texel_directions_np
 from jkatana.maps.reflectance_map import default_map
 from jkatana.render.film import film_weights
 from jkatana.shape.katana import default_blade
@@ -59,7 +59,7 @@ def environment(name: str = "sky", grid: WavelengthGrid = DEFAULT_GRID, height: 
     """A built-in spectral environment ``(height, 2·height, wl)`` (see the module docstring)."""
     if name not in ENVIRONMENTS:
         raise InputError(f"unknown environment {name!r}; built-in: {', '.join(ENVIRONMENTS)}", field="environment")
-    d = texel_directions(height, 2 * height)
+    d = texel_directions_np(height, 2 * height)
     y = d[..., 1:2]
     up = np.clip(y, 0.0, 1.0)
     ground = (y < 0).astype(np.float64)
