@@ -108,3 +108,19 @@ def test_key_follows_content_and_method(tmp_path):
     assert k0 != cache.radiance_key(e, grid)
     assert cache.environment_key(k0, rank=None, prefilter_mus=(), prefilter_resolution=128, dtype=np.float32) != \
         cache.environment_key(k0, rank=3, prefilter_mus=(), prefilter_resolution=128, dtype=np.float32)
+
+
+def test_light_prefilter_fills_the_cache_a_render_then_reads(tmp_path, monkeypatch, capsys):
+    """`jkatana light prefilter SCENE` builds the scene's environment into the cache; `prepare` then hits it."""
+    from jkatana.cli import main
+    from jkatana.render.renderer import prepare
+
+    monkeypatch.setenv("JKATANA_CACHE", str(tmp_path / "cache"))
+    scene = _scene(tmp_path, _env_file(tmp_path), mode="prefiltered")
+    (tmp_path / "scene.toml").write_text(scene.to_toml_text())
+    assert main(["light", "prefilter", str(tmp_path / "scene.toml")]) == 0
+    assert "cached" in capsys.readouterr().out
+    made = sorted(p.name for p in cache.cache_root().rglob("*") if p.is_file())
+    assert made, "nothing was cached"
+    prepare(scene)  # a render of the scene: reads, writes nothing new
+    assert sorted(p.name for p in cache.cache_root().rglob("*") if p.is_file()) == made

@@ -6,7 +6,9 @@
   the RGB → spectrum → RGB round-trip error.
 - ``inspect``: any environment map → PNG preview (sun = brightest texel marked) and a
   summary (size, grid, power, sun direction and its share of the power).
-- ``prefilter``: lobe-prefiltered levels for a list of μ → one spectral EXR per μ.
+- ``prefilter``: a scene's environment (spectra, sampler, the prefiltered levels its
+  materials call for) built into the render cache (:mod:`jkatana.light.cache`), so that
+  every later render or batch of that scene loads it at once.
 """
 
 from __future__ import annotations
@@ -58,12 +60,11 @@ def light_add_arguments(p: argparse.ArgumentParser) -> None:
     i.add_argument("--exposure", type=float, help="multiplier on luminance (default: median sky → 0.18)")
     _grid_args(i)
 
-    f = sub.add_parser("prefilter", help="lobe-prefiltered levels → spectral EXRs <output>_mu<μ>.exr")
-    f.add_argument("input")
-    f.add_argument("-o", "--output", required=True, help="output prefix")
-    f.add_argument("--mus", nargs="+", type=float, default=[0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3])
-    f.add_argument("--upsampling", default="Jakob 2019")
-    _grid_args(f)
+    f = sub.add_parser("prefilter", help="build a scene's environment (spectra, sampler, prefiltered levels) into "
+                                         "the render cache; later renders of the scene load it at once")
+    f.add_argument("scene", help="scene TOML")
+    f.add_argument("--mode", default="prefiltered", choices=("reference", "paper", "prefiltered", "lowrank"),
+                   help="the render mode to prepare for (default prefiltered: also builds the prefiltered levels)")
 
 
 def _grid(args):
@@ -236,25 +237,15 @@ def _inspect(args) -> int:
 
 
 def _prefilter(args) -> int:
-    from jkatana.light.envmap import load_envmap
-    from jkatana.light.prefilter import prefilter
-    from jkatana.light.spectral_exr import write_spectral_exr
+    import time
 
-    from jkatana.io.limits import numbers
-    from jkatana.io.outputs import Output, check_outputs
+    from jkatana.light.cache import cache_root
+    from jkatana.render.renderer import prepare
+    from jkatana.render.scene import load_scene
 
-    mus = numbers(args.mus, "--mus", lo=0, lo_open=True, hi=10)
-    grid = _grid(args)
-    paths = [Path(f"{args.output}_mu{mu:g}.exr") for mu in mus]
-    check_outputs([Output(p, "--output") for p in paths], inputs=[args.input])
-    env = load_envmap(args.input, grid, upsampling=args.upsampling)
-    _need(args, env.height * env.width * env.grid.size * 4 * (len(mus) + 3), "--mus",
-          f"{len(mus)} levels of a {env.height}×{env.width}×{env.grid.size} map")
-    pf = prefilter(env, mus, progress=True)
-    for lvl in pf.levels:
-        _finite(lvl.radiance, "a prefiltered level", "--mus")
-    for mu, lvl in zip(pf.mus, pf.levels):
-        path = Path(f"{args.output}_mu{float(mu):g}.exr")
-        write_spectral_exr(path, np.asarray(lvl.radiance), lvl.grid)
-        print(f"wrote {path} ({lvl.height}×{lvl.width})")
+    scene = load_scene(args.scene)
+    t0 = time.perf_counter()
+    prepare(scene, mode=args.mode)
+    print(f"{args.scene}: environment for mode {args.mode} built in {time.perf_counter() - t0:.1f} s and cached "
+          f"in {cache_root()}; renders of this scene load it from there")
     return 0
