@@ -168,6 +168,11 @@ def main(argv: list[str] | None = None, *, handle_signals: bool | None = None) -
         return _run(args, module, prefix)
     finally:  # returning or unwinding while an interrupt is handled: wait for its clean exit
         hold_if_exiting()
+        if handle_signals:  # the command is over: an interrupt during interpreter teardown changes nothing
+            import signal
+
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, signal.SIG_IGN)
 
 
 def _run(args: argparse.Namespace, module, prefix: str) -> int:
