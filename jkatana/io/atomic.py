@@ -18,6 +18,7 @@ import contextlib
 import os
 import tempfile
 import threading
+import time
 from pathlib import Path
 from typing import Iterator
 
@@ -78,7 +79,7 @@ def atomic_path(path: str | Path, *, suffix: str | None = None) -> Iterator[Path
                 tmp_path = Path(tmp)
                 LIVE.add(tmp_path)
         if tmp_path is None:  # exiting after an interrupt: write nothing more
-            threading.Event().wait(1.0)
+            time.sleep(1.0)
     try:
         yield tmp_path
         os.chmod(tmp_path, mode)
