@@ -20,10 +20,10 @@ from jaxtyping import Array, Float
 
 from jkatana.light.fresnel_basis import svd_of_table
 from jkatana.models.fresnel import fresnel_conductor
+from jkatana.render.plan import Plan
 
 if TYPE_CHECKING:
     from jkatana.render.environment import Environment
-    from jkatana.render.shading import Plan
 
 #: Cosine samples of the Fresnel table (linear interpolation error < 1e-6 for iron).
 FRESNEL_TABLE = 1024

@@ -12,15 +12,14 @@ one sequence per output pixel is shared: subpixel ``q`` takes points
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-if TYPE_CHECKING:
-    from jkatana.render.shading import Plan
+from jkatana.render.plan import Plan
 
 
 @functools.lru_cache(maxsize=64)

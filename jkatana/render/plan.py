@@ -1,0 +1,120 @@
+"""The shader's static plan and the per-pixel inputs it reads.
+
+A :class:`Plan` holds every trace-time choice of :func:`jkatana.render.shading.shade`
+(mode, sample count, which lobes and effects are present); it is hashable and part
+of the compile key, so changing any field compiles a new program. :class:`Pixels`,
+:class:`Light`, :class:`Rays` and :class:`Visibility` are the arrays that pass between
+the G-buffer, the host-side ray caster and the jitted shader.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+from jaxtyping import Array, Float
+
+#: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
+MIRROR_MU = 1e-4
+MODES = ("reference", "paper", "prefiltered", "lowrank")
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """Static (trace-time) choices of what the shader computes.
+
+    **Fields:**
+
+    - `mode`: one of :data:`MODES`.
+    - `samples`: lobe samples per pixel (``"reference"``/``"lowrank"``: pairs of
+      one lobe sample and one environment sample; ``"paper"``: jittered rays).
+    - `hiraji`, `hamon`: whether any pixel has w > 0 / w < 1.
+    - `mirror`: hiraji treated as a perfect mirror (μ0 < MIRROR_MU everywhere).
+    - `env_sampling`: importance-sample the environment too (MIS).
+    - `factored`: shade in the environment's spectral basis (rank = its channels).
+    - `fresnel_rank`: ``R > 0``: shade with the Fresnel factor folded into the
+      environment (:func:`fold_fresnel`: per sample a ``3R``-channel lookup and
+      ``R`` Fresnel coefficients instead of ``wl`` bands; the caller passes the
+      folded material and environment). ``0``: full spectra. ``None`` (default):
+      :func:`jkatana.render.frame.shade_pixels` picks the smallest ``R`` whose
+      Fresnel table residual is below :data:`FRESNEL_RANK_TOL` when the plan
+      allows it (no spectral output, no lights, not ``factored``), else 0;
+      :func:`shade` called directly treats ``None`` as 0.
+    - `lights`: number of point/directional lights (0: none evaluated).
+    - `calibration`: ``None`` for the normalised convention, else K (see models).
+    - `rough_model`: ``"paper"`` (hamon = eq. 2, Gaussian D, V-cavity G) or
+      ``"beckmann"`` (hamon = Cook–Torrance with the normalised Beckmann D, α = μ1,
+      and separable Smith G with Walter et al.'s 2007 rational G1 — the model
+      Mitsuba 3's ``roughconductor`` uses; for validation against it).
+    - `spectral`: also return spectra (full mode only).
+    - `visibility`: the scene has occluders: every traced light direction is
+      weighted by a host-computed visibility (:class:`Visibility`). ``False``
+      (no occluders) compiles no visibility input at all.
+    - `subpixels`: ``S`` G-buffer samples (subpixels) per output pixel. With
+      ``S > 1`` and :class:`PixelIds` passed to :func:`shade`, the MIS modes draw
+      ONE per-pixel point set of ``S × samples`` points and give each subpixel
+      its share (subpixel ``q`` takes points ``q·N … q·N + N − 1`` of the pixel's
+      ``S·N``-point Sobol sequence under the pixel's digital shift), so that the union over a pixel's
+      subpixels is one well-stratified set instead of ``S`` independently
+      shifted ones. Without ids (or ``S = 1``) every G-buffer sample is its own pixel.
+    """
+
+    mode: str = "reference"
+    samples: int = 64
+    hiraji: bool = True
+    hamon: bool = True
+    mirror: bool = False
+    env_sampling: bool = True
+    factored: bool = False
+    fresnel_rank: int | None = None
+    lights: int = 0
+    rough_model: str = "paper"
+    calibration: float | None = None
+    spectral: bool = False
+    visibility: bool = False
+    subpixels: int = 1
+
+
+class Light(NamedTuple):
+    """Point (``kind`` 0: position, intensity W sr⁻¹ nm⁻¹) or directional (1: direction to light, irradiance)."""
+
+    vector: Float[Array, "n 3"]
+    kind: Float[Array, "n"]
+    spectrum: Float[Array, "n wl"]
+
+
+class Pixels(NamedTuple):
+    """G-buffer pixels (flattened, padded): world position, normal, view direction, per-pixel material."""
+
+    position: Float[Array, "P 3"]
+    normal: Float[Array, "P 3"]
+    view: Float[Array, "P 3"]
+    w: Float[Array, "P"]
+    mu0: Float[Array, "P"]
+    mu1: Float[Array, "P"]
+
+
+class Rays(NamedTuple):
+    """World directions the shader will trace for given pixels and key (see :func:`ray_directions`).
+
+    Pixel axis first everywhere (so one sharding splits them): ``mirror (P, 3)``
+    (mirror direction: the mirror hiraji and the prefiltered lookups),
+    ``lobe (P, S, 3)`` (lobe-sampled or the paper's jittered rays), ``env (P, S, 3)``
+    (environment samples of MIS; empty ``S = 0`` otherwise), ``lights (P, n, 3)`` and
+    ``light_dist (P, n)`` (distance to a point light, ``inf`` for directional ones).
+    """
+
+    mirror: Float[Array, "P 3"]
+    lobe: Float[Array, "P S 3"]
+    env: Float[Array, "P S2 3"]
+    lights: Float[Array, "P n 3"]
+    light_dist: Float[Array, "P n"]
+
+
+class Visibility(NamedTuple):
+    """1 where the direction of the matching :class:`Rays` entry reaches the environment/light, else 0."""
+
+    mirror: Float[Array, "P"]
+    lobe: Float[Array, "P S"]
+    env: Float[Array, "P S2"]
+    lights: Float[Array, "P n"]
