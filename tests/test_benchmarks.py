@@ -215,3 +215,28 @@ def test_jkatana_bench_outside_a_checkout_is_one_line(monkeypatch, capsys):
     assert cli.main(["bench", "--quick"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "source checkout" in err[0]
+
+
+def test_compare_classifies_errors_and_times(tmp_path):
+    """Back-to-back comparison: identical / float32-rounding / differing errors, time ratio, unmatched records."""
+    from benchmarks.compare import compare, main
+
+    def res(records, status="ok"):
+        return {"benchmarks": {"bench_x": {"status": status, "wall_s": 1.0, "records": records}}}
+
+    def rec(case, err, t):
+        return {"case": {"c": case}, "error": {"dE": err}, "time_s": {"median": t}}
+
+    before = res([rec(1, 0.5, 1.0), rec(2, 0.5, 1.0), rec(3, 0.5, 1.0), rec(4, 0.5, 1.0)])
+    after = res([rec(1, 0.5, 2.0), rec(2, 0.5 * (1 + 1e-7), 1.0), rec(3, 0.6, 0.5), rec(5, 0.5, 1.0)])
+    out = compare(before, after)
+    got = {r["key"].split("|")[1].strip(): (r["agreement"], r["ratio"]) for r in out["rows"]}
+    assert got == {'{"c": 1}': ("identical", 2.0), '{"c": 2}': ("float32", 1.0), '{"c": 3}': ("differ", 0.5)}
+    m = out["modules"]["bench_x"]
+    assert (m["identical"], m["float32"], m["with_errors"], m["median_ratio"]) == (1, 1, 3, 1.0)
+    assert len(m["only_before"]) == 1 and len(m["only_after"]) == 1
+    (tmp_path / "b.json").write_text(json.dumps(before))
+    (tmp_path / "a.json").write_text(json.dumps(after))
+    assert main([str(tmp_path / "b.json"), str(tmp_path / "a.json"), "-o", str(tmp_path / "cmp")]) == 0
+    text = (tmp_path / "cmp" / "compare.md").read_text()
+    assert "**differ**" in text and "| bench_x | ok → ok |" in text
