@@ -232,3 +232,17 @@ def test_projection_on_basis_reproduces_spectral_shading():
     xyz_low = jnp.einsum("r,hwrc->hwc", fb.coeffs(cos), P)
     xyz_full = (env.radiance * cond.fresnel(jnp.asarray(cos))) @ jnp.asarray(xyz_weights(G7))
     np.testing.assert_allclose(np.asarray(xyz_low), np.asarray(xyz_full), rtol=1e-4)
+
+
+@pytest.mark.parametrize("name", sorted(FAMILIES))
+def test_kernel_gradients_are_finite_at_the_mirror_direction(name):
+    """d/dx and d/dμ of the kernel at ψ = 0, at a tiny ψ and mid-lobe are finite (the tap fit differentiates
+    a kernel like it)."""
+    import jax
+
+    def k(x, mu):
+        return reflected_lobe(FAMILIES[name](mu), x)
+
+    for x in (0.0, 1e-14, 1e-3):
+        gx, gm = jax.grad(k, argnums=(0, 1))(jnp.asarray(x), jnp.asarray(0.05))
+        assert np.isfinite(float(gx)) and np.isfinite(float(gm)), (x, gx, gm)
