@@ -15,7 +15,8 @@ from :mod:`jkatana.models` and :mod:`jkatana.spectral`:
    P_{r,c}(ω; μ) = Σ_λ b_r(λ) W_c(λ) L̃_μ(ω, λ), where W_c is the CIE 1931
    weighting of eq. (6) and L̃_μ the environment convolved with the
    paper's Gaussian lobe at normal incidence, K(α) ∝ D(α/2, μ)/cos(α/2)
-   (:mod:`jkatana.light.prefilter`, exact on an equirectangular grid), for
+   up to the horizon, α ≤ 90° (:mod:`jkatana.light.prefilter`, exact on an
+   equirectangular grid), for
    each μ level on the source box-downsampled to ≥ :data:`TEXELS_PER_MU`
    texels per μ (:func:`level_shape`) and resampled bilinearly to the
    source's size for the shader. One layer per μ level, log-spaced.
