@@ -13,15 +13,13 @@ from :mod:`jkatana.models` and :mod:`jkatana.spectral`:
    to ~1e-6 for iron; the benchmark measures ranks 1–4).
 2. **Environment projected on the basis and prefiltered per roughness.**
    P_{r,c}(ω; μ) = Σ_λ b_r(λ) W_c(λ) L̃_μ(ω, λ), where W_c is the CIE 1931
-   weighting of eq. (6) and L̃_μ the environment convolved with the lobe
-   kernel of the paper's facet distribution D(φ, μ) = exp(−ln2 φ²/μ²) at
-   normal incidence (the reflected direction is 2φ from the mirror direction,
-   so K(α) = D(α/2, μ)/cos(α/2), normalised). The convolution is exact on an
-   equirectangular grid (FFT along longitude: the kernel depends only on the
-   two latitudes and the longitude difference), done for each μ level on the
-   source box-downsampled to ≥ 2 texels per μ (:func:`level_shape`) and
-   resampled bilinearly to the source's size for the shader. One layer per μ
-   level, log-spaced.
+   weighting of eq. (6) and L̃_μ the environment convolved with the
+   paper's Gaussian lobe at normal incidence, K(α) ∝ D(α/2, μ)/cos(α/2)
+   up to the horizon, α ≤ 90° (:mod:`jkatana.light.prefilter`, exact on an
+   equirectangular grid), for
+   each μ level on the source box-downsampled to ≥ :data:`TEXELS_PER_MU`
+   texels per μ (:func:`level_shape`) and resampled bilinearly to the
+   source's size for the shader. One layer per μ level, log-spaced.
 3. **Lobe lookup table** A_r(cos θv, μ) = Σ_λ b_r(λ) ∫ f_r cos θi dω_i for
    the hiraji and hamon models exactly as :meth:`Hiraji.brdf_cos` and
    :meth:`Hamon.brdf_cos` define them (normalised, uncalibrated convention),
@@ -53,6 +51,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.light.fresnel_basis import basis_of_table
+from jkatana.light.prefilter import level_shape  # noqa: F401 (the levels' resolution, for readers)
+from jkatana.light.prefilter import prefilter_level as _light_prefilter_level
 from jkatana.models import Conductor, Hamon, Hiraji, gaussian_facet
 from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
 from jkatana.render.film import film_weights
@@ -81,90 +81,16 @@ def fresnel_basis(conductor: Conductor, rank: int, n_cos: int = 256):
     return cos, a, b, rel_err
 
 
-def _kernel_table(mu, n_table: int = 8192):
-    """The prefilter kernel D(α/2, μ)/cos(α/2) tabulated on x = sin²(α/2) ∈ [0, sin²(top/2)], top = min(12 μ, π).
-
-    D is evaluated by :func:`jkatana.models.gaussian_facet` (D(6μ) < 1e-10, so
-    the kernel is 0 beyond ``top``). In x the kernel is smooth at α = 0
-    (≈ exp(−ln2·x/μ²)), so a uniform table interpolates it without an arccos.
-    """
-    top = min(12.0 * mu, np.pi)
-    x = np.linspace(0.0, np.sin(top / 2) ** 2, n_table)
-    half = np.arcsin(np.sqrt(x))
-    d = np.asarray(_facet_jit(jnp.asarray(half), jnp.asarray(mu, jnp.asarray(half).dtype)), np.float64)
-    return x, d / np.maximum(np.cos(half), 1e-6)
+#: Level resolution of the bake: texel height ≤ μ / this (the Gaussian kernel's FWHM, 4μ, spans ≥ 8 texels).
+TEXELS_PER_MU = 2.0
 
 
-_facet_jit = jax.jit(gaussian_facet)
-
-
-def _kernel(cos_alpha, mu, n_table: int = 8192, table=None):
-    """Prefilter kernel of the paper's lobe at normal incidence: D(α/2, μ)/cos(α/2), 0 beyond 12 μ
-    (interpolated in :func:`_kernel_table`'s table)."""
-    x, k = _kernel_table(mu, n_table) if table is None else table
-    s2 = 0.5 * (1.0 - np.clip(cos_alpha, -1.0, 1.0))
-    inside = s2 <= x[-1]
-    out = np.zeros(np.shape(s2))
-    out[inside] = np.interp(s2[inside], x, k)  # a narrow lobe covers few of the pairs: interpolate those
-    return out
-
-
-def _box2(img: np.ndarray) -> np.ndarray:
-    """Halve an equirectangular image in both axes, each 2×2 block averaged with its rows' solid angles."""
-    H, W = img.shape[:2]
-    edges = np.linspace(0.0, np.pi, H + 1)
-    w = np.cos(edges[:-1]) - np.cos(edges[1:])
-    num = (img * w[:, None, None]).reshape(H // 2, 2, W // 2, 2, -1).sum((1, 3))
-    return num / (2.0 * w.reshape(H // 2, 2).sum(1)[:, None, None])
-
-
-def level_shape(mu: float, shape: tuple[int, int], texels_per_mu: float = 2.0) -> tuple[int, int]:
-    """The resolution a level of width ``mu`` is convolved at: the source halved while a texel
-    (π/H rad tall) stays ≤ μ/``texels_per_mu`` (the lobe's half-maximum radius in the reflected direction
-    is 2μ, so ≥ 4 texels span it)."""
-    H, W = shape
-    while H % 2 == 0 and W % 2 == 0 and np.pi / (H // 2) <= mu / texels_per_mu:
-        H, W = H // 2, W // 2
-    return H, W
-
-
-def prefilter_level(image: np.ndarray, mu: float, *, texels_per_mu: float = 2.0, chunk: int = 32) -> np.ndarray:
-    """Convolve an equirectangular image ``(H, W, C)`` with the lobe kernel of width ``mu`` at
-    :func:`level_shape`'s resolution (returned at that resolution).
-
-    Exact on that grid: the kernel depends only on the two latitudes and the
-    longitude difference, so each output row is a sum over input rows of
-    circular convolutions along longitude, done by FFT (scipy.fft, float64,
-    all cores). Output rows go in chunks and only input rows within the
-    kernel's reach (12 μ) enter, so memory and time scale with
-    rows × reach × width instead of rows² × width.
-    """
-    import scipy.fft as sfft
-
-    img = np.asarray(image, np.float64)
-    h, w = level_shape(mu, img.shape[:2], texels_per_mu)
-    while img.shape[0] > h:
-        img = _box2(img)
-    theta = (np.arange(h) + 0.5) / h * np.pi
-    edges = np.linspace(0.0, np.pi, h + 1)
-    d_omega = (2.0 * np.pi / w) * (np.cos(edges[:-1]) - np.cos(edges[1:]))
-    cos_dlon = np.cos(2.0 * np.pi * np.arange(w) / w)
-    table = _kernel_table(mu)
-    reach = int(np.ceil(min(12.0 * mu, np.pi) / (np.pi / h))) + 1
-    spec = sfft.rfft(img, axis=1, workers=-1)                                         # (h, F, C)
-    out = np.empty(img.shape, np.float64)
-    for o0 in range(0, h, chunk):
-        o1 = min(h, o0 + chunk)
-        i0, i1 = max(0, o0 - reach), min(h, o1 + reach)
-        to, ti = theta[o0:o1], theta[i0:i1]
-        cos_a = (np.cos(to)[:, None, None] * np.cos(ti)[None, :, None]
-                 + np.sin(to)[:, None, None] * np.sin(ti)[None, :, None] * cos_dlon)
-        K = _kernel(cos_a, mu, table=table) * d_omega[None, i0:i1, None]           # (no, ni, w)
-        K /= K.sum(axis=(1, 2), keepdims=True)
-        Kf = sfft.rfft(K, axis=-1, workers=-1)                                        # (no, ni, F)
-        r = np.matmul(Kf.transpose(2, 0, 1), spec[i0:i1].transpose(1, 0, 2))         # (F, no, C)
-        out[o0:o1] = sfft.irfft(r.transpose(1, 0, 2), n=w, axis=1, workers=-1)
-    return out
+def prefilter_level(image: np.ndarray, mu: float, *, texels_per_mu: float = TEXELS_PER_MU,
+                    chunk: int = 32) -> np.ndarray:
+    """An equirectangular image ``(H, W, C)`` convolved with the paper's Gaussian lobe of width ``mu``
+    (:func:`jkatana.light.prefilter.prefilter_level`, kernel sampled at texel centres), at
+    :func:`level_shape`'s resolution for ``texels_per_mu``."""
+    return _light_prefilter_level(image, mu, texels_per_mu=texels_per_mu, sub=1, chunk=chunk)
 
 
 def upsample(level: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -184,8 +110,7 @@ def upsample(level: np.ndarray, height: int, width: int) -> np.ndarray:
 
 
 def prefilter(image: np.ndarray, mu: float) -> np.ndarray:
-    """Convolve an equirectangular image ``(H, W, C)`` with the lobe kernel of width ``mu``, returned at
-    the image's resolution (:func:`prefilter_level`, then :func:`upsample`)."""
+    """:func:`prefilter_level` resampled to the image's resolution (:func:`upsample`)."""
     H, W = image.shape[:2]
     return upsample(prefilter_level(image, mu), H, W)
 

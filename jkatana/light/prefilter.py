@@ -1,25 +1,43 @@
-"""Prefiltered environment maps and the low-rank spectral basis of the Fresnel term.
+"""Prefiltered environment maps (any reflection lobe) and the low-rank spectral basis of the Fresnel term.
 
 ## Lobe prefiltering
 
-For the fast renderer modes and the interactive path, the environment is
-convolved with the paper's Gaussian facet lobe, D(φ) = exp(−ln2 φ²/μ²)
-(Mochizuki et al.), under the usual split-sum assumption N = V = R (Karis
-2013, "Real Shading in Unreal Engine 4", SIGGRAPH course): a facet tilted by
-φ reflects the direction R by ψ = 2φ, so the kernel on the sphere is
+For the renderer's ``prefiltered`` mode and the interactive bake, the
+environment is convolved with a reflection lobe under the split-sum
+assumption N = V = R (Karis 2013, "Real Shading in Unreal Engine 4",
+SIGGRAPH course): the kernel is the lobe's reflected-direction density at
+normal incidence, made rotationally symmetric about the mirror direction R.
 
-    K_μ(ω, R) = exp(−ln2 ψ²/(4μ²)) / Z,    ψ = ∠(ω, R),
+At V = N a reflected direction at angle ψ from N has its half vector at the
+facet angle φ = ψ/2, with cos θH = cos(ψ/2), and dω_L = 4 cos θH dω_h
+(Walter, Marschner, Li & Torrance 2007, "Microfacet models for refraction
+through rough surfaces", eq. 14). The kernel is the lobe's own value
+f_r cos θi there (:meth:`jkatana.models.lobes.Lobe.f_cos`, V = N):
 
-normalised to ∫ K dω = 1 (numerically, per output texel, so a constant map
-stays exactly constant). :func:`prefilter` computes it for a list of μ.
+- microfacet lobes (Beckmann, GGX, GTR): D(φ) G / 4, i.e. the half-vector
+  density D cos θH times the Jacobian 1/(4 cos θH), times Smith shadowing;
+- the paper's Gaussian lobe (Mochizuki et al., eq. 1): N(μ) D(ψ/2, μ)/(4 cos(ψ/2));
+  the V-cavity lobe (eq. 2) adds its G;
+- a :class:`~jkatana.models.lobes.Mixture`: the weighted sum.
+
+It is zero below the horizon (ψ > π/2) and integrates to the lobe's albedo at
+normal incidence; it is normalised here to ∫ K dω = 1 (numerically, per
+output texel, so a constant map stays exactly constant), the lobe's energy
+being carried separately (the split sum's second factor). The kernel is
+tabulated once per lobe on x = sin²(ψ/2) ∈ [0, ½] (:func:`kernel_table`),
+in which it is smooth at ψ = 0, and interpolated linearly (no arccos per pair).
 
 Exact per-row algorithm: on an equirectangular grid the kernel between an
 output row and a source row depends only on the column difference (rotation
-about +Y), so each output row is a sum over nearby source rows of circular
-convolutions in φ, done with real FFTs. Each μ gets its own level whose
-texels are at most μ/``texels_per_mu`` rad high (default 8) (capped at the source
-resolution); the source is box-downsampled (power-preserving) to that level
-first, and only source rows within the kernel's support (K > 1e-7 K(0)) enter.
+about +Y), so each output row is a sum over the source rows within the
+kernel's support of circular convolutions in longitude, done with real FFTs
+(:func:`convolve`). The kernel is integrated over each source texel with
+``sub × sub`` midpoint subsamples, so the result is the convolution of the
+piecewise-constant map also when the lobe is comparable to a texel. Each μ
+gets its own level whose texels are at most μ/``texels_per_mu`` rad high
+(:func:`level_shape`; the renderer and the bake choose their own): the
+source is box-downsampled (power-preserving) to it, or repeated (exact for
+the piecewise-constant map) up to ``max_upsample`` times.
 
 :meth:`PrefilteredEnv.lookup` is bilinear within a level and linear in log μ
 between levels (an approximation between the tabulated μ; exact at them, up
@@ -42,102 +60,181 @@ environment needs only ``rank`` colour maps:
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Callable, Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.fft as sfft
 from jaxtyping import Array, ArrayLike, Float
 
 from jkatana.errors import InputError
-from jkatana.light.envmap import EnvMap
+from jkatana.light.envmap import EnvMap, texel_solid_angles_np
 from jkatana.light.fresnel_basis import FresnelBasis, fresnel_basis  # noqa: F401 (the basis' home; re-exported)
+from jkatana.models.lobes import Gaussian, Lobe
 from jkatana.spectral.colorimetry import xyz_weights
 
-LN2 = math.log(2.0)
+#: A lobe of width μ: a lobe class whose first field is its width (``Gaussian``, ``GaussianVCavity``,
+#: ``Beckmann``, ``GGX``) or any callable μ ↦ :class:`~jkatana.models.lobes.Lobe`
+#: (``functools.partial(GTR, gamma=1.5)``, ``lambda m: Mixture(GGX(m), GTR(4 * m, 1.5), 0.8)``).
+LobeFamily = Callable[..., Lobe]
 
 
-def lobe_kernel(psi, mu):
-    """Un-normalised prefilter kernel ``exp(−ln2 ψ²/(4μ²))`` (ψ: angle from R, rad)."""
-    return np.exp(-LN2 * np.square(psi) / (4.0 * mu * mu))
+def reflected_lobe(lobe: Lobe, sin2_half: Float[ArrayLike, "*n"]) -> Float[Array, "*n"]:
+    """The prefilter kernel before normalisation: f_r cos θi of ``lobe`` at normal incidence (V = N = +z)
+    toward a direction at angle ψ from N, given x = sin²(ψ/2) (module docstring; Walter et al. 2007,
+    Karis 2013). Zero below the horizon (x > ½). Pure JAX; ``sin2_half`` must have the lobe's dtype;
+    value and gradient finite at ψ = 0."""
+    x = jnp.clip(jnp.asarray(sin2_half), 0.0, 1.0)
+    sx = x * (1.0 - x)
+    pos = sx > 0
+    sin_psi = jnp.where(pos, 2.0 * jnp.sqrt(jnp.where(pos, sx, 1.0)), 0.0)
+    zero = jnp.zeros_like(x)
+    L = jnp.stack([sin_psi, zero, 1.0 - 2.0 * x], -1)
+    V = jnp.stack([zero, zero, jnp.ones_like(x)], -1)
+    return lobe.f_cos(L, V)
 
 
-def kernel_support(mu: float, rel: float = 1e-7) -> float:
-    """Angle ψ beyond which the kernel is below ``rel`` of its peak."""
-    return min(math.pi, 2.0 * mu * math.sqrt(math.log(1.0 / rel) / LN2))
+_reflected_jit = eqx.filter_jit(reflected_lobe)
+
+
+_build_jit = eqx.filter_jit(lambda family, mu: family(mu))  # one compilation per family, not one per operation
+
+
+def lobe_of_width(lobe: LobeFamily, mu: float) -> Lobe:
+    """``lobe(μ)`` with μ a JAX scalar of the default float dtype (float64 under x64)."""
+    return _build_jit(lobe, jnp.asarray(mu, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32))
+
+
+def kernel_table(lobe: Lobe, rel: float = 1e-7, n: int = 8192) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`reflected_lobe` tabulated on ``n`` points over the kernel's support, uniform in
+    sin(ψ/2) = √x (so a narrow peak with long tails is resolved too).
+
+    The support ends at the horizon (x = ½) or where the kernel stays below ``rel`` of its peak; the
+    table is refined until at least ``n/4`` points lie inside it, so narrow lobes are resolved. Beyond
+    the last point the kernel is 0 (:func:`kernel_at`).
+
+    **Returns:** ``(x, k)``, float64; ∫ K dω = 4π ∫ k dx (dω = 2π sin ψ dψ = 4π dx).
+    """
+    dt = jnp.result_type(*jax.tree.leaves(lobe))
+    top = 0.5
+    for _ in range(60):
+        x = np.linspace(0.0, math.sqrt(top), n) ** 2
+        # the horizon's node takes the value just above it: the kernel's cut there stays sharp
+        k = np.asarray(_reflected_jit(lobe, jnp.asarray(np.minimum(x, 0.5 - 1e-12), dt)), np.float64)
+        peak = float(np.max(k)) if k.size else 0.0
+        if not (np.isfinite(peak) and peak > 0 and np.all(np.isfinite(k))):
+            raise InputError(f"the lobe {lobe.to_params()} has no finite reflected kernel at normal incidence",
+                             field="lobe")
+        last = int(np.nonzero(k > rel * peak)[0][-1])
+        if last >= n // 4:
+            break
+        top = float(x[last + 1])
+    keep = min(last + 2, n)
+    return x[:keep], k[:keep]
+
+
+def kernel_at(x: np.ndarray, table: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The tabulated kernel at x = sin²(ψ/2): linear in sin(ψ/2) between the table's (uniform) nodes, 0
+    beyond the last one (a direct index, no search: this is the convolution's inner loop)."""
+    tx, tk = table
+    n = tx.size
+    u = np.sqrt(x) * (1.0 / math.sqrt(tx[1]))              # in node spacings
+    i = np.minimum(u.astype(np.intp), n - 2)
+    k = np.take(tk, i) + (u - i) * np.take(np.diff(tk), i)
+    return np.where(u <= n - 1, k, 0.0)
 
 
 def level_shape(mu: float, source_shape: tuple[int, int], texels_per_mu: float = 8.0,
                 max_upsample: int = 1) -> tuple[int, int]:
-    """Level resolution for μ: the coarsest ``H_src · 2^k`` (k ≤ log2 max_upsample) whose texel
-    height is ≤ μ/texels_per_mu (at least 4 rows)."""
-    H, W = source_shape
-    h = H
-    while h % 2 == 0 and (math.pi / (h // 2)) <= mu / texels_per_mu and h // 2 >= 4:
-        h //= 2
+    """Level resolution for μ: the source halved (both axes even, ≥ 4 rows) while a texel (π/h rad tall)
+    stays ≤ μ/``texels_per_mu``, or doubled while it is larger, up to ``max_upsample`` × the source."""
+    h, w = source_shape
+    H = h
+    while h % 2 == 0 and w % 2 == 0 and h // 2 >= 4 and math.pi / (h // 2) <= mu / texels_per_mu:
+        h, w = h // 2, w // 2
     while math.pi / h > mu / texels_per_mu and 2 * h <= H * max_upsample:
-        h *= 2
-    return h, W * h // H
+        h, w = 2 * h, 2 * w
+    return h, w
 
 
-def _column_reach(theta_out: float, rows: np.ndarray, H: int, W: int, psi_max: float) -> int:
-    """Largest column offset that can lie within ψ_max: from sin²(ψ/2) ≥ sin θ sin θ' sin²(Δφ/2)."""
-    edges_sin = np.minimum(np.sin(rows * math.pi / H), np.sin((rows + 1) * math.pi / H))
-    s = math.sqrt(max(math.sin(theta_out) * float(edges_sin.min()), 0.0))
-    ratio = math.sin(psi_max / 2) / s if s > 0 else 2.0
-    if ratio >= 1.0:
-        return W
-    return min(W, int(math.ceil(2 * math.asin(ratio) / (2 * math.pi / W))) + 2)
+def box_downsample(image: Float[np.ndarray, "H W C"], factor: int) -> Float[np.ndarray, "h w C"]:
+    """Box-filter an equirectangular ``(H, W, C)`` image by ``factor`` in both axes, each block weighted by
+    its texels' solid angles (power-preserving: Σ L Ω unchanged)."""
+    H, W = image.shape[:2]
+    f = int(factor)
+    num = (image * texel_solid_angles_np(H, W)[..., None]).reshape(H // f, f, W // f, f, -1).sum(axis=(1, 3))
+    return num / texel_solid_angles_np(H // f, W // f)[..., None]
 
 
-def _texel_kernel(theta_out: float, rows: np.ndarray, H: int, W: int, mu: float, sub: int,
-                  psi_max: float) -> np.ndarray:
-    """∫ K_μ dω over source texels ``(rows, all columns)`` for an output direction at polar angle
-    ``theta_out`` and azimuth at the centre of column 0; ``sub × sub`` midpoint subsamples per texel,
-    rescaled to the texel's exact solid angle. Only columns within reach of ψ_max are evaluated.
-    Shape ``(len(rows), W)``."""
-    c = _column_reach(theta_out, rows, H, W, psi_max)
-    cols = np.arange(W) if 2 * c + 1 >= W else np.arange(-c, c + 1)
-    t = (np.arange(sub) + 0.5) / sub
-    th = (rows[:, None] + t[None, :]) * (math.pi / H)  # (r, s)
-    dph = ((cols[:, None] + t[None, :]) - 0.5) * (2 * math.pi / W)  # (C, s): source φ − output φ
-    ct, st = np.cos(th), np.sin(th)
-    cos_psi = (math.cos(theta_out) * ct[:, None, :, None]
-               + math.sin(theta_out) * st[:, None, :, None] * np.cos(dph)[None, :, None, :])  # (r, C, s, s)
-    psi = np.arccos(np.clip(cos_psi, -1.0, 1.0))
-    k = lobe_kernel(psi, mu) * st[:, None, :, None]
-    omega_rows = (np.cos(rows * math.pi / H) - np.cos((rows + 1) * math.pi / H)) * (2 * math.pi / W)
-    vals = k.mean(axis=(2, 3)) * (omega_rows / st.mean(axis=1))[:, None]
-    if cols.size == W:
-        return vals
-    out = np.zeros((rows.size, W))
-    out[:, np.mod(cols, W)] = vals
-    return out
+def convolve(image: Float[np.ndarray, "H W C"], table: tuple[np.ndarray, np.ndarray], *, sub: int = 3,
+             chunk: int = 32) -> Float[np.ndarray, "H W C"]:
+    """Convolve a piecewise-constant equirectangular image with the kernel ``table``
+    (:func:`kernel_table`), normalised per output texel; output at texel centres, float64.
 
-
-def convolve_level(L: np.ndarray, mu: float, rel: float = 1e-7, sub: int = 3) -> np.ndarray:
-    """Convolve a piecewise-constant equirect map ``(H, W, n)`` with the normalised K_μ.
-
-    Output at texel centres; the kernel is integrated over each source texel
-    with ``sub × sub`` subsamples, so the result is the convolution of the
-    piecewise-constant map even when μ is comparable to a texel. Per output
-    row: a sum over source rows within the support of circular correlations in
-    φ (real FFTs).
+    Each output row is a sum over the source rows within the kernel's support of circular
+    convolutions in longitude (real FFTs): exact on the grid. The kernel is integrated over each
+    source texel with ``sub × sub`` midpoint subsamples (``sub = 1``: sampled at texel centres). Output
+    rows go in chunks of ``chunk``, and only the columns within the support are evaluated, so memory and
+    time scale with rows × support instead of rows² × width.
     """
-    H, W, n = L.shape
-    theta = (np.arange(H) + 0.5) * math.pi / H
-    psi_max = kernel_support(mu, rel)
-    L_hat = np.fft.rfft(L, axis=1)  # (H, W/2+1, n)
-    out = np.empty((H, W, n), np.float64)
-    for j in range(H):
-        rows = np.nonzero(np.abs(theta - theta[j]) <= psi_max + 1.5 * math.pi / H)[0]
-        K = _texel_kernel(theta[j], rows, H, W, mu, sub, psi_max)  # (r, W)
-        K /= K.sum()
-        # out[j, i] = Σ_{j', Δ} K[j', Δ] L[j', i + Δ]  (circular correlation)
-        K_hat = np.conj(np.fft.rfft(K, axis=1))
-        acc = np.einsum("rk,rkl->kl", K_hat, L_hat[rows])
-        out[j] = np.fft.irfft(acc, n=W, axis=0)
+    L = np.asarray(image, np.float64)
+    H, W = L.shape[:2]
+    tx, tk = table
+    psi_max = 2.0 * math.asin(math.sqrt(min(float(tx[-1]), 1.0)))
+    dth, dph = math.pi / H, 2.0 * math.pi / W
+    theta = (np.arange(H) + 0.5) * dth
+    edges = np.arange(H + 1) * dth
+    t = (np.arange(sub) + 0.5) / sub
+    th_sub = (np.arange(H)[:, None] + t[None, :]) * dth                                 # (H, sub)
+    sin_sub = np.sin(th_sub)
+    row_w = (np.cos(edges[:-1]) - np.cos(edges[1:])) / sin_sub.mean(axis=1)            # texel Ω / mean sin θ
+    reach = int(math.ceil(psi_max / dth)) + 2
+    hav_p = np.sin(((np.arange(W)[:, None] + t[None, :]) - 0.5) * (dph / 2)) ** 2      # (W, sub): offsets 0..W−1
+    spec = sfft.rfft(L, axis=1, workers=-1).transpose(1, 0, 2)                          # (F, H, C)
+    spec_re, spec_im = np.ascontiguousarray(spec.real), np.ascontiguousarray(spec.imag)
+    out = np.empty(L.shape, np.float64)
+    for o0 in range(0, H, chunk):
+        o1 = min(H, o0 + chunk)
+        i0, i1 = max(0, o0 - reach), min(H, o1 + reach)
+        K = np.zeros((o1 - o0, i1 - i0, W))
+        for j in range(o0, o1):
+            r0, r1 = max(0, j - reach), min(H, j + reach + 1)
+            # columns within reach: sin²(ψ/2) ≥ sin θ sin θ' sin²(Δφ/2)
+            s2 = float(math.sin(theta[j]) * sin_sub[r0:r1].min())  # the subsamples are all that is evaluated
+            ratio = math.sin(psi_max / 2) / math.sqrt(s2) if s2 > 0 else 2.0
+            c = W if ratio >= 1.0 else int(math.ceil(2 * math.asin(ratio) / dph)) + 2
+            cols = np.arange(W) if 2 * c + 1 >= W else np.arange(-c, c + 1)
+            ti, si = th_sub[r0:r1], sin_sub[r0:r1]                                       # (r, sub)
+            x = ((np.sin((theta[j] - ti) / 2) ** 2)[:, :, None, None]
+                 + (math.sin(theta[j]) * si)[:, :, None, None] * hav_p[np.mod(cols, W)][None, None])  # (r, s, c, s)
+            k = (kernel_at(x, table) * si[:, :, None, None]).sum(axis=(1, 3))
+            K[j - o0, r0 - i0:r1 - i0][:, np.mod(cols, W)] = k * row_w[r0:r1, None]
+        K /= K.sum(axis=(1, 2), keepdims=True)
+        # out[o, φ] = Σ_i Σ_Δ K[o, i, Δ] L[i, φ + Δ]  (circular correlation in longitude); K is even in Δ
+        # (symmetric subsamples), so its spectrum is real: two real matrix products per frequency
+        Kf = np.ascontiguousarray(sfft.rfft(K, axis=-1, workers=-1).real.transpose(2, 0, 1))  # (F, no, ni)
+        r = np.matmul(Kf, spec_re[:, i0:i1]) + 1j * np.matmul(Kf, spec_im[:, i0:i1])    # (F, no, C)
+        out[o0:o1] = sfft.irfft(r.transpose(1, 0, 2), n=W, axis=1, workers=-1)
     return out
+
+
+def prefilter_level(image: Float[np.ndarray, "H W C"], mu: float, *, lobe: LobeFamily = Gaussian,
+                    texels_per_mu: float = 8.0, max_upsample: int = 1, sub: int = 3,
+                    chunk: int = 32) -> Float[np.ndarray, "h w C"]:
+    """Convolve an equirectangular image ``(H, W, C)`` with the normalised kernel of ``lobe(mu)``
+    at :func:`level_shape`'s resolution (returned at that resolution, float64): the source is
+    box-downsampled (:func:`box_downsample`) or repeated to it, then :func:`convolve`'d."""
+    img = np.asarray(image, np.float64)
+    H, W = img.shape[:2]
+    h, w = level_shape(mu, (H, W), texels_per_mu, max_upsample)
+    if h < H:
+        img = box_downsample(img, H // h)
+    elif h > H:
+        f = h // H
+        img = np.repeat(np.repeat(img, f, axis=0), f, axis=1)
+    return convolve(img, kernel_table(lobe_of_width(lobe, mu)), sub=sub, chunk=chunk)
 
 
 class PrefilteredEnv(eqx.Module):
@@ -164,18 +261,22 @@ class PrefilteredEnv(eqx.Module):
 
 
 def prefilter(env: EnvMap, mus: Sequence[float] = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3), *,
-              texels_per_mu: float = 8.0, max_upsample: int = 1, progress: bool = False) -> PrefilteredEnv:
-    """Convolve ``env`` with the Gaussian-lobe kernel for each μ (rad), see the module docstring.
+              lobe: LobeFamily = Gaussian, texels_per_mu: float = 8.0, max_upsample: int = 1, sub: int = 3,
+              progress: bool = False) -> PrefilteredEnv:
+    """Convolve ``env`` with the kernel of ``lobe`` for each width μ (:func:`prefilter_level`), see the
+    module docstring.
 
     **Arguments:**
 
-    - `mus`: roughness values (the paper's μ, rad), positive.
-    - `texels_per_mu`: level texel height ≤ μ / this (default 8: the kernel's
+    - `mus`: lobe widths (the paper's μ in rad for the default lobe; α for microfacet lobes), positive.
+    - `lobe`: the lobe family (:data:`LobeFamily`); default the paper's Gaussian lobe (eq. 1).
+    - `texels_per_mu`: level texel height ≤ μ / this (default 8: the Gaussian kernel's
       FWHM, 4μ, spans ≥ 32 texels, unless capped by the source resolution).
     - `max_upsample`: allow levels finer than the source by up to this factor
       (nearest-neighbour repetition, which represents the piecewise-constant map
       exactly) when μ is small compared with a source texel: bilinear lookups of
       the result are then accurate near sharp features such as the sun.
+    - `sub`: subsamples per texel side for the kernel's integral over a source texel.
     - `progress`: show a tqdm bar over μ.
 
     **Returns:** :class:`PrefilteredEnv` (levels in the dtype of ``env``).
@@ -188,43 +289,42 @@ def prefilter(env: EnvMap, mus: Sequence[float] = (0.005, 0.01, 0.02, 0.05, 0.1,
         from tqdm import tqdm
 
         it = tqdm(mus, desc="prefilter", unit="μ")
+    src = np.asarray(env.radiance, np.float64)
     levels = []
     for mu in it:
-        h, w = level_shape(mu, (env.height, env.width), texels_per_mu, max_upsample)
-        if h < env.height:
-            L = np.asarray(env.downsample(env.height // h).radiance, np.float64)
-        else:
-            f = h // env.height
-            L = np.asarray(env.radiance, np.float64)
-            if f > 1:
-                L = np.repeat(np.repeat(L, f, axis=0), f, axis=1)
-        L = convolve_level(L, mu)
+        L = prefilter_level(src, mu, lobe=lobe, texels_per_mu=texels_per_mu, max_upsample=max_upsample, sub=sub)
         levels.append(EnvMap(jnp.asarray(L, env.radiance.dtype), env.grid))
     return PrefilteredEnv(tuple(levels), mus)
 
 
-def brute_force_convolution(env: EnvMap, d, mu: float, sub: int = 8) -> np.ndarray:
-    """Reference: ``Σ_i L_i ∫_texel_i K_μ(ω, d) dω / ∫ K_μ dω`` over every source texel of ``env``
-    (piecewise-constant radiance), with ``sub × sub`` subsamples per texel, at any direction ``d``.
+def brute_force_convolution(env: EnvMap, d, mu: float, sub: int = 8, lobe: LobeFamily = Gaussian) -> np.ndarray:
+    """Reference: ``Σ_i L_i ∫_texel_i K dω / ∫ K dω`` over every source texel of ``env`` (piecewise-constant
+    radiance) within the kernel's support, with ``sub × sub`` subsamples per texel, at any direction ``d``;
+    the kernel is :func:`reflected_lobe` evaluated at each subsample (midpoint rule, rescaled to each
+    texel's exact solid angle).
 
-    Independent of :func:`prefilter`'s levels, FFTs and interpolation; O(texels in the support).
+    Independent of :func:`prefilter`'s levels, kernel table, FFTs and interpolation; O(texels in the support).
     """
     d = np.asarray(d, np.float64)
     d = d / np.linalg.norm(d)
     H, W = env.height, env.width
     L = np.asarray(env.radiance, np.float64)
+    lob = lobe_of_width(lobe, mu)
+    dt = jnp.result_type(*jax.tree.leaves(lob))
+    tx, _ = kernel_table(lob)
+    psi_max = 2.0 * math.asin(math.sqrt(min(float(tx[-1]), 1.0)))
     theta_d = math.acos(max(-1.0, min(1.0, d[1])))
     phi_d = math.atan2(d[0], -d[2])
-    psi_max = kernel_support(mu)
     theta_rows = (np.arange(H) + 0.5) * math.pi / H
     rows = np.nonzero(np.abs(theta_rows - theta_d) <= psi_max + 1.5 * math.pi / H)[0]
     t = (np.arange(sub) + 0.5) / sub
     th = (rows[:, None] + t[None, :]) * (math.pi / H)  # (r, s)
     ph = (np.arange(W)[:, None] + t[None, :]) * (2 * math.pi / W) - math.pi  # (W, s), absolute φ
-    cos_psi = (math.cos(theta_d) * np.cos(th)[:, None, :, None]
-               + math.sin(theta_d) * np.sin(th)[:, None, :, None] * np.cos(ph - phi_d)[None, :, None, :])
-    k = lobe_kernel(np.arccos(np.clip(cos_psi, -1, 1)), mu) * np.sin(th)[:, None, :, None]
-    K = k.mean(axis=(2, 3))  # ∝ ∫_texel K dω (row factor cancels only within a row: keep sin θ weights)
+    x = (np.sin((th - theta_d) / 2) ** 2)[:, None, :, None] \
+        + math.sin(theta_d) * np.sin(th)[:, None, :, None] * (np.sin((ph - phi_d) / 2) ** 2)[None, :, None, :]
+    k = np.asarray(_reflected_jit(lob, jnp.asarray(x, dt)), np.float64) * np.sin(th)[:, None, :, None]
+    omega = np.cos(rows * math.pi / H) - np.cos((rows + 1) * math.pi / H)  # the texels' exact solid angles / Δφ
+    K = k.mean(axis=(2, 3)) * (omega / np.sin(th).mean(axis=1))[:, None]  # ∝ ∫_texel K dω
     return np.einsum("rw,rwl->l", K, L[rows]) / K.sum()
 
 
