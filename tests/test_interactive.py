@@ -347,9 +347,14 @@ def test_windowed_viewer_under_xvfb(glr, tmp_path):
 
     if shutil.which("Xvfb") is None:  # pragma: no cover
         pytest.skip("Xvfb not installed (Debian package xvfb)")
+    from jkatana.interactive.commands import auto_exposure
+
+    sc = S.default_scene("sky", 320, 240)
+    # a fixed exposure (the CLI's first guess), so the window does not calibrate: a pure shading comparison
+    exposure = auto_exposure(sc.radiance, sc.grid) if sc.exposure != sc.exposure else sc.exposure
     shot = tmp_path / "window.png"
-    res = run_in_xvfb(["--resolution", "320", "240", "--flat-background", "--screenshot", str(shot)], timeout=300,
-                      size=(320, 240))
+    res = run_in_xvfb(["--resolution", "320", "240", "--flat-background", "--screenshot", str(shot),
+                       "--exposure", repr(exposure)], timeout=300, size=(320, 240))
     assert res.returncode == 0, res.stderr[-2000:]
     assert "window 320×240, deferred shading" in res.stderr, res.stderr[-2000:]
     from PIL import Image
@@ -357,17 +362,14 @@ def test_windowed_viewer_under_xvfb(glr, tmp_path):
     a = np.asarray(Image.open(shot))
     assert a.shape == (240, 320, 3)
     drawn = np.any(np.abs(a.astype(int) - a[0, 0]) > 3, -1)
-    sc = S.default_scene("sky", 320, 240)
     mask = A.blade_mask(sc.mesh, sc.view)
     iou = (drawn & mask).sum() / max((drawn | mask).sum(), 1)
     assert mask.mean() > 0.02 and iou > 0.9, (mask.mean(), iou)
     # the same view headless (EGL, deferred), with the CLI's tables and exposure
     from jkatana.interactive.bake import cached_bake
-    from jkatana.interactive.commands import auto_exposure
 
     st = glr.ShadingState(cached_bake(sc.radiance, sc.grid, rank=3, colourspace=sc.colourspace,
-                                      transfer=sc.transfer, source=sc.source), sc.refl_map,
-                          exposure=auto_exposure(sc.radiance, sc.grid) if sc.exposure != sc.exposure else sc.exposure)
+                                      transfer=sc.transfer, source=sc.source), sc.refl_map, exposure=exposure)
     st.env_rotation = sc.env_rotation
     r = glr.BakedOffscreenRenderer(st, 320, 240)
     b = r.render(glr.build_scene(sc.mesh, sc.view))
