@@ -23,7 +23,7 @@ void main()
     // the caps split off the map, through the same sharpest level's kernel
     float ks[JK_CAPS];
     float c0 = 0.69314718 * exp(-2.0 * jk_log_mu_first);
-    for (int k = 0; k < JK_CAPS; ++k) ks[k] = jk_cap_kernel(de, c0, k);
+    for (int k = 0; k < JK_CAPS; ++k) ks[k] = jk_cap_kernel(de, jk_cap_width(c0, k), k);
     xyz += jk_caps_xyz(jk_bg_coef, ks);
 #endif
     vec3 rgb = max(jk_xyz_to_rgb * (jk_exposure * xyz), 0.0);

@@ -27,8 +27,9 @@
 // filter width the map does not resolve hold the moment pattern, bake.resolved_taps), JK_CAPS (0..4:
 // compact bright sources split off the map as spherical caps, bake.sun_caps: each tap that reads the
 // map at direction R_j, weight w_j and level width μ_j also integrates the same normalised kernel over
-// every cap's disc, in closed form — bake.cap_kernel, whose NumPy twin the tests check against
-// jkatana.light.sun.cap_integral — weighted by the lobe table A and the cap's projected radiance Q).
+// every cap's disc, in closed form (its NumPy twin bake.cap_kernel is tested against the kernel
+// integrated over the cap by jkatana.light.sun.cap_nodes' rule), weighted by the lobe table A and the
+// cap's projected radiance Q).
 
 uniform vec3 cam_pos;
 uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
@@ -61,18 +62,27 @@ const float JK_PI = 3.14159265358979;
 uniform vec4 jk_cap[JK_CAPS];       // xyz: cap centre C (map frame), w: r² (r: the cap's angular radius)
 uniform vec3 jk_cap_q[4 * JK_CAPS]; // [4k + r]: Q_r of cap k, Ω_cap Σ_λ b_r(λ) W(λ) L_cap(λ) (XYZ)
 
-// bake.cap_kernel: the prefilter kernel D(α/2, μ)/cos(α/2), normalised, about the tap direction d,
-// averaged over cap k's disc (c0 = ln2/μ² of the tap's level; the disc widens it to c, keeping the
-// exact value at its centre)
-float jk_cap_kernel(vec3 d, float c0, int k)
+// bake.cap_kernel, in two parts. Per pixel and cap: the width c of the prefilter kernel D(α/2, μ)/cos(α/2)
+// (c0 = ln2/μ² of the tap's level) averaged over cap k's disc (keeping the exact value at its centre),
+// and the kernel's normalisation 1/N(c)
+vec2 jk_cap_width(float c0, int k)
 {
     float r2 = jk_cap[k].w;
     float x = 0.25 * c0 * r2;
     float c = x < 1e-3 ? c0 * (1.0 - 0.5 * x) : 4.0 * (1.0 - exp(-x)) / r2;
-    float s = min(0.5 * length(d - jk_cap[k].xyz), 1.0);   // sin(α/2)
-    float h = asin(s);
-    float norm = 4.0 * JK_PI / c * (1.0 - 1.0 / (6.0 * c) + 1.0 / (60.0 * c * c));
-    return exp(-c * h * h) * inversesqrt(max(1.0 - s * s, 1e-6)) / norm;
+    return vec2(c, c / (4.0 * JK_PI * (1.0 - 1.0 / (6.0 * c) + 1.0 / (60.0 * c * c))));
+}
+
+// per tap: the kernel at the tap direction d (0 where c h² > 30, a factor e⁻³⁰ below its peak, so that
+// blocks of pixels far from every cap skip the transcendental functions)
+float jk_cap_kernel(vec3 d, vec2 cw, int k)
+{
+    vec3 e = d - jk_cap[k].xyz;
+    float s2 = min(0.25 * dot(e, e), 1.0);                 // sin²(α/2) ≤ (α/2)²
+    if (cw.x * s2 > 30.0)
+        return 0.0;
+    float h = asin(sqrt(s2));
+    return exp(-cw.x * h * h) * inversesqrt(max(1.0 - s2, 1e-6)) * cw.y;
 }
 
 // the caps' radiance for lobe coefficients a and per-cap kernel sums ks
@@ -94,7 +104,7 @@ vec3 jk_caps_xyz(vec4 a, float ks[JK_CAPS])
     }
     return xyz;
 }
-#define JK_CAP_TAP(d, wt) for (int k = 0; k < JK_CAPS; ++k) ks[k] += (wt) * jk_cap_kernel(d, c0, k);
+#define JK_CAP_TAP(d, wt) for (int k = 0; k < JK_CAPS; ++k) ks[k] += (wt) * jk_cap_kernel(d, cw[k], k);
 #else
 #define JK_CAP_TAP(d, wt)
 #endif
@@ -182,10 +192,16 @@ vec4 jk_shade(vec3 N, vec3 P, vec2 uv)
 #if JK_CAPS > 0
         float ks[JK_CAPS];
         for (int k = 0; k < JK_CAPS; ++k) ks[k] = 0.0;
+        vec2 cw[JK_CAPS];
+#if JK_ROUGH && JK_TAP_FIT
+        float c0;                      // set below, at the moment-matched pattern's level
+#else
 #if JK_ROUGH
         float c0 = 0.69314718 * exp(-2.0 * (jk_log_mu_first + le * jk_log_mu_step));
 #else
         float c0 = 0.69314718 * exp(-2.0 * jk_log_mu_first);
+#endif
+        for (int k = 0; k < JK_CAPS; ++k) cw[k] = jk_cap_width(c0, k);
 #endif
 #endif
 #if JK_TWO_TAP && JK_TAP_FIT
@@ -196,9 +212,19 @@ vec4 jk_shade(vec3 N, vec3 P, vec2 uv)
         vec3 d1 = cos(tp.z) * R + sin(tp.z) * tn;
         vec3 d2 = cos(tp.w) * R + sin(tp.w) * tn;
         xyz = tw.x * env_xyz(d0, lz, a) + tw.y * env_xyz(d1, lz, a) + tw.z * env_xyz(d2, lz, a);
-        JK_CAP_TAP(d0, tw.x)
-        JK_CAP_TAP(d1, tw.y)
-        JK_CAP_TAP(d2, tw.z)
+#if JK_CAPS > 0
+        // the caps through the moment-matched pattern instead (bake.lobe_lut's moments: ¼, ½, ¼ at mean,
+        // mean ± √2·spread, the across-plane width): the fitted taps match the lobe in L1 over the map,
+        // not point by point, and a cap's small disc samples the kernel at one point
+        vec3 shape = w * lobe(2.0, cv, lf).rgb + (1.0 - w) * lobe(3.0, cv, lt).rgb;
+        float lm = clamp(mix(lt, lf, w) + shape.r / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
+        c0 = 0.69314718 * exp(-2.0 * (jk_log_mu_first + lm * jk_log_mu_step));
+        for (int k = 0; k < JK_CAPS; ++k) cw[k] = jk_cap_width(c0, k);
+        float off = 1.41421356 * shape.g;
+        JK_CAP_TAP(cos(shape.b) * R + sin(shape.b) * tn, 0.5)
+        JK_CAP_TAP(cos(shape.b + off) * R + sin(shape.b + off) * tn, 0.25)
+        JK_CAP_TAP(cos(shape.b - off) * R + sin(shape.b - off) * tn, 0.25)
+#endif
 #elif JK_TWO_TAP
         // three binomial taps (1/4, 1/2, 1/4) along the plane of incidence at mean, mean ± √2·spread:
         // the in-plane variance of the sum is var_perp + spread² = var_par (the lobe's)
