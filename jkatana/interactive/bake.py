@@ -52,8 +52,8 @@ from :mod:`jkatana.models` and :mod:`jkatana.spectral`:
    the moment-matched one (:func:`moment_taps`) even where the map is read
    with the fitted taps (:func:`tap_fit`): those match the lobe in L1 over
    the sphere, not point by point, and a cap samples the kernel at about
-   one point (on the sun-glint view under ``sunrise.exr``, ΔE2000 p95 1.6
-   with the moment pattern for the cap against 3.7 with the fitted one).
+   one point (the agreement test of the sun-glint view under
+   ``sunrise.exr`` measures the difference).
    k̂ is the normalised prefilter kernel
    D(α/2, μ)/cos(α/2) of :func:`_kernel` in closed form, exp(−c h²)/cos h
    with h = α/2, c = ln2/μ², normalised by
