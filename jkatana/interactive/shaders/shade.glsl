@@ -258,7 +258,18 @@ vec4 jk_shade(vec3 N, vec3 P, vec2 uv)
 #endif
 #else
         xyz = env_xyz(R, lz, a);
+#if JK_ROUGH && JK_CAPS > 0
+        // one isotropic tap reads the map; the caps, which it would miss by the lobe's in-plane spread and
+        // offset, go through the moment-matched pattern (its level is this tap's)
+        vec3 tn = N - dot(N, R0) * R0;
+        tn = jk_env_rot * (tn / max(length(tn), 1e-6));
+        float off = 1.41421356 * shape.g;
+        JK_CAP_TAP(cos(shape.b) * R + sin(shape.b) * tn, 0.5)
+        JK_CAP_TAP(cos(shape.b + off) * R + sin(shape.b + off) * tn, 0.25)
+        JK_CAP_TAP(cos(shape.b - off) * R + sin(shape.b - off) * tn, 0.25)
+#else
         JK_CAP_TAP(R, 1.0)
+#endif
 #endif
 #if JK_CAPS > 0
         xyz += jk_caps_xyz(a, ks);
