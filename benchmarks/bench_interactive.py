@@ -2,9 +2,13 @@
 
 Setup: the built-in scene (default blade and reflectance map, the ``sky``
 environment 128×256×61), tables baked at rank 4 (so ranks 1–4 come from the
-same bake), headless EGL — Mesa llvmpipe when there is no GPU. Two views at
-800×600: the demo camera (the blade covers a few % of the frame) and a
-close-up in which the flat fills the frame (as appraisers look).
+same bake), headless EGL — Mesa llvmpipe when there is no GPU. Three views at
+800×600: the demo camera (the blade covers a few % of the frame), a
+close-up in which the flat fills the frame (as appraisers look), and
+``glint_sunrise``: the sun of the shared ``sunrise.exr`` (a compact source: split off as a shader cap,
+:func:`jkatana.interactive.bake.sun_caps`) glinting on the flat
+(:func:`validation.gl_agreement.sun_glint_view`), where ``full_no_split`` is the same frame with the
+sun left in the prefiltered map.
 
 Cases (each on both views); all but ``forward`` and ``msaa4`` use deferred shading (a G-buffer pass,
 then the shader once per covered pixel, see :mod:`jkatana.interactive.glrender`):
@@ -102,7 +106,12 @@ CONFIGS = {
 #: Samples per pixel of the reference frame (its noise adds to the measured ΔE2000).
 REF_SAMPLES = 256
 #: cases skipped in quick mode (per view)
-QUICK_SKIP = {"demo": {"rank2", "msaa4", "env_f16", "gbuffer_f16", "forward"}, "closeup": {"msaa4", "gbuffer_f16"}}
+QUICK_SKIP = {"demo": {"rank2", "msaa4", "env_f16", "gbuffer_f16", "forward"}, "closeup": {"msaa4", "gbuffer_f16"},
+              "glint_sunrise": set(CONFIGS) - {"full", "rank2", "one_tap", "five_tap"}}
+#: cases run on each view (the sun-glint view: the shading switches that matter for a cap, and the unsplit map)
+VIEW_CONFIGS = {"demo": CONFIGS, "closeup": CONFIGS,
+                "glint_sunrise": {**{k: CONFIGS[k] for k in ("full", "rank2", "one_tap", "five_tap", "no_rough")},
+                                  "full_no_split": {**CONFIGS["full"], "split_sun": False}}}
 
 
 def _log(*a):
@@ -171,7 +180,13 @@ def run(quick: bool = False) -> list[dict]:
     sc = S.default_scene("sky")
     baked = cached_bake(sc.radiance, sc.grid, rank=4)
     bake_s = time.perf_counter() - t0
-    views = {"demo": sc.view, "closeup": S.closeup_view(sc.mesh)}
+    sunrise = A.shared_environment("sunrise.exr")
+    t0 = time.perf_counter()
+    baked_sun = {True: cached_bake(sunrise, sc.grid, rank=4), False: cached_bake(sunrise, sc.grid, rank=4, split_sun=False)}
+    _log(f"sunrise.exr {sunrise.shape[:2]}: baked/loaded in {time.perf_counter() - t0:.1f} s, "
+         f"{baked_sun[True].n_caps} cap(s) split off")
+    views = {"demo": sc.view, "closeup": S.closeup_view(sc.mesh),
+             "glint_sunrise": A.sun_glint_view(sc.mesh, sunrise, 800, 600)}
     err_res = (96, 72) if quick else (200, 150)
     reps = 5 if quick else 15
     rows = []
@@ -181,19 +196,26 @@ def run(quick: bool = False) -> list[dict]:
     formats = {"RGBA32F": GL.GL_RGBA32F, "RGBA16F": GL.GL_RGBA16F}
     for vname, view in views.items():
         small = S.View(view.pose, view.yfov, *err_res)
+        radiance = sunrise if vname == "glint_sunrise" else sc.radiance
         t = time.perf_counter()
-        fr = A.reference_frame(sc.radiance, small, samples=REF_SAMPLES, seed=0)
-        ref = A.display255(fr.xyz, 1.0)
+        fr = A.reference_frame(radiance, small, samples=REF_SAMPLES, seed=0)
+        exposure = 1.0
+        if vname == "glint_sunrise":     # the sky's exposure of 1 would clip the sunrise; as the agreement tests
+            from jkatana.render.film import auto_exposure
+
+            exposure = auto_exposure(fr.xyz, fr.mask, key=0.6, percentile=75.0)
+        ref = A.display255(fr.xyz, exposure)
         ref_s = time.perf_counter() - t
         _log(f"{vname}: reference {small.width}×{small.height} ({fr.mask.sum()} px) in {ref_s:.1f} s")
-        for cname, cfg in CONFIGS.items():
-            if quick and cname in QUICK_SKIP[vname]:
+        for cname, cfg in VIEW_CONFIGS[vname].items():
+            if quick and cname in QUICK_SKIP.get(vname, ()):
                 continue
+            tables = baked_sun[cfg.get("split_sun", True)] if vname == "glint_sunrise" else baked
             G.ENV_FORMAT = formats[cfg.get("env_format", "RGBA32F")]
             G.GBUFFER_FORMAT = formats[cfg.get("gbuffer_format", "RGBA32F")]
             try:
-                st = G.ShadingState(baked, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
-                                    two_tap=cfg["two_tap"], taps=cfg.get("taps", 3))
+                st = G.ShadingState(tables, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
+                                    two_tap=cfg["two_tap"], taps=cfg.get("taps", 3), exposure=exposure)
                 r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"],
                                              deferred=cfg.get("deferred"))
                 scene = G.build_scene(sc.mesh, view)
@@ -219,7 +241,8 @@ def run(quick: bool = False) -> list[dict]:
                  f"{1e3 * cpu_s:5.1f} ms/frame  ΔE mean {err['dE00_mean']:.2f} p95 {err['dE00_p95']:.2f}  "
                  f"(load {load:.1f})")
             rows.append(record("bench_interactive", {"view": vname, "config": cname, **cfg,
-                                                     "width": view.width, "height": view.height},
+                                                     "width": view.width, "height": view.height,
+                                                     "caps": tables.n_caps},
                                time_s=drawn, error=err,
                                reference=f"jkatana.render reference mode, {REF_SAMPLES} samples, 61 bands, "
                                          f"{err_res[0]}×{err_res[1]}",
@@ -237,7 +260,7 @@ def run(quick: bool = False) -> list[dict]:
     # trilinear environment fetches per pixel (3 taps × 3 ranks)
     by = {(r_["case"]["view"], r_["case"]["config"]): r_ for r_ in rows}
     for vname in views:
-        if (vname, "rank4") in by and (vname, "rank1") in by:
+        if (vname, "rank4") in by and (vname, "rank1") in by and (vname, "full") in by:
             per = (by[vname, "rank4"]["ns_per_pixel_cpu"] - by[vname, "rank1"]["ns_per_pixel_cpu"]) / 9
             _log(f"{vname}: {by[vname, 'full']['ns_per_pixel_cpu']:.0f} ns CPU per blade pixel (full); "
                  f"≈ {per:.1f} ns CPU per trilinear environment fetch per pixel (rank 4 − rank 1, 9 fetches)")

@@ -79,3 +79,23 @@ def test_render_and_view_agree_in_mean_luminance(tmp_path):
     assert abs(gl[mask].mean() / ref[mask].mean() - 1.0) <= 0.02  # mean displayed luminance
     # the background is the environment, not a flat colour
     assert np.std(gl[~mask]) > 0.01
+    # the window (GLX under Xvfb) calibrates its own first frames by the same rule
+    import shutil
+
+    from jkatana.interactive.commands import run_in_xvfb
+
+    if shutil.which("Xvfb") is None:  # pragma: no cover
+        pytest.skip("no X server for the window: Xvfb not installed (Debian package xvfb)")
+    shot = tmp_path / "window.png"
+    res = run_in_xvfb([str(scene), "--screenshot", str(shot)], timeout=600, size=(160, 120))
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "[view] exposure" in res.stderr, res.stderr[-2000:]
+    win = xyz_from_display(np.asarray(Image.open(shot).convert("RGB")))[..., 1]
+    assert abs(win[mask].mean() / ref[mask].mean() - 1.0) <= 0.02
+    # …which is not the first guess it opens with (the calibration is what makes them agree)
+    from jkatana.interactive import scene as S
+    from jkatana.interactive.commands import auto_exposure
+
+    sc = S.from_render_scene(scene)
+    calibrated = float(res.stderr.split("[view] exposure ")[1].split()[0])
+    assert abs(calibrated / auto_exposure(sc.radiance, sc.grid) - 1.0) > 0.1

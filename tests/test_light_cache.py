@@ -124,3 +124,143 @@ def test_light_prefilter_fills_the_cache_a_render_then_reads(tmp_path, monkeypat
     assert made, "nothing was cached"
     prepare(scene)  # a render of the scene: reads, writes nothing new
     assert sorted(p.name for p in cache.cache_root().rglob("*") if p.is_file()) == made
+
+
+# ----------------------------------------------------------------------------- budget and eviction
+
+
+def _entry(base, sub, name, size, when):
+    """A cache entry of ``size`` bytes last used at POSIX time ``when`` (a folder for ``environment-*``)."""
+    import os
+
+    folder = base / sub
+    folder.mkdir(parents=True, exist_ok=True)
+    p = folder / name
+    if name.startswith("environment-"):
+        p.mkdir()
+        (p / "tree.json").write_text("{}")
+        (p / "a0.npy").write_bytes(b"\0" * (size - 2))
+    else:
+        p.write_bytes(b"\0" * size)
+    os.utime(p, (when, when))
+    return p
+
+
+def _four(base):
+    return [_entry(base, "environments", "radiance-a.npy", 1000, 100.0),
+            _entry(base, "interactive", "baked-b.npz", 1000, 200.0),
+            _entry(base, "environments", "environment-c", 1000, 300.0),
+            _entry(base, "interactive", "taps-d.npz", 1000, 400.0)]
+
+
+def test_eviction_removes_the_least_recently_used_entries_down_to_the_budget(tmp_path):
+    a, b, c, d = _four(tmp_path)
+    (tmp_path / "environments" / ".radiance-x.1234.npy").write_bytes(b"\0" * 5000)  # a write in progress
+    listed = cache.entries(tmp_path)
+    assert [e.path for e in listed] == [a, b, c, d] and sum(e.size for e in listed) == 4000
+    assert cache.evict(tmp_path, budget=2500) == [a, b]
+    assert not a.exists() and not b.exists() and c.is_dir() and d.exists()
+    assert (tmp_path / "environments" / ".radiance-x.1234.npy").exists()       # temporaries are not entries
+    assert cache.evict(tmp_path, budget=2000) == []                             # within the budget: nothing
+    assert cache.evict(tmp_path, budget=0) == [c, d]
+    assert not any(p.name.startswith(".evicted") for p in (tmp_path / "environments").iterdir())
+
+
+def test_an_entry_in_use_is_never_evicted(tmp_path):
+    a, b, c, d = _four(tmp_path)
+    assert cache.acquire(a) and cache.acquire(c)
+    try:
+        assert a.stat().st_mtime > 400.0                 # acquiring is a use: now the most recent
+        assert cache.evict(tmp_path, budget=0) == [b, d]
+        assert a.exists() and c.is_dir()
+        removed, kept = cache.clear(tmp_path)
+        assert removed == [] and sorted(kept) == sorted([a, c])
+    finally:
+        cache.release(a)
+        cache.release(c)
+    assert sorted(cache.clear(tmp_path)[0]) == sorted([a, c])
+    assert not cache.acquire(a)                          # gone: the reader builds it again
+
+
+def test_an_entry_held_by_another_process_is_not_evicted(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    a, b, c, d = _four(tmp_path)
+    code = ("import sys; from jkatana.light import cache; assert cache.acquire(sys.argv[1]); print('held', flush=True); "
+            "sys.stdin.read()")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(c)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            text=True, env=dict(os.environ))
+    try:
+        assert proc.stdout.readline().strip() == "held"
+        assert cache.evict(tmp_path, budget=0) == [a, b, d]
+        assert c.is_dir()
+    finally:
+        proc.communicate("", timeout=60)
+    assert cache.evict(tmp_path, budget=0) == [c]       # released when that process ended
+
+
+def test_reading_an_entry_marks_it_used_and_a_write_evicts_older_ones(tmp_path, monkeypatch):
+    monkeypatch.setenv("JKATANA_CACHE", str(tmp_path))
+    a, b, c, d = _four(tmp_path)
+    monkeypatch.setenv(cache.BUDGET_VARIABLE, "0.0035")          # 3500 bytes: less than the four
+    np.save(tmp_path / "environments" / "radiance-k.npy", np.zeros(8, np.float32))   # 160 bytes, oldest
+    import os
+
+    os.utime(tmp_path / "environments" / "radiance-k.npy", (50.0, 50.0))
+    old = cache.cached_radiance("k", lambda: (_ for _ in ()).throw(AssertionError("rebuilt")))
+    assert old.shape == (8,)                                     # read from the cache: now the most recent
+    new = cache.cached_radiance("n", lambda: np.ones((16, 16), np.float32))        # 1152 bytes written
+    assert new.shape == (16, 16)
+    gone = {p.name for p in (a, b, c, d) if not p.exists()}
+    assert gone == {"radiance-a.npy", "baked-b.npz"}, gone       # the two least recently used went
+    assert (tmp_path / "environments" / "radiance-k.npy").exists()
+    assert (tmp_path / "environments" / "radiance-n.npy").exists()
+    # an entry larger than the whole budget stays while its writer holds it
+    monkeypatch.setenv(cache.BUDGET_VARIABLE, "0")
+    cache.cached_radiance("big", lambda: np.ones((64, 64), np.float32))
+    assert (tmp_path / "environments" / "radiance-big.npy").exists()
+
+
+def test_budget_comes_from_the_environment(monkeypatch):
+    from jkatana.errors import InputError
+
+    monkeypatch.delenv(cache.BUDGET_VARIABLE, raising=False)
+    assert cache.cache_budget() == int(cache.DEFAULT_BUDGET_MB * 1e6)
+    monkeypatch.setenv(cache.BUDGET_VARIABLE, "1.5")
+    assert cache.cache_budget() == 1_500_000
+    for bad in ("lots", "-1", "nan", "inf"):
+        monkeypatch.setenv(cache.BUDGET_VARIABLE, bad)
+        with pytest.raises(InputError, match=cache.BUDGET_VARIABLE):
+            cache.cache_budget()
+
+
+def test_bake_cache_shares_the_budget(tmp_path, monkeypatch):
+    """The interactive bake's entries are listed, touched on read and evicted with the environments'."""
+    from jkatana.interactive import bake
+
+    monkeypatch.setenv("JKATANA_CACHE", str(tmp_path))
+    old = _entry(tmp_path, "environments", "radiance-old.npy", 1000, 100.0)
+    monkeypatch.setenv(cache.BUDGET_VARIABLE, "0.0001")
+    path = bake._cache_root() / "material-x.npz"
+    bake._save_entry(path, None, a=np.zeros(4))
+    assert path.exists() and not old.exists()
+    import os
+
+    os.utime(path, (10.0, 10.0))
+    assert bake._load_entry(path, lambda z: z["a"].shape) == (4,)
+    assert path.stat().st_mtime > 10.0
+
+
+def test_cli_lists_and_clears_the_cache(tmp_path, monkeypatch, capsys):
+    from jkatana.cli import main
+
+    monkeypatch.setenv("JKATANA_CACHE", str(tmp_path))
+    _four(tmp_path)
+    assert main(["light", "cache"]) == 0
+    out = capsys.readouterr().out
+    assert "4 entries, 0.0 MB" in out and "interactive/taps-d.npz" in out and "environments/environment-c" in out
+    assert main(["light", "cache", "--clear"]) == 0
+    assert "removed 4 entries" in capsys.readouterr().out
+    assert cache.entries(tmp_path) == []

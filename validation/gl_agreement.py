@@ -43,6 +43,36 @@ def render_scene(view: View, *, mode: str = "reference", samples: int = 256, exp
     }
 
 
+def shared_environment(name: str) -> np.ndarray:
+    """Spectral radiance ``(H, W, 61)`` of a shared environment map (``envmaps/<name>`` of
+    :func:`jkatana.shared.shared_data`) as ``jkatana render`` loads it (the scene's default upsampling and
+    scale, through :func:`jkatana.render.renderer.load_environment` and its cache)."""
+    from jkatana.render.renderer import load_environment
+    from jkatana.render.scene import scene_from_dict
+    from jkatana.shared import shared_data
+
+    d = render_scene(View(np.eye(4), 0.5, 8, 6))
+    d["environment"] = {"type": "exr" if name.endswith(".exr") else "hdr", "path": str(shared_data("envmaps", name))}
+    sc = scene_from_dict(d)
+    return np.asarray(load_environment(sc, sc.spectral.grid), np.float64)
+
+
+def sun_glint_view(mesh, radiance: np.ndarray, width: int, height: int) -> View:
+    """:func:`jkatana.interactive.scene.glint_view` at the most powerful compact source of ``radiance``
+    (:func:`jkatana.light.sun.find_compact_sources`): the sun's glint on the blade's flat."""
+    import jax.numpy as jnp
+
+    from jkatana.interactive.scene import glint_view
+    from jkatana.light.envmap import EnvMap
+    from jkatana.light.sun import split_compact_sources
+    from jkatana.spectral import DEFAULT_GRID
+
+    split = split_compact_sources(EnvMap(jnp.asarray(radiance, jnp.float32), DEFAULT_GRID), max_sources=1)
+    if split.cap is None:
+        raise ValueError("the environment has no compact source to glint")
+    return glint_view(mesh, np.asarray(split.cap.direction, np.float64), width, height)
+
+
 def view_camera(view: View) -> Camera:
     """The :class:`jkatana.render.camera.Camera` of ``view`` (the camera :func:`render_scene` describes)."""
     from jkatana.render.renderer import camera_for

@@ -34,6 +34,38 @@ from :mod:`jkatana.models` and :mod:`jkatana.spectral`:
    the split-sum approximation of Karis (2013), "Real Shading in Unreal
    Engine 4", with the spectral dimension factored by the SVD.
 
+4. **Compact bright sources split off.** A sun holds most of an outdoor
+   map's power in a few texels, which no prefiltered level of a 128-row
+   map resolves. :func:`jkatana.light.sun.split_compact_sources` splits such
+   sources off as spherical caps (direction C, angular radius r, spectral
+   radiance L_cap); the *remainder* is what is projected and prefiltered,
+   and each cap (at most :data:`MAX_CAPS`) becomes shader uniforms: C, r
+   and Q_{r,c} = Ω_cap Σ_λ b_r(λ) W_c(λ) L_cap(λ) (:func:`sun_caps`). The
+   shader adds, over a tap pattern j (direction R_j, weight w_j, level
+   width μ_j),
+
+       XYZ_c += Σ_r A_r Q_{r,c} Σ_j w_j k̂(∠(R_j, C); μ_j, r),
+
+   the lobe integrated against the cap instead of the map. The pattern is
+   the moment-matched one (:func:`moment_taps`) even where the map is read
+   with the fitted taps (:func:`tap_fit`): those match the lobe in L1 over
+   the sphere, not point by point, and a cap samples the kernel at about
+   one point (the agreement test of the sun-glint view under
+   ``sunrise.exr`` measures the difference).
+   k̂ is the normalised prefilter kernel
+   D(α/2, μ)/cos(α/2) of :func:`_kernel` in closed form, exp(−c h²)/cos h
+   with h = α/2, c = ln2/μ², normalised by
+   8π ∫₀^{π/2} e^{−c h²} sin h dh ≈ (4π/c)(1 − 1/(6c) + 1/(60c²)) (sin h to
+   its fifth-order Taylor term), convolved with the cap's uniform disc as a
+   Gaussian of the same mass whose value at the cap's centre is the exact
+   one: the kernel is a Gaussian of variance σ² = 2/c per axis in α, a disc
+   of radius r about its centre holds 1 − e^{−r²/2σ²} = 1 − e^{−x} of it,
+   x = c r²/4, so c → c' = 4 (1 − e^{−x})/r² (→ c (1 − x/2), the moment-matched
+   1/c + r²/8, for a small cap; a peak of 1, a mirror's, for a large one)
+   (:func:`cap_kernel`; tested against the kernel integrated over the cap by
+   :func:`jkatana.light.sun.cap_nodes`' rule). Without a compact source
+   nothing is split and the shader has no cap code (``JK_CAPS`` 0).
+
 Plus the display transform: the XYZ → linear RGB matrix of
 :func:`jkatana.spectral.xyz_to_rgb_matrix` (eq. 7) and a 1-D table of
 :func:`jkatana.spectral.encode` (eq. 8) indexed by √x so that it is dense
@@ -62,6 +94,9 @@ from jkatana.spectral.colorimetry import encode, xyz_to_rgb_matrix
 MU_LEVELS = 0.0125 * np.sqrt(2.0) ** np.arange(11)
 #: Largest rank the shaders support (one RGBA texel holds 4 coefficients).
 MAX_RANK = 4
+#: Most compact sources (sun caps) the shaders take as uniforms (:func:`jkatana.light.sun.find_compact_sources`'s
+#: default ``max_sources``).
+MAX_CAPS = 4
 
 
 def fresnel_basis(conductor: Conductor, rank: int, n_cos: int = 256):
@@ -370,6 +405,8 @@ class Baked:
       convergence (see :func:`tap_fit`).
     - ``mus``: the μ levels; ``b`` the spectral basis ``(rank, wl)``; ``fresnel_err``.
     - ``xyz_to_rgb`` 3×3; ``transfer`` 1-D table of encode(s²) for s uniform in [0, 1].
+    - ``cap_dir`` ``(n, 3)``, ``cap_radius`` ``(n,)``, ``cap_q`` ``(n, rank, 3)``: the compact sources split
+      off the map (:func:`sun_caps`; ``n = 0``: none, ``env`` is the whole map).
     """
 
     env: np.ndarray
@@ -384,10 +421,63 @@ class Baked:
     xyz_to_rgb: np.ndarray
     transfer: np.ndarray
     colourspace: str
+    cap_dir: np.ndarray
+    cap_radius: np.ndarray
+    cap_q: np.ndarray
 
     @property
     def rank(self) -> int:
         return self.b.shape[0]
+
+    @property
+    def n_caps(self) -> int:
+        return int(self.cap_dir.shape[0])
+
+
+def sun_caps(radiance: np.ndarray, grid: WavelengthGrid, b: np.ndarray, weights: np.ndarray):
+    """Split the compact bright sources off ``radiance (H, W, wl)`` for the shaders.
+
+    :func:`jkatana.light.sun.split_compact_sources` (its default criterion, at most :data:`MAX_CAPS`
+    sources) finds them; each cap's spectral radiance is projected as the map is, on the Fresnel basis
+    ``b (rank, wl)`` and the CIE weights ``weights (wl, 3)`` of eq. (6), times the cap's solid angle:
+    ``Q_{r,c} = Ω_cap Σ_λ b_r(λ) W_c(λ) L_cap(λ)``.
+
+    **Returns** ``(remainder (H, W, wl) float64, cap_dir (n, 3), cap_radius (n,), cap_q (n, rank, 3))``;
+    ``n = 0`` and the map itself when nothing is compact.
+    """
+    from jkatana.light.envmap import EnvMap
+    from jkatana.light.sun import split_compact_sources
+
+    rank = b.shape[0]
+    split = split_compact_sources(EnvMap(jnp.asarray(radiance, jnp.float32), grid), max_sources=MAX_CAPS)
+    if not split.caps:
+        return radiance, np.zeros((0, 3)), np.zeros((0,)), np.zeros((0, rank, 3))
+    caps = split.caps
+    direction = np.stack([np.asarray(c.direction, np.float64) for c in caps])
+    radius = np.array([float(c.radius) for c in caps])
+    q = np.stack([float(c.solid_angle) * np.einsum("l,rl,lc->rc", np.asarray(c.radiance, np.float64), b, weights)
+                  for c in caps])
+    return np.asarray(split.remainder.radiance, np.float64), direction, radius, q
+
+
+def cap_kernel(tap_dir: np.ndarray, mu: np.ndarray, cap_dir: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """The shader's cap response (``shade.glsl``'s ``jk_cap_kernel``), in NumPy for tests.
+
+    The normalised prefilter kernel of width ``mu`` (D(α/2, μ)/cos(α/2), :func:`_kernel`) about the tap
+    direction, integrated over a cap of angular ``radius`` about ``cap_dir`` and divided by the cap's solid
+    angle (see the module docstring): ``exp(−c' h²)/cos h / N(c')`` with h half the angle between the two
+    directions, c = ln2/μ², x = c r²/4, c' = 4 (1 − e^{−x})/r² (c (1 − x/2) below x = 1e-3),
+    N(c) = (4π/c)(1 − 1/(6c) + 1/(60c²)). Broadcasts.
+    """
+    tap_dir, cap_dir = np.asarray(tap_dir, np.float64), np.asarray(cap_dir, np.float64)
+    c0 = np.log(2.0) / np.asarray(mu, np.float64) ** 2
+    r2 = np.asarray(radius, np.float64) ** 2
+    x = 0.25 * c0 * r2
+    c = np.where(x < 1e-3, c0 * (1.0 - 0.5 * x), 4.0 * -np.expm1(-x) / np.maximum(r2, 1e-30))
+    s = np.minimum(0.5 * np.linalg.norm(tap_dir - cap_dir, axis=-1), 1.0)   # sin h
+    h = np.arcsin(s)
+    norm = 4.0 * np.pi / c * (1.0 - 1.0 / (6.0 * c) + 1.0 / (60.0 * c * c))
+    return np.exp(-c * h * h) / np.sqrt(np.maximum(1.0 - s * s, 1e-6)) / norm
 
 
 def moment_taps(spread: np.ndarray) -> np.ndarray:
@@ -419,10 +509,38 @@ def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int) -> np.
 
 
 def _cache_root(cache_dir=None) -> Path:
-    """``cache_dir``, else ``$JKATANA_CACHE``, else ``~/.cache/jkatana``; its ``interactive`` folder."""
-    import os
+    """``cache_dir``, else ``$JKATANA_CACHE``, else ``~/.cache/jkatana``; its ``interactive`` folder (under the
+    size budget and eviction of :mod:`jkatana.light.cache`)."""
+    from jkatana.light.cache import cache_base
 
-    return Path(cache_dir or os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana") / "interactive"
+    return cache_base(cache_dir) / "interactive"
+
+
+def _load_entry(path: Path, read):
+    """``read(npz)`` of a cache entry, held in use while it is read (:func:`jkatana.light.cache.acquire`; the
+    arrays are copied, so the hold ends with the read); None when the entry is absent or was evicted."""
+    from jkatana.light import cache
+
+    if path.parent == SHIPPED_TAPS:
+        with np.load(path) as z:
+            return read(z)
+    if not path.exists() or not cache.acquire(path):
+        return None
+    try:
+        with np.load(path) as z:
+            return read(z)
+    finally:
+        cache.release(path)
+
+
+def _save_entry(path: Path, cache_dir, **arrays) -> None:
+    """:func:`_save_npz` into the cache, then the cache's eviction to its budget
+    (:func:`jkatana.light.cache.after_write`)."""
+    from jkatana.light import cache
+
+    _save_npz(path, **arrays)
+    cache.after_write(path, cache_dir)
+    cache.release(path)
 
 
 def _save_npz(path: Path, **arrays) -> None:
@@ -464,10 +582,11 @@ def _cached_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None):
     key = tap_fit_key(conductor, mus, n_cos)
     for path in (SHIPPED_TAPS / f"taps-{key}.npz", _cache_root(cache_dir) / f"taps-{key}.npz"):
         if path.exists():
-            with np.load(path) as z:
-                return z["taps"], z["l1"], z["ok"]
+            found = _load_entry(path, lambda z: (z["taps"], z["l1"], z["ok"]))
+            if found is not None:
+                return found
     _, taps, l1, ok = tap_fit(conductor, mus, n_cos=n_cos)
-    _save_npz(path, taps=taps, l1=l1, ok=ok)
+    _save_entry(path, cache_dir, taps=taps, l1=l1, ok=ok)
     return taps, l1, ok
 
 
@@ -486,11 +605,12 @@ def _cached_material_tables(conductor: Conductor, rank: int, mus, cache_dir=None
     name = f"material-{h.hexdigest()[:24]}.npz"
     for path in (SHIPPED_TAPS / name, _cache_root(cache_dir) / name):
         if path.exists():
-            with np.load(path) as z:
-                return z["b"], float(z["err"]), z["lut"], z["spread"]
+            found = _load_entry(path, lambda z: (z["b"], float(z["err"]), z["lut"], z["spread"]))
+            if found is not None:
+                return found
     _, _, b, err = fresnel_basis(conductor, rank)
     _, lut, spread = lobe_lut(conductor, b, mus)
-    _save_npz(path, b=b, err=np.float64(err), lut=lut, spread=spread)
+    _save_entry(path, cache_dir, b=b, err=np.float64(err), lut=lut, spread=spread)
     return b, err, lut, spread
 
 
@@ -537,7 +657,7 @@ def transfer_table(transfer="sRGB", n: int = 2048) -> np.ndarray:
 
 def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, rank: int = 3, mus=MU_LEVELS,
                 colourspace: str = "sRGB", transfer=None, source: str = "Fe-Johnson", cache_dir=None,
-                progress: bool = False) -> Baked:
+                progress: bool = False, split_sun: bool = True) -> Baked:
     """:func:`bake` with an on-disk cache (``$JKATANA_CACHE`` or ``~/.cache/jkatana``/interactive).
 
     The key hashes every input (radiance bytes, grid, rank, μ levels, display
@@ -546,37 +666,44 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
     at its own resolution (:func:`level_shape`) in float16 scaled by the
     level's largest magnitude (relative precision 2⁻¹¹), resampled to the
     source's size on load: tens of MB for a 1k map instead of hundreds.
-    `progress` shows a progress bar over the μ levels while baking.
+    `progress` shows a progress bar over the μ levels while baking; `split_sun` as :func:`bake`.
     """
     import hashlib
 
     h = hashlib.sha256()
     for part in (np.ascontiguousarray(radiance, np.float64).tobytes(), repr((grid.start, grid.stop, grid.step,
-                 rank, list(np.round(mus, 12)), colourspace, transfer, source, radiance.shape)).encode(),
+                 rank, list(np.round(mus, 12)), colourspace, transfer, source, radiance.shape,
+                 bool(split_sun))).encode(),
                  Path(__file__).read_bytes()):
         h.update(part)
     path = _cache_root(cache_dir) / f"baked-{h.hexdigest()[:24]}.npz"
     H, W = radiance.shape[:2]
-    if path.exists():
-        with np.load(path) as z:
-            fields = {f.name: z[f.name] for f in dataclasses.fields(Baked) if f.name != "env"}
-            levels = [z[f"level{k}"].astype(np.float32) * np.float32(z["level_scale"][k]) for k in range(len(mus))]
+
+    def read(z):
+        return ({f.name: z[f.name] for f in dataclasses.fields(Baked) if f.name != "env"},
+                [z[f"level{k}"].astype(np.float32) * np.float32(z["level_scale"][k]) for k in range(len(mus))])
+
+    found = _load_entry(path, read)
+    if found is not None:
+        fields, levels = found
         env = np.stack([upsample(lv, H, W) for lv in levels]).reshape(len(mus), H, W, rank, 3)
         return Baked(**{**fields, "env": env.transpose(0, 3, 1, 2, 4), "fresnel_err": float(fields["fresnel_err"]),
                         "colourspace": str(fields["colourspace"])})
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     baked, levels = _bake(np.asarray(radiance, np.float64), grid,
                           conductor=Conductor.from_table(source, grid, dtype=dt), rank=rank, mus=mus,
-                          colourspace=colourspace, transfer=transfer, cache_dir=cache_dir, progress=progress)
+                          colourspace=colourspace, transfer=transfer, cache_dir=cache_dir, progress=progress,
+                          split_sun=split_sun)
     scale = np.array([max(float(np.abs(lv).max()), 1e-30) / 60000.0 for lv in levels])
     small = {f"level{k}": (lv / scale[k]).astype(np.float16) for k, lv in enumerate(levels)}
-    _save_npz(path, level_scale=scale, **small,
-              **{k: np.asarray(v) for k, v in dataclasses.asdict(baked).items() if k != "env"})
+    _save_entry(path, cache_dir, level_scale=scale, **small,
+                **{k: np.asarray(v) for k, v in dataclasses.asdict(baked).items() if k != "env"})
     return baked
 
 
 def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor: Conductor | None = None,
-         rank: int = 3, mus=MU_LEVELS, colourspace: str = "sRGB", transfer=None, cache_dir=None) -> Baked:
+         rank: int = 3, mus=MU_LEVELS, colourspace: str = "sRGB", transfer=None, cache_dir=None,
+         split_sun: bool = True) -> Baked:
     """Bake all shader tables for an environment ``radiance (H, W, wl)`` on ``grid``.
 
     **Arguments:**
@@ -586,6 +713,8 @@ def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor
     - `rank`: spectral basis rank (1–4); `mus`: prefilter levels.
     - `colourspace`, `transfer`: the display transform (as :func:`jkatana.spectral.to_display`).
     - `cache_dir`: where the environment-independent tap fit (:func:`tap_fit`) is cached.
+    - `split_sun`: split compact bright sources off as caps (:func:`sun_caps`; default); False: prefilter
+      the whole map.
 
     **Returns:** a :class:`Baked`.
     """
@@ -596,17 +725,22 @@ def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor
         conductor = Conductor.from_table("Fe-Johnson", grid, dtype=jnp.float64 if jax.config.jax_enable_x64
                                          else jnp.float32)
     baked, _ = _bake(radiance, grid, conductor=conductor, rank=rank, mus=mus, colourspace=colourspace,
-                     transfer=transfer, cache_dir=cache_dir)
+                     transfer=transfer, cache_dir=cache_dir, split_sun=split_sun)
     return baked
 
 
-def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_dir, progress: bool = False):
+def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_dir, progress: bool = False,
+          split_sun: bool = True):
     """:func:`bake`, also returning the prefiltered levels at their own resolutions (what the cache keeps)."""
     from tqdm import tqdm
 
     b, err, lut, spread = _cached_material_tables(conductor, rank, mus, cache_dir)
     W = film_weights(grid)            # (wl, 3); k = 1/∫ȳ dλ as jkatana.render: flat radiance 1 → Y = 1
     H, Wd = radiance.shape[:2]
+    if split_sun:
+        radiance, cap_dir, cap_radius, cap_q = sun_caps(radiance, grid, b, W)
+    else:
+        cap_dir, cap_radius, cap_q = np.zeros((0, 3)), np.zeros((0,)), np.zeros((0, rank, 3))
     proj = np.einsum("hwl,rl,lc->hwrc", radiance, b, W, optimize=True).reshape(H, Wd, rank * 3)
     bar = tqdm(mus, desc="baking the environment (μ levels)", unit="level", disable=not progress,
                file=__import__("sys").stderr)
@@ -618,4 +752,4 @@ def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_
     return Baked(env=env, lut=lut, spread=spread, taps=taps, tap_l1=tap_l1, tap_ok=tap_ok, mus=np.asarray(mus, np.float64), b=b, fresnel_err=err,
                  xyz_to_rgb=xyz_to_rgb_matrix(colourspace),
                  transfer=transfer_table(colourspace if transfer is None else transfer),
-                 colourspace=colourspace), levels
+                 colourspace=colourspace, cap_dir=cap_dir, cap_radius=cap_radius, cap_q=cap_q), levels

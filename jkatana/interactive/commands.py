@@ -72,26 +72,31 @@ def _load(args):
     if args.exposure is not None:
         sc.exposure = args.exposure
     sc.auto_exposure = sc.exposure != sc.exposure  # NaN: "auto"
-    if sc.auto_exposure:  # a first guess; frames then set it by the rule `render` uses (calibrate_exposure)
+    if sc.auto_exposure:  # a first guess; the first frames then set it by the rule `render` uses (calibrate_exposure)
         sc.exposure = auto_exposure(sc.radiance, sc.grid)
     return sc
 
 
-def calibrate_exposure(renderer, state, scene, sc, rounds: int = 6) -> float:
+def calibrate_exposure(frame, state, colourspace: str = "sRGB", transfer=None, rounds: int = 6) -> float:
     """Set ``state.exposure`` by the rule `render` applies to its frames
-    (:func:`jkatana.render.film.scene_exposure`: the blade's mean displayed luminance, clipped at white,
-    at :data:`~jkatana.render.film.OBJECT_KEY`), measured on the GL frame of the starting view: each round
-    renders it, decodes the 8-bit display RGB (:func:`~jkatana.render.film.xyz_from_display`), takes the
-    blade pixels' mean (the depth mask) and scales the exposure by key / mean; the displayed mean is
-    increasing and concave in the exposure, so the steps settle within a few rounds."""
+    (:func:`jkatana.render.film.scene_exposure`: the object's mean displayed luminance, clipped at white,
+    at :data:`~jkatana.render.film.OBJECT_KEY`), measured on GL frames of the current view.
+
+    `frame()` draws the view at ``state.exposure`` and returns ``(rgb8 (H, W, 3), mask (H, W))``: the 8-bit
+    display RGB and the object's pixels (the depth mask). Each round decodes the frame
+    (:func:`~jkatana.render.film.xyz_from_display` with the scene's `colourspace` and `transfer`), takes the
+    object pixels' mean and scales the exposure by key / mean; the displayed mean is increasing and concave
+    in the exposure, so the steps settle within a few rounds. The headless renderer
+    (:func:`_offscreen`) and the window (:class:`jkatana.interactive.viewer.BladeViewer`, on its first
+    drawn frames) both calibrate through this function.
+    """
     from jkatana.render.film import OBJECT_KEY, xyz_from_display
 
     for _ in range(rounds):
-        img = renderer.render(scene, mask=True)
-        mask = renderer.last_mask
-        if not mask.any():
+        img, mask = frame()
+        if mask is None or not mask.any():
             break
-        shown = float(np.mean(xyz_from_display(img, sc.colourspace, sc.transfer)[..., 1][mask]))
+        shown = float(np.mean(xyz_from_display(img, colourspace, transfer)[..., 1][mask]))
         state.exposure = float(state.exposure * OBJECT_KEY / max(shown, 1e-6))
     return state.exposure
 
@@ -146,8 +151,9 @@ def _offscreen(args) -> int:
     scene = glrender.build_scene(sc.mesh, sc.view)
     cam = next(iter(scene.camera_nodes))
     if sc.auto_exposure and r._r._renderer.deferred:
-        print(f"[view] exposure {calibrate_exposure(r, st, scene, sc):.4g} (the rule `render` uses: "
-              "jkatana.render.film.scene_exposure)", file=sys.stderr)
+        e = calibrate_exposure(lambda: (r.render(scene, mask=True), r.last_mask), st, sc.colourspace, sc.transfer)
+        print(f"[view] exposure {e:.4g} (the rule `render` uses: jkatana.render.film.scene_exposure)",
+              file=sys.stderr)
     for k, v in enumerate(tqdm(sc.orbit(args.frames), desc="frames", file=sys.stderr)):
         scene.set_pose(cam, v.pose)
         t = time.perf_counter()
@@ -251,7 +257,8 @@ def view_run(args: argparse.Namespace) -> int:
     scene = glrender.build_scene(sc.mesh, sc.view)
     viewer.BladeViewer(scene, st, viewport_size=(sc.view.width, sc.view.height), out_dir=args.output,
                        screenshot=args.screenshot, title=f"jkatana view — {sc.name}", deferred=not args.forward,
-                       refresh_rate=args.refresh, measure_frames=args.measure_fps, drag_scale=args.drag_scale)
+                       refresh_rate=args.refresh, measure_frames=args.measure_fps, drag_scale=args.drag_scale,
+                       calibrate=(sc.colourspace, sc.transfer) if sc.auto_exposure else None)
     return 0
 
 

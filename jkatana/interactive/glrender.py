@@ -145,7 +145,8 @@ class ShadingState:
       `fit` (with three taps: their offsets, weights and filter width fitted to the lobe by
       :func:`jkatana.interactive.bake.tap_fit` — the default; off: moment-matched binomial taps, which
       miss the lobe's skew: ~10 % too dark on a sun inside the oblique hamon lobe; `taps=5` is always
-      moment-matched).
+      moment-matched). The baked caps (compact sources split off the map, :func:`~jkatana.interactive.bake.sun_caps`)
+      are a static switch too (``JK_CAPS``, their number; 0: no cap code).
     """
 
     #: draw the environment behind the blade (deferred path; the `view` command turns it on); off: the
@@ -172,6 +173,7 @@ class ShadingState:
 
     def defines(self) -> dict:
         return {"JK_RANK": self.rank, "JK_ROUGH": int(self.rough), "JK_BLEND": int(self.blend),
+                "JK_CAPS": self.baked.n_caps,
                 "JK_TWO_TAP": int(self.two_tap and self.rough), "JK_TAPS": self.taps,
                 "JK_TAP_FIT": int(self.fit and self.two_tap and self.rough and self.taps == 3)}
 
@@ -279,7 +281,8 @@ class BakedProgram(ShaderProgram):
             optional.add("jk_map")
         if self.defines.get("JK_SRGB"):
             optional |= {"jk_transfer", "jk_n_transfer"}
-        need = dict.fromkeys(u for u in UNIFORMS + tuple(self._samplers()[0]) if u not in optional)
+        caps = ("jk_cap", "jk_cap_q") if self.state.baked.n_caps else ()
+        need = dict.fromkeys(u for u in UNIFORMS + caps + tuple(self._samplers()[0]) if u not in optional)
         missing = [u for u in need if GL.glGetUniformLocation(self._program_id, u) == -1]
         if missing:
             raise RuntimeError(f"shader {self.fragment_shader} lacks uniforms {missing} (misspelt or unused)")
@@ -336,6 +339,15 @@ class BakedProgram(ShaderProgram):
         GL.glUniform1f(loc(pid, "jk_n_levels"), float(len(b.mus)))
         GL.glUniform1f(loc(pid, "jk_n_cos"), float(b.lut.shape[2]))
         GL.glUniform1f(loc(pid, "jk_n_transfer"), float(len(b.transfer)))
+        n = b.n_caps
+        if n:                                  # the compact sources split off the map (bake.sun_caps)
+            cap = np.zeros((n, 4), np.float32)
+            cap[:, :3] = b.cap_dir
+            cap[:, 3] = np.asarray(b.cap_radius) ** 2
+            q = np.zeros((n, MAX_RANK, 3), np.float32)
+            q[:, :b.rank] = b.cap_q
+            GL.glUniform4fv(loc(pid, "jk_cap"), n, cap)
+            GL.glUniform3fv(loc(pid, "jk_cap_q"), n * MAX_RANK, q)
 
 
 class BackgroundProgram(BakedProgram):

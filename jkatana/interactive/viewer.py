@@ -27,6 +27,11 @@ fits one frame in the refresh interval, from the measured time of the last
 full-resolution draws (shading time ∝ pixels: s = 0.9 √(interval / t_full),
 clamped to [0.25, 1]; 1 when full resolution already fits).
 
+``calibrate=(colourspace, transfer)`` (the CLI passes it when the exposure is automatic): before the
+first frame is shown, the window's own deferred frames are read back with their depth mask and the
+exposure is set by :func:`jkatana.interactive.commands.calibrate_exposure`, the rule `render` and
+``view --offscreen`` use (:func:`jkatana.render.film.scene_exposure`), so all three show a scene alike.
+
 ``measure_frames=N`` draws N frames back to back (the light turning by 1° each;
 at ``drag_scale``, as during a drag; ``"auto"`` chooses it from the three full-resolution
 warm-up draws) and prints the measured frame interval — the
@@ -60,14 +65,16 @@ class BladeViewer(pyrender.Viewer):
     path: save the frame after `screenshot_after` draws and close — for tests and batch use),
     `deferred` (default True; False: the forward shader on every rasterised fragment),
     `refresh_rate` (Hz of the redraw timer), `measure_frames` (draw that many frames back to back,
-    print the frame rate, close), `drag_scale` (resolution fraction while a mouse button is held).
+    print the frame rate, close), `drag_scale` (resolution fraction while a mouse button is held),
+    `calibrate` (``(colourspace, transfer)`` of the scene: set the exposure on the first frame by the
+    shared rule; None: keep ``state.exposure``).
     After a measuring run (`measure_frames`), :attr:`frame_times` holds the intervals between draws (seconds).
     """
 
     def __init__(self, scene, state: "glrender.ShadingState", *, viewport_size=(800, 600),
                  out_dir: str | Path = ".", screenshot: str | Path | None = None, screenshot_after: int = 3,
                  title: str = "jkatana view", deferred: bool = True, refresh_rate: float = 60.0,
-                 measure_frames: int = 0, drag_scale: float | str = 1.0):
+                 measure_frames: int = 0, drag_scale: float | str = 1.0, calibrate: tuple | None = None):
         self._jk_auto = drag_scale == "auto"
         if not self._jk_auto:
             drag_scale = float(drag_scale)
@@ -78,6 +85,9 @@ class BladeViewer(pyrender.Viewer):
         self._jk_drag_scale = 1.0 if self._jk_auto else drag_scale
         self._jk_full_s: float | None = None     # recent draw time at full resolution (for "auto")
         self._jk_state = state
+        if calibrate is not None and not deferred:
+            raise ValueError("calibrate needs the deferred path (the object mask is its depth)")
+        self._jk_calibrate = calibrate
         self._jk_out = Path(out_dir)
         self._jk_shot = None if screenshot is None else Path(screenshot)
         self._jk_after = screenshot_after
@@ -221,7 +231,39 @@ class BladeViewer(pyrender.Viewer):
         self._message_opac = 2.0
         return Path(path)
 
+    def _calibrate_exposure(self) -> float:
+        """Set the exposure by the shared rule (:func:`~jkatana.interactive.commands.calibrate_exposure`)
+        on this window's frames: each round draws the view at full resolution into the renderer's colour
+        target and reads it back with the depth mask (the window shows the last round's frame)."""
+        from jkatana.interactive.commands import calibrate_exposure
+
+        colourspace, transfer = self._jk_calibrate
+        self._jk_calibrate = None
+        r = self._renderer
+        scale, r.render_scale = r.render_scale, 1.0
+
+        def frame():
+            self._render()
+            w, h = r._main_fb_dims
+            r.want_mask = True
+            try:
+                img, _ = r._read_colour(w, h)
+            finally:
+                r.want_mask = False
+            return img, r.last_mask
+
+        try:
+            e = calibrate_exposure(frame, self._jk_state, colourspace, transfer)
+        finally:
+            r.render_scale = scale
+        print(f"[view] exposure {e:.4g} (the rule `render` uses: jkatana.render.film.scene_exposure)",
+              file=sys.stderr, flush=True)
+        return e
+
     def on_draw(self):
+        if self._jk_calibrate is not None and self._renderer is not None:
+            self.switch_to()
+            self._calibrate_exposure()
         t0 = time.perf_counter()
         full = self._renderer is not None and self._renderer.render_scale == 1.0
         super().on_draw()

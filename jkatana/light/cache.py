@@ -21,6 +21,25 @@ as ``.npy`` (radiance) and folders of ``.npy`` + ``tree.json`` (an
 ``jkatana`` only), memory-mapped on read and written atomically (a
 temporary file or folder renamed into place). The
 environment's rotation is not part of the entry: it is set after loading.
+
+## Size budget and eviction
+
+The interactive bake (:mod:`jkatana.interactive.bake`) keeps its tables in the
+sibling folder ``interactive``; both folders share one size budget,
+:data:`DEFAULT_BUDGET_MB` (2048 MB, about eight 1k HDR environments), changed
+by ``$JKATANA_CACHE_MAX_MB`` (:func:`cache_budget`). After each write,
+:func:`evict` removes the least recently used entries until the total is
+within the budget. An entry's last use is its modification time, set on every
+read (:func:`acquire`; access times are unreliable on ``relatime``/``noatime``
+mounts). An entry is *in use* while a process holds it with :func:`acquire`
+(a shared ``flock`` on the entry's file, or on its ``tree.json``, kept until
+:func:`release` or the process exits; memory-mapped entries are held for the
+process's life): eviction takes an exclusive non-blocking lock first and
+skips every entry it cannot lock, so an entry in use is never removed, and a
+reader that finds its entry removed meanwhile builds it again. The entry just
+written is held by its writer, so it survives its own eviction pass even when
+it alone exceeds the budget. :func:`entries` lists the cache, :func:`clear`
+empties it (but for entries in use).
 """
 
 from __future__ import annotations
@@ -38,12 +57,22 @@ import numpy as np
 
 #: bump when the stored layout changes
 CACHE_VERSION = 1
+#: default size budget of the cache folders (MB = 10⁶ bytes), see the module docstring
+DEFAULT_BUDGET_MB = 2048.0
+#: environment variable that sets the budget in MB
+BUDGET_VARIABLE = "JKATANA_CACHE_MAX_MB"
+#: the cache's sub-folders that share the budget: this module's entries and the interactive bake's
+CACHE_FOLDERS = ("environments", "interactive")
+
+
+def cache_base(cache_dir: str | Path | None = None) -> Path:
+    """``cache_dir``, else ``$JKATANA_CACHE``, else ``~/.cache/jkatana``: the folder holding :data:`CACHE_FOLDERS`."""
+    return Path(cache_dir or os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana")
 
 
 def cache_root(cache_dir: str | Path | None = None) -> Path:
     """``cache_dir``, else ``$JKATANA_CACHE``, else ``~/.cache/jkatana``; its ``environments`` folder."""
-    base = cache_dir or os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana"
-    return Path(base) / "environments"
+    return cache_base(cache_dir) / "environments"
 
 
 def file_digest(path: str | Path) -> str:
@@ -101,13 +130,14 @@ def cached_radiance(key: str | None, build: Callable[[], np.ndarray], cache_dir=
     from jkatana.io.atomic import atomic_path
 
     path = cache_root(cache_dir) / f"radiance-{key}.npy"
-    if path.exists():
+    if path.exists() and acquire(path):       # held for the process's life: the array is memory-mapped
         return np.load(path, mmap_mode="r")
     rad = np.ascontiguousarray(build(), np.float32)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             np.save(f, rad)
+    after_write(path, cache_dir)
     return rad
 
 
@@ -116,11 +146,173 @@ def cached_tree(key: str | None, build: Callable[[], Any], cache_dir=None, kind:
     if key is None:
         return build()
     path = cache_root(cache_dir) / f"{kind}-{key}"
-    if (path / "tree.json").exists():
+    if (path / "tree.json").exists() and acquire(path):    # held: the arrays are memory-mapped
         return load_tree(path)
     value = build()
     save_tree(path, value)
+    after_write(path, cache_dir)
     return value
+
+
+# ----------------------------------------------------------------------------- budget and eviction
+
+
+def cache_budget() -> int:
+    """The cache's size budget in bytes: ``$JKATANA_CACHE_MAX_MB`` (MB, a number ≥ 0), else
+    :data:`DEFAULT_BUDGET_MB`. A malformed value is an :class:`~jkatana.errors.InputError` naming the variable."""
+    raw = os.environ.get(BUDGET_VARIABLE)
+    if raw is None or raw.strip() == "":
+        return int(DEFAULT_BUDGET_MB * 1e6)
+    try:
+        mb = float(raw)
+    except ValueError:
+        mb = float("nan")
+    if not mb >= 0 or mb == float("inf"):
+        from jkatana.errors import InputError
+
+        raise InputError(f"{BUDGET_VARIABLE} must be a size in MB (a number ≥ 0), got {raw!r}", field=BUDGET_VARIABLE)
+    return int(mb * 1e6)
+
+
+#: entries this process holds (:func:`acquire`): resolved path → open file descriptor with a shared flock
+_HELD: dict[str, int] = {}
+
+
+def _lock_file(entry: Path) -> Path:
+    """The file whose flock marks ``entry`` in use: the entry itself, or a folder entry's ``tree.json``."""
+    return entry / "tree.json" if entry.is_dir() else entry
+
+
+def acquire(entry: str | Path) -> bool:
+    """Mark ``entry`` (a cache file or folder) in use by this process and just used.
+
+    Takes a shared ``flock`` on it (:func:`_lock_file`), kept until :func:`release`
+    or the process exits, and sets its modification time to now (its last use, for
+    :func:`evict`). Returns False when the entry is gone (evicted between the
+    caller's check and the lock): the caller builds it again.
+    """
+    import fcntl
+
+    entry = Path(entry)
+    key = str(entry.resolve())
+    if key in _HELD:
+        os.utime(entry)
+        return True
+    lock = _lock_file(entry)
+    try:
+        fd = os.open(lock, os.O_RDONLY)
+    except FileNotFoundError:
+        return False
+    fcntl.flock(fd, fcntl.LOCK_SH)
+    try:                                  # removed while we waited for the lock: not this entry any more
+        same = os.fstat(fd).st_ino == os.stat(lock).st_ino
+    except FileNotFoundError:
+        same = False
+    if not same:
+        os.close(fd)
+        return False
+    _HELD[key] = fd
+    os.utime(entry)
+    return True
+
+
+def release(entry: str | Path) -> None:
+    """Drop this process's hold on ``entry`` (:func:`acquire`); nothing if it holds none."""
+    fd = _HELD.pop(str(Path(entry).resolve()), None)
+    if fd is not None:
+        os.close(fd)
+
+
+@dataclasses.dataclass(frozen=True)
+class Entry:
+    """One cache entry: `path`, `size` (bytes; a folder's files summed), `last_used` (POSIX time)."""
+
+    path: Path
+    size: int
+    last_used: float
+
+
+def entries(cache_dir: str | Path | None = None) -> list[Entry]:
+    """Every entry of :data:`CACHE_FOLDERS`, least recently used first (temporaries, whose names start
+    with a dot, are not entries)."""
+    out = []
+    for sub in CACHE_FOLDERS:
+        folder = cache_base(cache_dir) / sub
+        if not folder.is_dir():
+            continue
+        for p in folder.iterdir():
+            if p.name.startswith("."):
+                continue
+            try:
+                st = p.stat()
+                size = sum(f.stat().st_size for f in p.rglob("*") if f.is_file()) if p.is_dir() else st.st_size
+            except FileNotFoundError:         # removed by another process while listing
+                continue
+            out.append(Entry(p, int(size), float(st.st_mtime)))
+    return sorted(out, key=lambda e: (e.last_used, e.path.name))
+
+
+def _remove_unused(entry: Path) -> bool:
+    """Remove ``entry`` if no process holds it (exclusive non-blocking flock); True when removed."""
+    import fcntl
+    import shutil
+    import tempfile
+
+    try:
+        fd = os.open(_lock_file(entry), os.O_RDONLY)
+    except FileNotFoundError:
+        if entry.is_dir():                   # a folder without tree.json: an incomplete entry
+            shutil.rmtree(entry, ignore_errors=True)
+            return True
+        return False
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return False
+        if entry.is_dir():                   # out of the way at once (readers see no entry), then deleted
+            trash = Path(tempfile.mkdtemp(prefix=f".evicted-{entry.name}.", dir=entry.parent))
+            os.rename(entry, trash / entry.name)
+        else:
+            entry.unlink()
+            trash = None
+    except FileNotFoundError:
+        return False
+    finally:
+        os.close(fd)
+    if trash is not None:
+        shutil.rmtree(trash, ignore_errors=True)
+    return True
+
+
+def evict(cache_dir: str | Path | None = None, budget: int | None = None) -> list[Path]:
+    """Remove least recently used entries not in use until the cache's total size is within ``budget``
+    bytes (default :func:`cache_budget`). Returns the removed entries' paths."""
+    budget = cache_budget() if budget is None else int(budget)
+    listed = entries(cache_dir)
+    total = sum(e.size for e in listed)
+    removed = []
+    for e in listed:
+        if total <= budget:
+            break
+        if _remove_unused(e.path):
+            total -= e.size
+            removed.append(e.path)
+    return removed
+
+
+def after_write(entry: str | Path, cache_dir: str | Path | None = None) -> list[Path]:
+    """A new entry was written: hold it (:func:`acquire`), then :func:`evict` to the budget."""
+    acquire(entry)
+    return evict(cache_dir)
+
+
+def clear(cache_dir: str | Path | None = None) -> tuple[list[Path], list[Path]]:
+    """Remove every entry no process holds. Returns ``(removed, kept_in_use)``."""
+    removed, kept = [], []
+    for e in entries(cache_dir):
+        (removed if _remove_unused(e.path) else kept).append(e.path)
+    return removed, kept
 
 
 # ----------------------------------------------------------------------------- tree ↔ npz

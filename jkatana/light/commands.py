@@ -1,4 +1,4 @@
-"""CLI of the light stage: ``jkatana light build | convert | inspect | prefilter``.
+"""CLI of the light stage: ``jkatana light build | convert | inspect | prefilter | cache``.
 
 - ``build``: the Hosek–Wilkie spectral sky (sun by elevation/azimuth or place + time) →
   spectral EXR (Fichet 2021) + PNG preview with the sun marked.
@@ -9,6 +9,8 @@
 - ``prefilter``: a scene's environment (spectra, sampler, the prefiltered levels its
   materials call for) built into the render cache (:mod:`jkatana.light.cache`), so that
   every later render or batch of that scene loads it at once.
+- ``cache``: list the environment and bake cache (size, last use) or clear it; its size budget
+  is ``$JKATANA_CACHE_MAX_MB`` (:mod:`jkatana.light.cache`).
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ import numpy as np
 
 from jkatana.errors import InputError
 
-LIGHT_HELP = "Build (Hosek–Wilkie sky), convert (RGB → spectral EXR), inspect and prefilter environment maps."
+LIGHT_HELP = ("Build (Hosek–Wilkie sky), convert (RGB → spectral EXR), inspect and prefilter environment maps; "
+              "list or clear their cache.")
 
 
 def _grid_args(p):
@@ -65,6 +68,10 @@ def light_add_arguments(p: argparse.ArgumentParser) -> None:
     f.add_argument("scene", help="scene TOML")
     f.add_argument("--mode", default="prefiltered", choices=("reference", "paper", "prefiltered", "lowrank"),
                    help="the render mode to prepare for (default prefiltered: also builds the prefiltered levels)")
+
+    k = sub.add_parser("cache", help="list the environment/bake cache (default) or clear it; size budget "
+                                     "$JKATANA_CACHE_MAX_MB (default 2048), least recently used entries evicted")
+    k.add_argument("--clear", action="store_true", help="remove every entry no running process uses")
 
 
 def _grid(args):
@@ -141,7 +148,8 @@ def _finite(values, what: str, field: str) -> None:
 
 
 def light_run(args: argparse.Namespace) -> int:
-    return {"build": _build, "convert": _convert, "inspect": _inspect, "prefilter": _prefilter}[args.light_command](args)
+    return {"build": _build, "convert": _convert, "inspect": _inspect, "prefilter": _prefilter,
+            "cache": _cache}[args.light_command](args)
 
 
 def _build(args) -> int:
@@ -248,4 +256,24 @@ def _prefilter(args) -> int:
     prepare(scene, mode=args.mode)
     print(f"{args.scene}: environment for mode {args.mode} built in {time.perf_counter() - t0:.1f} s and cached "
           f"in {cache_root()}; renders of this scene load it from there")
+    return 0
+
+
+def _cache(args) -> int:
+    import time
+
+    from jkatana.light import cache
+
+    base = cache.cache_base()
+    if args.clear:
+        removed, kept = cache.clear()
+        print(f"{base}: removed {len(removed)} entries" + (f", kept {len(kept)} in use" if kept else ""))
+        return 0
+    listed = cache.entries()
+    total = sum(e.size for e in listed)
+    for e in listed[::-1]:
+        when = time.strftime("%Y-%m-%d %H:%M", time.localtime(e.last_used))
+        print(f"{e.size / 1e6:10.1f} MB  {when}  {e.path.parent.name}/{e.path.name}")
+    print(f"{base}: {len(listed)} entries, {total / 1e6:.1f} MB of {cache.cache_budget() / 1e6:.0f} MB "
+          f"(${cache.BUDGET_VARIABLE})")
     return 0
