@@ -4,7 +4,9 @@ Lobes: the solve time of every fitted lobe after compilation (goal ≤ 1 ms per
 region), the cost of a second fit of another table of the same shape (no
 recompilation), the first and second call of ``jkatana fit`` (the second
 reads JAX's persistent compilation cache), and ``compare`` on 6 incidences ×
-all lobes (first and second call).
+all lobes (first and second call). ``--quick`` times the solve of
+:data:`QUICK_LOBES` only (fewer repeats; no second fit, CLI or compare), so
+that the module fits its quick budget.
 
 Every approximation is measured against a reference with error and time side
 by side: solvers against the float64 LM optimum, the fixed-step per-pixel fit
@@ -113,6 +115,10 @@ def _lobe_campaign(model, seed=0):
     return FitData(pairs[:, 0], pairs[:, 1], y, sig)
 
 
+#: Lobes the quick mode times (the full mode times every lobe of jkatana.fit._model.MODELS).
+QUICK_LOBES = ("beckmann", "two-lobe")
+
+
 def _lobes(quick: bool, rows: list, log) -> None:
     import os
     import tempfile
@@ -125,28 +131,33 @@ def _lobes(quick: bool, rows: list, log) -> None:
     from jkatana.fit.compare import compare_models
     from jkatana.fit.region import fit_region
 
-    for model in MODELS:
+    # quick: the two lobes with the most work per solve (Beckmann, two-lobe), no second fit, no CLI, no compare
+    for model in (QUICK_LOBES if quick else MODELS):
         data = _lobe_campaign(model)
         t0 = time.perf_counter()
         ref = fit_region(data, model=model, per_incidence=False, robust=False)
         first = time.perf_counter() - t0
-        other = _lobe_campaign(model, seed=1)
-        t0 = time.perf_counter()
-        fit_region(other, model=model, per_incidence=False, robust=False)
-        second = time.perf_counter() - t0
+        second = None
+        if not quick:
+            other = _lobe_campaign(model, seed=1)
+            t0 = time.perf_counter()
+            fit_region(other, model=model, per_incidence=False, robust=False)
+            second = time.perf_counter() - t0
         y = jnp.asarray(data.value)
         w = jnp.asarray(ref.weight)
         terms, spec = ref.terms, ref.spec
         p0 = start_vector(terms, y, w, spec)
         out = solve(terms, y, w, p0, spec=spec)
-        t = timeit(lambda: solve(terms, y, w, p0, spec=spec), repeats=10 if quick else 30)
-        t_start = timeit(lambda: start_vector(terms, y, w, spec), repeats=10 if quick else 30)
+        t = timeit(lambda: solve(terms, y, w, p0, spec=spec), repeats=5 if quick else 30)
+        t_start = timeit(lambda: start_vector(terms, y, w, spec), repeats=5 if quick else 30)
         rows.append(record(B, dict(method=f"lobe {model}: LM solve after compilation", model=model,
                                    n_points=int(data.value.size)), time_s=t, steps=int(out["steps"]),
                            start_time_s=t_start["median"], goal="<= 1 ms per region fit",
                            first_fit_region_s=first, second_fit_region_other_table_s=second,
                            converged=bool(ref.converged)))
         log("lobe", model, "solve", t["median"], "start", t_start["median"], "first", first, "second", second)
+    if quick:
+        return
     # jkatana fit, first and second call (fresh persistent compilation cache)
     with tempfile.TemporaryDirectory() as tmp:
         from jkatana.measure.table import MeasurementTable, write_table

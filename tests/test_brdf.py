@@ -239,6 +239,15 @@ def test_brdf_slice_command_writes_tables_fit_reads(merl_file, tmp_path, capsys)
                              "--azimuth", "0,2"]) == 0
     d = load_fit_data(tmp_path / "o.csv")  # a BRDF table: azimuth kept for the fit
     assert set(np.unique(d.azimuth_deg)) == {0.0, 2.0}
+    from jkatana.measure.protocol import Instrument, read_instrument
+
+    assert read_instrument(tmp_path / "t.csv") is None  # no instrument given: none stored
+    assert _cli(bc, "brdf", ["slice", str(path), "-o", str(tmp_path / "t.csv"), "--incidences", "15,45",
+                             "--source-radius-deg", "0.25", "--aperture-radius-deg", "0.5"]) == 0
+    assert read_instrument(tmp_path / "t.csv") == Instrument(0.25, 0.5)  # beside the table, for `jkatana fit`
+    with pytest.raises(InputError) as err:
+        _cli(bc, "brdf", ["slice", str(path), "-o", str(tmp_path / "x.csv"), "--aperture-radius-deg", "-1"])
+    assert err.value.field == "aperture-radius-deg" and not (tmp_path / "x.csv").exists()
     with pytest.raises(InputError) as err:
         _cli(bc, "brdf", ["slice", str(path), "-o", str(tmp_path / "x.csv"), "--incidences", "15,abc"])
     assert err.value.field == "incidences"

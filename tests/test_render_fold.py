@@ -55,7 +55,7 @@ def test_fresnel_rank_meets_its_tolerance(source):
 
 
 @pytest.mark.parametrize("mode,kw", [("reference", dict(hiraji=True, hamon=True)),
-                                     ("reference", dict(hiraji=False, hamon=True, rough_model="beckmann")),
+                                     ("reference", dict(hiraji=False, hamon=True, hamon_lobe=("beckmann", (("alpha", 1.0),)))),
                                      ("paper", dict(hiraji=True, hamon=True)),
                                      ("reference", dict(hiraji=True, hamon=False, mirror=True)),
                                      ("prefiltered", dict(hiraji=True, hamon=True))])

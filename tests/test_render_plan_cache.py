@@ -13,9 +13,14 @@ from jkatana.render import frame, shading
 from jkatana.render.shading import Material, Pixels, Plan, build_environment, fresnel_table, shade
 from jkatana.spectral import DEFAULT_GRID
 
+GGX_KEY = ("ggx", (("alpha", 1.0),))
+BECKMANN_KEY = ("beckmann", (("alpha", 1.0),))
+# a two-lobe mixture (sharp GGX + haze 8× wider, weight 0.9), keyed as jkatana.models.lobes.lobe_shape keys it
+TWO_LOBE_KEY = ("mixture", (("first", GGX_KEY), ("second", ("ggx", (("alpha", 8.0),))), ("weight", 0.9)))
 # a value different from the default for every field of Plan
 ALTERNATIVES = {"mode": "paper", "samples": 8, "hiraji": False, "hamon": False, "mirror": True,
-                "env_sampling": False, "factored": True, "fresnel_rank": 3, "lights": 1, "rough_model": "beckmann",
+                "env_sampling": False, "factored": True, "fresnel_rank": 3, "lights": 1, "hiraji_lobe": GGX_KEY,
+                "hamon_lobe": BECKMANN_KEY,
                 "calibration": 1e5, "spectral": True, "visibility": True, "subpixels": 4}
 
 
@@ -29,7 +34,7 @@ def test_no_module_level_switch_changes_the_shader():
         assert not hasattr(shading, name), name
     # what is left at module level are constants of the numerics, not switches
     upper = {k for k, v in vars(shading).items() if k.isupper() and not callable(v)}
-    assert upper <= {"MIRROR_MU", "FRESNEL_TABLE", "MODES", "FRESNEL_RANK_TOL", "_RANK_CACHE"}, upper
+    assert upper <= {"MIRROR_MU", "FRESNEL_TABLE", "MODES", "LOBE_MODES", "FRESNEL_RANK_TOL", "_RANK_CACHE"}, upper
 
 
 @pytest.mark.parametrize("field", sorted(ALTERNATIVES))
@@ -58,7 +63,8 @@ def _inputs():
 
 
 @pytest.mark.parametrize("field,value", [("mode", "paper"), ("samples", 8), ("hiraji", False), ("hamon", False),
-                                         ("mirror", True), ("env_sampling", False), ("rough_model", "beckmann"),
+                                         ("mirror", True), ("env_sampling", False), ("hamon_lobe", BECKMANN_KEY),
+                                         ("hiraji_lobe", GGX_KEY), ("hiraji_lobe", TWO_LOBE_KEY),
                                          ("calibration", 1e5), ("spectral", True)])
 def test_changing_a_plan_field_changes_the_traced_program(field, value):
     """Not only the cache key: the program the shader traces differs (so the field is really a trace-time choice)."""
@@ -71,3 +77,20 @@ def test_changing_a_plan_field_changes_the_traced_program(field, value):
         return str(jax.make_jaxpr(lambda m, e, p, c, k: shade(plan, m, e, None, p, c, k))(mat, env, px, cmf, key))
 
     assert program(other) != program(base)
+
+
+@pytest.mark.parametrize("a,b", [(("gtr", (("alpha", 1.0), ("gamma", 1.5))), ("gtr", (("alpha", 1.0), ("gamma", 1.6)))),
+                                 (TWO_LOBE_KEY, ("mixture", (("first", GGX_KEY), ("second", ("ggx", (("alpha", 8.0),))),
+                                                             ("weight", 0.8))))])
+def test_a_lobe_static_parameter_is_part_of_the_compile_key(a, b):
+    """A lobe's static parameters (GTR's γ, a two-lobe's weight) select the compiled program like any Plan field."""
+    pa, pb = (Plan(mode="reference", samples=4, fresnel_rank=0, hiraji_lobe=k) for k in (a, b))
+    assert pa != pb and hash(pa) != hash(pb)
+    assert frame._compiled(pa, 1, 1024)[0] is not frame._compiled(pb, 1, 1024)[0]
+    mat, env, px, cmf = _inputs()
+    key = jax.random.PRNGKey(0)
+
+    def program(plan):  # the lowered program, constants included
+        return jax.jit(lambda m, e, p, c, k: shade(plan, m, e, None, p, c, k)).lower(mat, env, px, cmf, key).as_text()
+
+    assert program(pa) != program(pb)

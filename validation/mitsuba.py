@@ -38,7 +38,8 @@ Conventions matched (those of Mitsuba 3.9.1, pinned by ``tests/test_render_mitsu
   speed, and measure its error with the matched copy at the same samples;
 - Beckmann α = √2 × per-axis RMS slope (Mitsuba's parameter) is the α of
   :func:`jkatana.models.beckmann`; masking is separable Smith with Walter's
-  rational G1 on both sides (``Plan(rough_model="beckmann")``);
+  rational G1 on both sides (the hamon region's lobe is
+  :class:`~jkatana.models.lobes.Beckmann` with α = μ1: ``Plan(hamon_lobe=...)``);
 - η, k outside the given range read as 0 in Mitsuba: the spectra are given
   on the whole 360–830 nm range;
 - pixels: Mitsuba integrates each pixel with a box filter; jkatana renders at
@@ -208,7 +209,10 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
     if alpha is None:
         plan, maps = Plan(samples=1, hiraji=True, hamon=False, mirror=True), [1.0, 0.0, 0.05]
     else:
-        plan, maps = Plan(samples=samples, hiraji=False, hamon=True, rough_model="beckmann"), [0.0, 0.05, alpha]
+        from jkatana.models.lobes import lobe_key
+
+        plan = Plan(samples=samples, hiraji=False, hamon=True, hamon_lobe=lobe_key({"lobe": "beckmann", "alpha": 1.0}))
+        maps = [0.0, 0.05, alpha]
     cmf = film_weights(grid)
     f = render_frame(plan, mat, E, None, ("sphere", (0.0, 0.0, 0.0), 1.0), cam,
                      np.array([[maps]], np.float32).repeat(2, 0).repeat(2, 1), cmf, seed=seed,

@@ -20,6 +20,11 @@ def brdf_add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--dense-step", type=float, default=0.2, help="receiving step near the peak (deg)")
     p.add_argument("--dense-halfwidth", type=float, default=20.0, help="dense window half-width (deg)")
     p.add_argument("--sparse-step", type=float, default=2.0, help="receiving step elsewhere (deg)")
+    p.add_argument("--source-radius-deg", type=float, default=0.0,
+                   help="the instrument: angular radius of the source seen from the sample (deg), stored beside "
+                        "the table for `jkatana fit`")
+    p.add_argument("--aperture-radius-deg", type=float, default=0.0,
+                   help="the instrument: angular radius of the detector aperture seen from the sample (deg)")
     p.add_argument("--azimuth", default="0", help="receiver azimuths out of the plane (deg), comma-separated")
     p.add_argument("--relative-noise", type=float, default=0.05, help="sigma: relative part")
     p.add_argument("--floor-fraction", type=float, default=1e-3, help="sigma: absolute part as a fraction of peak")
@@ -47,12 +52,14 @@ def brdf_run(args: argparse.Namespace) -> int:
     from jkatana.brdf.slicing import load_brdf, slice_brdf, to_measurement_table
     from jkatana.brdf.table import BRDFTable, write_brdf_table
     from jkatana.errors import InputError
-    from jkatana.measure.protocol import Protocol
+    from jkatana.measure.protocol import Instrument, Protocol, instrument_angle, write_instrument
     from jkatana.measure.table import write_table
 
     from jkatana.io.outputs import Output, check_outputs
 
     check_outputs([Output(args.output, "--output", (".csv", ".parquet"))], inputs=[args.brdf])
+    inst = Instrument(*(instrument_angle(getattr(args, f), f.replace("_", "-"))
+                        for f in ("source_radius_deg", "aperture_radius_deg")))
     src = load_brdf(args.brdf)
     az = _floats(args.azimuth, "azimuth")
     if isinstance(src, BRDFTable):
@@ -60,7 +67,8 @@ def brdf_run(args: argparse.Namespace) -> int:
     else:
         proto = Protocol(incidences_deg=_floats(args.incidences, "incidences"), receive_min_deg=args.receive_min,
                          receive_max_deg=args.receive_max, dense_step_deg=args.dense_step,
-                         dense_halfwidth_deg=args.dense_halfwidth, sparse_step_deg=args.sparse_step)
+                         dense_halfwidth_deg=args.dense_halfwidth, sparse_step_deg=args.sparse_step,
+                         source_radius_deg=args.source_radius_deg, aperture_radius_deg=args.aperture_radius_deg)
         for name in ("relative_noise", "floor_fraction"):
             v = getattr(args, name)
             if not (np.isfinite(v) and v >= 0):
@@ -79,5 +87,8 @@ def brdf_run(args: argparse.Namespace) -> int:
             raise InputError("an out-of-plane slice is a BRDF table: use a .csv output", path=out)
         write_brdf_table(table, out)
         kind = "BRDF table"
-    print(f"{args.brdf}: {len(table)} rows ({kind}, channel {args.channel}) -> {out}")
+    write_instrument(out, inst)
+    print(f"{args.brdf}: {len(table)} rows ({kind}, channel {args.channel}) -> {out}"
+          + (f" (instrument: source {inst.source_radius_deg:g} deg, aperture {inst.aperture_radius_deg:g} deg)"
+             if inst else ""))
     return 0

@@ -14,7 +14,13 @@ the start (:func:`closed_form_start`).
 
 **Solve.** optimistix (Kidger et al., 2024) Levenberg–Marquardt (default),
 Dogleg or Gauss–Newton, or jaxopt's LevenbergMarquardt with the Madsen–Nielsen
-stopping rule (Madsen, Nielsen, Tingleff 2004) as a cross-check.
+stopping rule (Madsen, Nielsen, Tingleff 2004) as a cross-check. The
+solver stops when an accepted step changes the log-parameters and the cost by
+less than ``rtol = atol = 1e-6`` (optimistix's Cauchy criterion): a relative
+change of 1e-6 is far below the statistical error of any fit to measured
+data, and tighter tolerances only add steps near the optimum that the
+rounding of the cost rejects. The optimum itself is certified by the
+decrement below, not by the step size.
 
 **Convergence is checked, not assumed.** A solver's ``result`` is not enough
 (measured trap: optimistix LM in float32 from a far start returns the start
@@ -242,15 +248,20 @@ def _solver(name: str, rtol: float, atol: float):
 
 @functools.partial(jax.jit, static_argnames=("spec", "solver", "max_steps", "rtol", "atol"))
 def solve(terms: Terms, y, w, p0, *, spec: ModelSpec, solver: str = "lm", max_steps: int = 200,
-          rtol: float = 1e-10, atol: float = 1e-10):
+          rtol: float | None = None, atol: float | None = None):
     """One weighted least-squares solve from ``p0``; returns a dict of arrays (jit-compiled).
 
     Keys: ``p`` (final parameters), ``p0``, ``cost0``/``cost`` (½Σr²),
     ``decrement`` (Gauss–Newton decrement at ``p``), ``grad_norm``,
     ``steps``, ``solver_ok`` (the solver's own verdict), ``jtj`` (JᵀJ at ``p``).
+    ``rtol``/``atol`` default to 1e-6 for optimistix's Cauchy criterion (module
+    docstring) and 1e-10 for jaxopt's Madsen–Nielsen rule (whose ``gtol`` is an
+    absolute gradient norm).
     """
     args = (terms, y, w, spec)
     if solver == "jaxopt":
+        rtol = 1e-10 if rtol is None else rtol
+        atol = 1e-10 if atol is None else atol
         import jaxopt
 
         lm = jaxopt.LevenbergMarquardt(lambda p: residuals(p, args), maxiter=max_steps,
@@ -261,6 +272,8 @@ def solve(terms: Terms, y, w, p0, *, spec: ModelSpec, solver: str = "lm", max_st
         steps = state.iter_num
         solver_ok = steps < max_steps
     else:
+        rtol = 1e-6 if rtol is None else rtol
+        atol = 1e-6 if atol is None else atol
         sol = optx.least_squares(residuals, _solver(solver, rtol, atol), p0, args=args,
                                  max_steps=max_steps, throw=False)
         p = sol.value

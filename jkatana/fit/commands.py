@@ -32,12 +32,14 @@ def fit_add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="per-row sigma as given (auto: when every row has one) or a fitted noise model")
     parser.add_argument("--loss", choices=["squared", "huber", "cauchy"], default="squared",
                         help="robust loss for outlying captures (IRLS)")
-    parser.add_argument("--source-radius-deg", type=float, default=0.0,
-                        help="angular radius of the source seen from the sample (instrument response)")
-    parser.add_argument("--aperture-radius-deg", type=float, default=0.0,
-                        help="angular radius of the detector aperture seen from the sample (instrument response)")
-    parser.add_argument("--instrument-points", type=int, default=12,
-                        help="quadrature points per disk of the instrument response")
+    parser.add_argument("--source-radius-deg", type=float, default=None,
+                        help="angular radius of the source seen from the sample (instrument response; default: "
+                             "the table's instrument file TABLE.instrument.json, else 0)")
+    parser.add_argument("--aperture-radius-deg", type=float, default=None,
+                        help="angular radius of the detector aperture seen from the sample (instrument response; "
+                             "default: the table's instrument file, else 0)")
+    parser.add_argument("--instrument-points", type=int, default=None,
+                        help="quadrature points per disk of the instrument response (default: the table's, else 12)")
     parser.add_argument("--bootstrap", type=int, default=0, help="cluster-bootstrap replicates over incidences")
     parser.add_argument("--emcee", action="store_true", help="also sample the posterior with emcee")
     parser.add_argument("--optical-constants", default="Fe-Johnson",
@@ -85,20 +87,33 @@ def load_fit_data(path, region=None, channel=None):
     return FitData.from_table(read_table(path), region, source=path)
 
 
-def instrument_from_args(args):
-    import math
-
+def instrument_from_args(args, table=None):
+    """The instrument of a fit: the table's (``TABLE.instrument.json``, written by ``jkatana measure`` from the
+    manifest and by ``jkatana brdf slice`` from its protocol), each value overridden by its CLI flag; an
+    override of a value the table gives prints a note. Returns the fit's ``instrument`` argument."""
     from jkatana.errors import InputError
+    from jkatana.measure.protocol import Instrument, instrument_angle, read_instrument
 
-    src, ap = args.source_radius_deg, args.aperture_radius_deg
-    for name, v in (("source-radius-deg", src), ("aperture-radius-deg", ap)):
-        if not (math.isfinite(v) and 0 <= v < 10):
-            raise InputError(f"must be in [0, 10) degrees, got {v}", field=name)
-    if args.instrument_points < 1:
-        raise InputError(f"must be >= 1, got {args.instrument_points}", field="instrument-points")
-    if src == 0 and ap == 0:
-        return None
-    return (math.radians(src), math.radians(ap), int(args.instrument_points))
+    stored = read_instrument(table) if table is not None else None
+    base = stored or Instrument()
+    flags = {"source_radius_deg": args.source_radius_deg, "aperture_radius_deg": args.aperture_radius_deg,
+             "points": args.instrument_points}
+    values = {}
+    for name, flag in flags.items():
+        cli = "--" + name.replace("_", "-").replace("points", "instrument-points")
+        if flag is None:
+            values[name] = getattr(base, name)
+            continue
+        if name == "points":
+            if flag < 1:
+                raise InputError(f"must be >= 1, got {flag}", field="instrument-points")
+        else:
+            flag = instrument_angle(flag, cli.lstrip("-"))
+        if stored is not None and flag != getattr(stored, name):
+            print(f"note: {cli} {flag:g} overrides the table's {getattr(stored, name):g} "
+                  f"({table} instrument)", file=sys.stderr)
+        values[name] = flag
+    return Instrument(values["source_radius_deg"], values["aperture_radius_deg"], int(values["points"])).radians()
 
 
 def summary(fit, output=None) -> str:
@@ -164,7 +179,7 @@ def fit_run(args: argparse.Namespace) -> int:
         bar.set_postfix_str("least squares + per-incidence refits")
         fit = fit_region(data, model=args.model, setup=setup, tilt=args.tilt, floor=args.floor,
                          solver=args.solver, multistart=args.multistart, noise=args.noise, loss=args.loss,
-                         instrument=instrument_from_args(args), bootstrap=args.bootstrap, seed=args.seed)
+                         instrument=instrument_from_args(args, args.table), bootstrap=args.bootstrap, seed=args.seed)
         bar.update(2)
         if args.emcee:
             bar.set_postfix_str("emcee")

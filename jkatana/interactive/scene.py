@@ -242,7 +242,7 @@ def default_scene(env: str = "sky", width: int = 800, height: int = 600) -> Inte
 
 def from_render_scene(path) -> InteractiveScene:
     """Load a :mod:`jkatana.render` scene TOML (geometry, map, environment, camera, film, spectral grid)."""
-    from jkatana.render.renderer import camera_for, load_environment, load_geometry, load_maps
+    from jkatana.render.renderer import camera_for, check_lobe_mode, load_environment, load_geometry, load_material
     from jkatana.render.scene import load_scene
 
     sc = load_scene(path)
@@ -251,7 +251,8 @@ def from_render_scene(path) -> InteractiveScene:
     if not isinstance(geometry, trimesh.Trimesh):
         raise InputError("the interactive viewer needs a mesh (not an analytic sphere)", path=str(path),
                          field="geometry")
-    maps, _, _ = load_maps(sc, geometry)
+    maps, _, _, lobes = load_material(sc, geometry)
+    check_lobe_mode(lobes, sc, "interactive")  # the bake's taps are fitted to the paper's lobe
     cam = camera_for(sc)
     view = View(look_at(cam.position, cam.look_at, cam.up), np.deg2rad(cam.fov_deg), cam.width, cam.height)
     film = sc.film

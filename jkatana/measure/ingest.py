@@ -164,9 +164,14 @@ def measure(manifest: str | Path | Manifest, *, workers: int | None = None,
 
 def measure_to_file(manifest: str | Path | Manifest, output: str | Path, *, workers: int | None = None,
                     progress: Callable[[int], None] | None = None) -> MeasurementTable:
-    """:func:`measure`, then write the table atomically (nothing is written on error)."""
+    """:func:`measure`, then write the table atomically (nothing is written on error), and the manifest's
+    instrument beside it (:func:`jkatana.measure.protocol.write_instrument`; ``jkatana fit`` reads it)."""
+    from jkatana.measure.protocol import write_instrument
+
+    manifest = manifest if isinstance(manifest, Manifest) else read_manifest(manifest)
     table = measure(manifest, workers=workers, progress=progress)
     write_table(table, output)
+    write_instrument(output, manifest.instrument)
     return table
 
 

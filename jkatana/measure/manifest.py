@@ -17,6 +17,7 @@ file (an array of ``[[capture]]`` tables with the same keys).
 | ``aperture``, ``iso`` | no | f-number and ISO: validated, kept with the manifest for the record (not used in the arithmetic, not copied to the table) |
 | ``gain`` | no | multiplies the value (default 1): convert to the unit of another rig |
 | ``black_level``, ``white_level`` | no | for TIFF/EXR captures only (RAW files carry their own); TIFF defaults 0 and 65535, EXR 0 and no saturation |
+| ``source_radius_deg``, ``aperture_radius_deg`` | no | the instrument: angular radius of the source and of the detector aperture seen from the sample (degrees, :class:`~jkatana.measure.protocol.Instrument`); the same in every row that gives them. ``jkatana measure`` writes it beside the table, and ``jkatana fit`` models the instrument's response from it |
 
 Formats by extension: ``.tif``/``.tiff`` linear 16-bit TIFF (one channel, or
 RGB(A) of which G is used), ``.exr`` OpenEXR (channel ``G``, else ``Y``, else
@@ -44,10 +45,13 @@ import tomllib
 from pathlib import Path
 
 from jkatana.errors import InputError
+from jkatana.measure.protocol import Instrument, instrument_angle
 from jkatana.measure.table import REGIONS, check_angles
 
 REQUIRED = ("file", "region", "theta_i_deg", "theta_r_deg", "roi")
-OPTIONAL = ("exposure_s", "capture", "dark", "aperture", "iso", "gain", "black_level", "white_level")
+OPTIONAL = ("exposure_s", "capture", "dark", "aperture", "iso", "gain", "black_level", "white_level",
+            "source_radius_deg", "aperture_radius_deg")
+INSTRUMENT_KEYS = ("source_radius_deg", "aperture_radius_deg")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,12 +72,16 @@ class Entry:
     gain: float = 1.0
     black_level: float | None = None
     white_level: float | None = None
+    source_radius_deg: float | None = None
+    aperture_radius_deg: float | None = None
 
 
 @dataclasses.dataclass(frozen=True)
 class Manifest:
     path: Path
     entries: tuple[Entry, ...]
+    instrument: Instrument | None = None
+    """The instrument its rows give (``None``: none given, a point source and detector)."""
 
     @property
     def folder(self) -> Path:
@@ -224,8 +232,28 @@ def read_manifest(path: str | Path) -> Manifest:
             rois=parse_rois(rec["roi"], path=path, row=row), capture=capture,
             exposure_s=num("exposure_s", positive=True), dark=dark, aperture=num("aperture", positive=True),
             iso=num("iso", positive=True), gain=num("gain", positive=True, default=1.0),
-            black_level=num("black_level"), white_level=num("white_level", positive=True)))
-    return Manifest(path=path, entries=tuple(entries))
+            black_level=num("black_level"), white_level=num("white_level", positive=True),
+            **{k: (instrument_angle(rec[k], k, path=path, row=row) if str(rec.get(k, "") or "").strip() else None)
+               for k in INSTRUMENT_KEYS}))
+    return Manifest(path=path, entries=tuple(entries), instrument=_instrument(entries, path))
+
+
+def _instrument(entries, path) -> Instrument | None:
+    """The one instrument of a manifest: every row that gives an angle gives the same (or none at all)."""
+    values = {}
+    for k in INSTRUMENT_KEYS:
+        given = [(e.row, getattr(e, k)) for e in entries if getattr(e, k) is not None]
+        if given and len(given) != len(entries):
+            row = next(e.row for e in entries if getattr(e, k) is None)
+            raise InputError(f"missing: give the instrument in every row or in none (row {given[0][0]} gives "
+                             f"{given[0][1]:g})", path=path, row=row, field=k)
+        for row, v in given:
+            if v != given[0][1]:
+                raise InputError(f"{v:g} differs from row {given[0][0]}'s {given[0][1]:g}: one instrument per "
+                                 "manifest", path=path, row=row, field=k)
+        values[k] = given[0][1] if given else 0.0
+    inst = Instrument(values["source_radius_deg"], values["aperture_radius_deg"])
+    return inst if inst else None
 
 
 def manifest_csv(rows: list[dict], folder: Path | None = None) -> str:

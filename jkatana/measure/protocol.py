@@ -15,11 +15,22 @@ step) so that no floating-point drift creeps in, and rounded to 0.1°.
 
 For that protocol this gives 1188 captures (149–217 per incidence; the
 dense window is clipped at 10° for θi = 15°, 25° and at 80° for θi = 65°).
+
+The instrument (:class:`Instrument`): the angular radius of the source and
+of the detector's aperture seen from the sample. A protocol carries it, a
+manifest may give it (columns ``source_radius_deg``, ``aperture_radius_deg``),
+and it travels with the measurement table in a sidecar file
+``<table stem>.instrument.json`` (:func:`write_instrument`), which ``jkatana
+fit`` reads so that the fit's forward model includes the instrument's
+response (:mod:`jkatana.fit._model`) without any flag.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
+import math
+from pathlib import Path
 
 import numpy as np
 
@@ -37,6 +48,7 @@ class Protocol:
     - `dense_step_deg`: θr step near the specular peak.
     - `dense_halfwidth_deg`: the dense window is θi ± this.
     - `sparse_step_deg`: θr step elsewhere (on a grid from `receive_min_deg`).
+    - `source_radius_deg`, `aperture_radius_deg`: the instrument (:class:`Instrument`).
     """
 
     incidences_deg: tuple[float, ...] = (15.0, 25.0, 35.0, 45.0, 55.0, 65.0)
@@ -45,6 +57,14 @@ class Protocol:
     dense_step_deg: float = 0.2
     dense_halfwidth_deg: float = 20.0
     sparse_step_deg: float = 2.0
+    source_radius_deg: float = 0.0
+    aperture_radius_deg: float = 0.0
+
+    @property
+    def instrument(self) -> "Instrument | None":
+        """The protocol's instrument, or ``None`` for point source and point detector."""
+        inst = Instrument(self.source_radius_deg, self.aperture_radius_deg)
+        return inst if inst else None
 
     def __post_init__(self):
         object.__setattr__(self, "incidences_deg", tuple(float(a) for a in self.incidences_deg))
@@ -68,6 +88,7 @@ class Protocol:
             raise InputError("receive_max_deg < receive_min_deg", field="receive_max_deg")
         if self.dense_step_deg <= 0 or self.sparse_step_deg <= 0:
             raise InputError("steps must be positive", field="dense_step_deg")
+        Instrument(self.source_radius_deg, self.aperture_radius_deg)  # validates both angles
 
     def pairs(self) -> list[tuple[float, float]]:
         """``[(θi, θr), ...]`` in degrees, sorted by θi then θr."""
@@ -86,6 +107,97 @@ class Protocol:
 
     def __len__(self) -> int:
         return len(self.pairs())
+
+
+
+#: Largest instrument angle accepted (degrees): beyond it the disk quadrature of the response is not a
+#: small-angle average any more.
+INSTRUMENT_MAX_DEG = 10.0
+
+
+def instrument_angle(value, field: str, *, path=None, row=None) -> float:
+    """A validated instrument angle (degrees, in [0, :data:`INSTRUMENT_MAX_DEG`)); errors name path/row/field."""
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise InputError(f"must be a number (degrees), got {value!r}", path=path, row=row, field=field) from None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+            math.isfinite(value) and 0 <= value < INSTRUMENT_MAX_DEG):
+        raise InputError(f"must be an angle in [0, {INSTRUMENT_MAX_DEG:g}) degrees, got {value!r}", path=path,
+                         row=row, field=field)
+    return float(value)
+
+
+@dataclasses.dataclass(frozen=True)
+class Instrument:
+    """The goniometer's angular response: source and detector aperture as uniform disks of directions.
+
+    **Arguments:**
+
+    - `source_radius_deg`: angular radius of the source seen from the sample (degrees).
+    - `aperture_radius_deg`: angular radius of the detector aperture seen from the sample (degrees).
+    - `points`: quadrature points per disk (:func:`jkatana.fit._model.disk_offsets`).
+
+    Falsy when both radii are 0 (a point source and a point detector: no response to model).
+    """
+
+    source_radius_deg: float = 0.0
+    aperture_radius_deg: float = 0.0
+    points: int = 12
+
+    def __post_init__(self):
+        for name in ("source_radius_deg", "aperture_radius_deg"):
+            object.__setattr__(self, name, instrument_angle(getattr(self, name), name))
+        if isinstance(self.points, bool) or not isinstance(self.points, int) or not 1 <= self.points <= 256:
+            raise InputError(f"must be an integer in [1, 256], got {self.points!r}", field="points")
+
+    def __bool__(self) -> bool:
+        return self.source_radius_deg > 0 or self.aperture_radius_deg > 0
+
+    def radians(self) -> tuple[float, float, int] | None:
+        """``(source radius, aperture radius, points)`` in radians, the fit's ``instrument`` argument."""
+        if not self:
+            return None
+        return (math.radians(self.source_radius_deg), math.radians(self.aperture_radius_deg), self.points)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def instrument_path(table) -> Path:
+    """The instrument sidecar of a measurement table: ``<table stem>.instrument.json`` beside it."""
+    table = Path(table)
+    return table.with_name(table.stem + ".instrument.json")
+
+
+def write_instrument(table, instrument: Instrument | None) -> Path | None:
+    """Write (atomically) the sidecar of ``table``; with no instrument remove a stale one. Returns its path."""
+    from jkatana.io.atomic import write_text
+
+    path = instrument_path(table)
+    if not instrument:
+        path.unlink(missing_ok=True)
+        return None
+    return write_text(path, json.dumps({"format": "jkatana-instrument/1", **instrument.to_dict()}, indent=2) + "\n")
+
+
+def read_instrument(table) -> Instrument | None:
+    """The instrument stored beside ``table`` (:func:`instrument_path`), or ``None`` when there is none."""
+    path = instrument_path(table)
+    if not path.is_file():
+        return None
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"not a readable instrument file ({err})", path=path) from None
+    if not isinstance(d, dict) or d.get("format") != "jkatana-instrument/1":
+        raise InputError("expected format 'jkatana-instrument/1'", path=path, field="format")
+    src, ap = (instrument_angle(d.get(f, 0.0), f, path=path) for f in ("source_radius_deg", "aperture_radius_deg"))
+    points = d.get("points", 12)
+    if isinstance(points, bool) or not isinstance(points, int) or not 1 <= points <= 256:
+        raise InputError(f"must be an integer in [1, 256], got {points!r}", path=path, field="points")
+    return Instrument(src, ap, points)
 
 
 PAPER_PROTOCOL = Protocol()
@@ -112,4 +224,5 @@ def as_pairs(protocol) -> list[tuple[float, float]]:
     return pairs
 
 
-__all__ = ["Protocol", "PAPER_PROTOCOL", "paper_protocol", "reduced_protocol", "as_pairs"]
+__all__ = ["Protocol", "PAPER_PROTOCOL", "Instrument", "INSTRUMENT_MAX_DEG", "paper_protocol", "reduced_protocol",
+           "as_pairs", "instrument_angle", "instrument_path", "read_instrument", "write_instrument"]

@@ -89,9 +89,15 @@ def _split(u):
 
 
 class Lobe(eqx.Module):
-    """Base class: subclasses define ``terms``, ``sample``, ``pdf`` and the class attribute ``name``."""
+    """Base class: subclasses define ``terms``, ``sample``, ``pdf`` and the class attribute ``name``.
+
+    ``widths`` names the fields that set the lobe's angular width (μ of the
+    Gaussian lobes, α of the microfacet ones): :func:`lobe_shape` and
+    :func:`lobe_with_width` scale them together.
+    """
 
     name: ClassVar[str] = ""
+    widths: ClassVar[tuple[str, ...]] = ()
 
     def terms(self, L, V):
         raise NotImplementedError
@@ -197,6 +203,7 @@ class _GaussianBase(Lobe):
     mu: Float[Array, "*p"]
     scale: Float[Array, "*p"]
     normalised: bool = eqx.field(static=True)
+    widths: ClassVar[tuple[str, ...]] = ("mu",)
 
     def __init__(self, mu, scale=None, normalised: bool = True):
         """``mu``: half-width at half-maximum of the facet angle (rad). ``normalised=True``: ``scale`` is
@@ -282,6 +289,8 @@ class GaussianVCavity(_GaussianBase):
 
 class _Microfacet(Lobe):
     """f_r cos θi = D(h) G1(V) G1(L) / (4 cos θr), Fresnel at θH; sampled by D(h) cos φ."""
+
+    widths: ClassVar[tuple[str, ...]] = ("alpha",)
 
     def D(self, phi, cos_phi):
         raise NotImplementedError
@@ -504,15 +513,26 @@ class Mixture(Lobe):
         return self.weight * self.first.pdf_h(phi, cos_phi) + (1.0 - self.weight) * self.second.pdf_h(phi, cos_phi)
 
     def sample_h(self, u, uc):
-        """Facet normal of the part ``uc`` picks."""
-        use1 = uc < self.weight
+        """Facet normal of the part ``uc`` picks.
+
+        A part that is itself a :class:`Mixture` gets ``uc`` rescaled to [0, 1)
+        within the picked interval (uc/w or (uc − w)/(1 − w)), so one uniform
+        chooses among any number of nested parts.
+        """
+        w = self.weight
+        use1 = uc < w
         a, b = self.first, self.second
         if isinstance(a, _GaussianBase) and isinstance(b, _GaussianBase):  # one Rayleigh sampler, two widths
             return _rayleigh_h(jnp.where(use1, a.mu, b.mu), u)
-        if type(a) is type(b) and jax.tree.structure(a) == jax.tree.structure(b):
+        nested = isinstance(a, Mixture) or isinstance(b, Mixture)
+        if not nested and type(a) is type(b) and jax.tree.structure(a) == jax.tree.structure(b):
             sel = jax.tree.map(lambda x, y: jnp.where(use1, x, y), a, b)
             return sel.sample_h(u)
-        return jnp.where(use1[..., None], a.sample_h(u), b.sample_h(u))
+        uc1 = jnp.clip(safe_div(uc, w), 0.0, U_MAX)
+        uc2 = jnp.clip(safe_div(uc - w, 1.0 - w), 0.0, U_MAX)
+        ha = a.sample_h(u, uc1) if isinstance(a, Mixture) else a.sample_h(u)
+        hb = b.sample_h(u, uc2) if isinstance(b, Mixture) else b.sample_h(u)
+        return jnp.where(use1[..., None], ha, hb)
 
     def sample(self, V, u, uc=None):
         if uc is None:
@@ -532,5 +552,107 @@ def lobe_from_params(params: dict, dtype=None) -> Lobe:
     return LOBES[name].from_params(params, dtype)
 
 
-__all__ = ["LOBES", "Lobe", "Gaussian", "GaussianVCavity", "Beckmann", "GGX", "GTR", "Mixture", "reflect",
-           "lobe_from_params"]
+#: A lobe's parameters in hashable form: ``(name, ((field, value), ...))`` with the fields sorted, nested
+#: lobes as keys themselves and numbers as Python floats (a static part of a compiled program).
+LobeKey = tuple
+
+
+def lobe_key(params: dict) -> LobeKey:
+    """The hashable form of a ``to_params()`` dict (inverse: :func:`key_params`)."""
+    def freeze(v):
+        if isinstance(v, dict):
+            return lobe_key(v)
+        if isinstance(v, (bool, str)) or v is None:
+            return v
+        a = np.asarray(v, np.float64)
+        if a.ndim:
+            raise ValueError(f"a lobe key needs scalar parameters, got shape {a.shape}")
+        return float(a)
+
+    p = dict(params)
+    name = p.pop("lobe")
+    return (name, tuple(sorted((k, freeze(v)) for k, v in p.items())))
+
+
+def key_params(key: LobeKey) -> dict:
+    """The ``to_params()`` dict of a :func:`lobe_key`."""
+    name, items = key
+    return {"lobe": name, **{k: key_params(v) if _is_key(v) else v for k, v in items}}
+
+
+def _is_key(v) -> bool:
+    return isinstance(v, tuple) and len(v) == 2 and isinstance(v[0], str) and isinstance(v[1], tuple)
+
+
+def _widths_of(params: dict) -> list[tuple[tuple[str, ...], str]]:
+    """Paths ``(nested field names, width field)`` of every width in a ``to_params()`` dict, first part first."""
+    cls = LOBES[params["lobe"]]
+    out = [((), f) for f in cls.widths if f in params]
+    for f in _field_names(cls):
+        v = params.get(f)
+        if isinstance(v, dict):
+            out += [((f,) + path, w) for path, w in _widths_of(v)]
+    return out
+
+
+def _map_widths(params: dict, fn) -> dict:
+    p = dict(params)
+    for f in LOBES[p["lobe"]].widths:
+        if f in p:
+            p[f] = fn(p[f])
+    for f, v in p.items():
+        if isinstance(v, dict):
+            p[f] = _map_widths(v, fn)
+    return p
+
+
+def lobe_shape(params: dict) -> tuple[float, LobeKey]:
+    """``(width, key)``: a lobe's primary width (that of its first part) and its :func:`lobe_key` with every
+    width divided by it, so that :func:`lobe_with_width` can rebuild the lobe at any width with the same
+    shape (the same width ratios of a :class:`Mixture`'s parts, the same γ of :class:`GTR`)."""
+    paths = _widths_of(params)
+    if not paths:
+        raise ValueError(f"lobe {params.get('lobe')!r} has no width parameter")
+    sub = params
+    for f in paths[0][0]:
+        sub = sub[f]
+    width = float(np.asarray(sub[paths[0][1]], np.float64))
+    if not (math.isfinite(width) and width > 0):
+        raise ValueError(f"lobe width must be > 0, got {width!r}")
+    return width, lobe_key(_map_widths(params, lambda v: float(np.asarray(v, np.float64)) / width))
+
+
+def lobe_with_width(key: LobeKey, width, dtype=None) -> Lobe:
+    """The lobe of ``key`` (from :func:`lobe_shape`) with every width multiplied by ``width`` (an array of
+    any batch shape: per-pixel widths give per-pixel lobes). Other parameters are cast to ``dtype``."""
+    width = jnp.asarray(width, dtype) if dtype is not None else jnp.asarray(width)
+
+    def other(p: dict) -> dict:  # the other numeric parameters take the widths' batch shape
+        out = {}
+        for f, v in p.items():
+            if isinstance(v, dict):
+                v = other(v)
+            elif f != "lobe" and not isinstance(v, (bool, str)) and v is not None:
+                v = jnp.broadcast_to(jnp.asarray(v, width.dtype), width.shape)
+            out[f] = v
+        return out
+
+    params = _map_widths(other(key_params(key)), lambda v: width * v)
+    return lobe_from_params(params, width.dtype)
+
+
+def normalised_params(params: dict) -> dict:
+    """A ``to_params()`` dict with every Gaussian part in the normalised convention (scale N(μ), recomputed;
+    the microfacet lobes are normalised already): the lobe a renderer uses without a calibration."""
+    p = dict(params)
+    if issubclass(LOBES[p["lobe"]], _GaussianBase):
+        p.pop("scale", None)
+        p["normalised"] = True
+    for f, v in p.items():
+        if isinstance(v, dict):
+            p[f] = normalised_params(v)
+    return p
+
+
+__all__ = ["LOBES", "Lobe", "LobeKey", "Gaussian", "GaussianVCavity", "Beckmann", "GGX", "GTR", "Mixture", "reflect",
+           "lobe_from_params", "lobe_key", "key_params", "lobe_shape", "lobe_with_width", "normalised_params"]

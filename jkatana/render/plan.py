@@ -17,6 +17,8 @@ from jaxtyping import Array, Float
 #: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
 MIRROR_MU = 1e-4
 MODES = ("reference", "paper", "prefiltered", "lowrank")
+#: The modes that render a lobe other than the paper's: they sample through the lobe's own ``sample``/``pdf``.
+LOBE_MODES = ("reference", "lowrank")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,10 +44,16 @@ class Plan:
       :func:`shade` called directly treats ``None`` as 0.
     - `lights`: number of point/directional lights (0: none evaluated).
     - `calibration`: ``None`` for the normalised convention, else K (see models).
-    - `rough_model`: ``"paper"`` (hamon = eq. 2, Gaussian D, V-cavity G) or
-      ``"beckmann"`` (hamon = Cook–Torrance with the normalised Beckmann D, α = μ1,
-      and separable Smith G with Walter et al.'s 2007 rational G1 — the model
-      Mitsuba 3's ``roughconductor`` uses; for validation against it).
+    - `hiraji_lobe`, `hamon_lobe`: the region's lobe other than the paper's, as
+      :func:`jkatana.models.lobes.lobe_shape`'s key (class and static parameters,
+      every width relative to the primary one; the per-pixel μ0 / μ1 of the maps
+      is that primary width), or ``None`` for the paper's lobe (hiraji: eq. 1,
+      :class:`~jkatana.models.lobes.Gaussian`; hamon: eq. 2,
+      :class:`~jkatana.models.lobes.GaussianVCavity`). A key of
+      :class:`~jkatana.models.lobes.Beckmann` in the hamon slot is Mitsuba 3's
+      ``roughconductor`` (Beckmann D, α = μ1, Walter et al.'s 2007 rational
+      Smith G1), for validation against it. Rendered by the sampling modes
+      (``"reference"``, ``"lowrank"``) only.
     - `spectral`: also return spectra (full mode only).
     - `visibility`: the scene has occluders: every traced light direction is
       weighted by a host-computed visibility (:class:`Visibility`). ``False``
@@ -68,7 +76,8 @@ class Plan:
     factored: bool = False
     fresnel_rank: int | None = None
     lights: int = 0
-    rough_model: str = "paper"
+    hiraji_lobe: tuple | None = None
+    hamon_lobe: tuple | None = None
     calibration: float | None = None
     spectral: bool = False
     visibility: bool = False

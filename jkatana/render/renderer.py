@@ -79,8 +79,28 @@ def load_geometry(scene: Scene):
     return mesh
 
 
+#: The paper's lobe of each region: a parameter file of that model is rendered by the paper's path.
+PAPER_LOBE = {"hiraji": "gaussian", "hamon": "gaussian-vcavity"}
+
+
 def load_maps(scene: Scene, geometry) -> tuple[np.ndarray, float, float]:
-    """``(maps (H, W, 3) of w, μ0, μ1; χ; β)`` with region parameter files applied."""
+    """``(maps (H, W, 3) of w, μ0, μ1; χ; β)`` with region parameter files applied (:func:`load_material`)."""
+    maps, chi, beta, _ = load_material(scene, geometry)
+    return maps, chi, beta
+
+
+def load_material(scene: Scene, geometry) -> tuple[np.ndarray, float, float, dict]:
+    """``(maps (H, W, 3) of w, μ0, μ1; χ; β; lobes)`` with region parameter files applied.
+
+    A region's parameter file may hold any lobe ``jkatana fit`` writes. The map's
+    spatial modulation of the region's width (hada) is kept, rescaled so that its
+    median is the fitted width (μ of the paper's lobes, the primary α of the
+    others; a two-lobe's haze width keeps its ratio to it). ``lobes`` maps each
+    region to ``None`` (the paper's lobe) or the lobe's
+    :func:`~jkatana.models.lobes.lobe_shape` key (``Plan.hiraji_lobe`` /
+    ``hamon_lobe``). The file's scale (χ, β or s) is the calibrated scale of its
+    region (``[material] calibration``; unused in the normalised convention).
+    """
     mat = scene.material
     if mat.map is None:
         u = mat.uniform
@@ -93,6 +113,7 @@ def load_maps(scene: Scene, geometry) -> tuple[np.ndarray, float, float]:
         _check_map_size(rmap.shape, geometry, mat.map)
         maps = np.stack([rmap.w, rmap.mu0, rmap.mu1], -1).astype(np.float32)
         chi, beta = float(np.median(rmap.chi)), float(np.median(rmap.beta))
+    lobes = {"hiraji": None, "hamon": None}
     for region, ch in (("hiraji", 1), ("hamon", 2)):
         region_file = getattr(mat, region)
         if region_file is None:
@@ -100,17 +121,59 @@ def load_maps(scene: Scene, geometry) -> tuple[np.ndarray, float, float]:
         from jkatana.fit.params import read_params
 
         p = read_params(region_file)
+        if p.model in PAPER_LOBE and p.model != region:
+            raise InputError(f"is a {p.model!r} parameter file, expected {region!r} or another lobe "
+                             f"(beckmann, ggx, gtr, two-lobe)", path=region_file, field=f"material.{region}")
+        width = p.mu
         if p.model != region:
-            raise InputError(f"is a {p.model!r} parameter file, expected {region!r}", path=region_file,
-                             field=f"material.{region}")
-        # keep the map's spatial modulation (hada), rescaled to the fitted μ
+            width, lobes[region] = _file_lobe(p, region_file, region)
+        # keep the map's spatial modulation (hada), rescaled to the fitted width
         base = maps[..., ch]
-        maps[..., ch] = base * (p.mu / max(float(np.median(base)), 1e-12))
+        maps[..., ch] = base * (width / max(float(np.median(base)), 1e-12))
         if region == "hiraji":
             chi = p.scale
         else:
             beta = p.scale
-    return maps, chi, beta
+    return maps, chi, beta, lobes
+
+
+def _file_lobe(p, path, region) -> tuple[float, tuple]:
+    """``(width, key)`` of a parameter file's lobe (its ``lobe`` entry, else rebuilt from its values)."""
+    from jkatana.models.lobes import lobe_from_params, lobe_shape
+
+    field = f"material.{region}"
+    try:
+        if p.lobe is not None:
+            params = p.lobe
+        else:  # a file written without the lobe entry: the model's lobe at its values
+            from jkatana.fit._model import FIT_MODELS
+
+            fm = FIT_MODELS[p.model]
+            params = fm.build(jnp.asarray(fm.shape_from_natural(p.values))).to_params()
+        lobe_from_params(params)  # every field known and well-formed
+        return lobe_shape(params)
+    except (ValueError, TypeError, KeyError) as err:
+        raise InputError(f"lobe entry is not a lobe jkatana renders ({err})", path=path,
+                         field=f"{field} (lobe)") from None
+
+
+def check_lobe_mode(lobes: dict, scene: Scene, mode: str) -> None:
+    """One :class:`InputError` line when a region's lobe (not the paper's) cannot be rendered in ``mode``.
+
+    Only the sampling modes (:data:`~jkatana.render.plan.LOBE_MODES`) draw a
+    lobe's own samples; the prefiltered mode convolves the environment with the
+    paper's Gaussian, the paper's mode jitters rays in a Gaussian disk and the
+    interactive viewer's taps are fitted to the paper's lobe.
+    """
+    from jkatana.render.plan import LOBE_MODES
+
+    if mode in LOBE_MODES:
+        return
+    for region, key in lobes.items():
+        if key is not None:
+            raise InputError(f"holds a {key[0]!r} lobe, which renders in modes {', '.join(LOBE_MODES)} only "
+                             f"(mode {mode!r} uses the paper's Gaussian lobe): set [render] mode or --mode",
+                             path=getattr(scene.material, region), field=f"material.{region}")
 
 
 def _check_map_size(shape, geometry, where):
@@ -195,7 +258,8 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     if dtype == jnp.float64 and not jax.config.jax_enable_x64:
         jax.config.update("jax_enable_x64", True)
     geometry = load_geometry(scene)
-    maps, chi, beta = load_maps(scene, geometry)
+    maps, chi, beta, lobes = load_material(scene, geometry)
+    check_lobe_mode(lobes, scene, mode)
     from jkatana.spectral.optical_constants import load as load_oc
 
     try:
@@ -231,7 +295,8 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     w = maps[..., 0]
     hiraji = bool((w > 0).any())
     hamon = bool((w < 1).any())
-    mirror = hiraji and float(np.max(np.where(w > 0, maps[..., 1], 0.0))) < MIRROR_MU
+    mirror = (hiraji and lobes["hiraji"] is None
+              and float(np.max(np.where(w > 0, maps[..., 1], 0.0))) < MIRROR_MU)
     lights = None
     if scene.lights:
         from jkatana.spectral.colorimetry import illuminant
@@ -242,7 +307,7 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
         lights = Light(jnp.asarray(vec, dtype), jnp.asarray(kind, dtype), jnp.asarray(spec, dtype))
     plan = Plan(mode=mode, samples=int(samples), hiraji=hiraji, hamon=hamon, mirror=mirror,
                 env_sampling=True, factored=factored, lights=len(scene.lights),
-                calibration=scene.material.calibration,
+                calibration=scene.material.calibration, hiraji_lobe=lobes["hiraji"], hamon_lobe=lobes["hamon"],
                 spectral=scene.output.spectral and not factored,
                 visibility=bool(scene.occluders))
     occluders = None

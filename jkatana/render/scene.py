@@ -10,8 +10,10 @@ to the scene file)::
     [material]
     map = "builtin"                  # or a reflectance-map EXR (jkatana map); or omit and give w/mu0/mu1
     # w = 1.0                        # uniform map (with mu0, mu1 in radians)
-    hiraji = "hiraji.json"           # optional: jkatana fit parameter files; their μ (and χ, β)
-    hamon = "hamon.json"             #   replace the map's values for that region
+    hiraji = "hiraji.json"           # optional: jkatana fit parameter files of any lobe (the paper's,
+    hamon = "hamon.json"             #   beckmann, ggx, gtr, two-lobe): their lobe and width (and
+                                     #   scale) replace the map's for that region; other lobes than
+                                     #   the paper's render in modes reference and lowrank only
     optical_constants = "Fe-Johnson" # shipped name or a refractiveindex.info YAML path
     # calibration = 1.0e5            # K: camera units per unit source radiance → calibrated χ, β;
                                      # omitted → normalised lobes (perfect mirror as μ → 0)

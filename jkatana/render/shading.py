@@ -36,9 +36,10 @@ Sampling design of the MIS modes:
 
 - the lobes are the objects of :mod:`jkatana.models.lobes` (value, sampler
   and pdf together): hiraji :class:`~jkatana.models.lobes.Gaussian`, hamon
-  :class:`~jkatana.models.lobes.GaussianVCavity` (or
-  :class:`~jkatana.models.lobes.Beckmann` for the Mitsuba comparison), blended
-  and sampled as a :class:`~jkatana.models.lobes.Mixture` with weights w, 1 − w;
+  :class:`~jkatana.models.lobes.GaussianVCavity`, or any lobe a parameter file
+  names (``Plan.hiraji_lobe``/``hamon_lobe``: GGX, GTR, a two-lobe mixture,
+  Beckmann for the Mitsuba comparison), blended and sampled as a
+  :class:`~jkatana.models.lobes.Mixture` with weights w, 1 − w;
 - the Fresnel factor is folded into the environment (:func:`fold_fresnel`,
   ``Plan.fresnel_rank``): per sample a ``3R``-channel lookup instead of one per
   wavelength, exact up to the rank of F(cos θ, λ);
@@ -69,7 +70,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from jkatana.models.geometry import tangent_frame, to_local, to_world
-from jkatana.models.lobes import Beckmann, Gaussian, GaussianVCavity, Mixture, reflect
+from jkatana.models.lobes import (Gaussian, GaussianVCavity, Mixture, key_params, lobe_key, lobe_with_width,
+                                  normalised_params, reflect)
 from jkatana.models.microfacet import gaussian_facet, gaussian_normalisation
 # the shader's inputs and helpers live by job in their own modules; re-exported here as the render API
 from jkatana.render.environment import (Environment, background, bilinear_equirect, bilinear_equirect_uv,  # noqa: F401
@@ -77,37 +79,61 @@ from jkatana.render.environment import (Environment, background, bilinear_equire
                                         unbasis)
 from jkatana.render.fresnel_fold import (FRESNEL_RANK_TOL, FRESNEL_TABLE, Material, fold_fresnel,  # noqa: F401
                                          fresnel_rank_for, fresnel_table, is_folded, table_lookup)
-from jkatana.render.plan import MIRROR_MU, MODES, Light, Pixels, Plan, Rays, Visibility  # noqa: F401
+from jkatana.render.plan import LOBE_MODES, MIRROR_MU, MODES, Light, Pixels, Plan, Rays, Visibility  # noqa: F401
 from jkatana.render.points import PixelIds, mis_offset, sample_points, uniforms  # noqa: F401
 
 # ---------------------------------------------------------------- lobes per region
 
 
 def _norms(plan: Plan, mat: Material, px: Pixels):
-    """Per-pixel lobe scales: N(μ) (normalised convention) or χ/K, β/K (calibrated). Hoisted out of the sample loop."""
+    """Per-pixel lobe scales: N(μ) of the paper's lobes (normalised convention; ``None`` where a region has
+    another lobe, normalised by itself) or χ/K, β/K (calibrated). Hoisted out of the sample loop."""
     if plan.calibration is None:
-        n0 = gaussian_normalisation(px.mu0) if (plan.hiraji and not plan.mirror) else None
-        n1 = gaussian_normalisation(px.mu1) if plan.hamon else None
+        n0 = (gaussian_normalisation(px.mu0) if (plan.hiraji and not plan.mirror and plan.hiraji_lobe is None)
+              else None)
+        n1 = gaussian_normalisation(px.mu1) if (plan.hamon and plan.hamon_lobe is None) else None
         return n0, n1
     return mat.chi / plan.calibration, mat.beta / plan.calibration
 
 
-def _lobes(plan: Plan, px: Pixels, norms):
-    """The sampled lobes of the pixels with their blend weights: ``[(lobe, weight), ...]``.
+def _region_lobe(plan: Plan, key, width, norm, paper):
+    """``(lobe, gain)`` of one region: the paper's lobe ``paper`` (scale ``norm``, gain ``None``) or, for a
+    :func:`~jkatana.models.lobes.lobe_shape` key, that lobe at the per-pixel ``width``.
 
-    Hiraji: :class:`~jkatana.models.lobes.Gaussian` (μ0, weight w) unless it is a
-    perfect mirror; hamon: :class:`~jkatana.models.lobes.GaussianVCavity` (μ1) or,
-    with ``plan.rough_model == "beckmann"``, :class:`~jkatana.models.lobes.Beckmann`
-    (α = μ1), weight 1 − w (Mochizuki et al., eq. 5).
+    Another lobe in the normalised convention is its energy-normalised form
+    (:func:`~jkatana.models.lobes.normalised_params`, gain ``None``); calibrated,
+    it is the lobe as fitted times ``norm`` = s/K, where s is the params file's
+    scale: the fit's model is ρ = s · f_r cos θi · F̄ (:mod:`jkatana.fit._model`),
+    so s/K converts camera units to reflectance exactly as χ/K does for the
+    paper's lobe.
     """
     normalised = plan.calibration is None
+    if key is None:
+        return paper(width, norm, normalised=normalised), None
+    if plan.mode not in LOBE_MODES:
+        raise ValueError(f"lobe {key[0]!r} renders in modes {list(LOBE_MODES)} only, not {plan.mode!r}")
+    if normalised:
+        key = lobe_key(normalised_params(key_params(key)))
+    return lobe_with_width(key, width, width.dtype), (None if normalised else norm)
+
+
+def _lobes(plan: Plan, px: Pixels, norms):
+    """The sampled lobes of the pixels with their blend weights and gains: ``[(lobe, weight, gain), ...]``.
+
+    Hiraji: ``plan.hiraji_lobe`` at width μ0 (the paper's
+    :class:`~jkatana.models.lobes.Gaussian` when ``None``) unless it is a perfect
+    mirror, weight w; hamon: ``plan.hamon_lobe`` at width μ1 (the paper's
+    :class:`~jkatana.models.lobes.GaussianVCavity` when ``None``), weight 1 − w
+    (Mochizuki et al., eq. 5). ``gain`` (``None``: 1) multiplies a lobe's value
+    but not its sampling weight.
+    """
     out = []
     if plan.hiraji and not plan.mirror:
-        out.append((Gaussian(px.mu0, norms[0], normalised=normalised), px.w))
+        lobe, gain = _region_lobe(plan, plan.hiraji_lobe, px.mu0, norms[0], Gaussian)
+        out.append((lobe, px.w, gain))
     if plan.hamon:
-        rough = (Beckmann(px.mu1) if plan.rough_model == "beckmann"
-                 else GaussianVCavity(px.mu1, norms[1], normalised=normalised))
-        out.append((rough, 1.0 - px.w))
+        lobe, gain = _region_lobe(plan, plan.hamon_lobe, px.mu1, norms[1], GaussianVCavity)
+        out.append((lobe, 1.0 - px.w, gain))
     return out
 
 
@@ -115,7 +141,7 @@ def _sampler(lobes):
     """One lobe, or the blend of two sampled by its weights (:class:`~jkatana.models.lobes.Mixture`)."""
     if len(lobes) == 1:
         return lobes[0][0]
-    (a, w), (b, _) = lobes
+    (a, w, _), (b, _, _) = lobes
     return Mixture(a, b, w)
 
 
@@ -129,8 +155,8 @@ def _mix_w(plan: Plan, px: Pixels):
 
 
 def _fcos_terms(lobes, L, V):
-    """f·cos θi without Fresnel per lobe term, weighted by the blend: ``[(a, Fresnel cosine), ...]``."""
-    return [(w * a, c) for lobe, w in lobes for a, c in lobe.terms(L, V)]
+    """f·cos θi without Fresnel per lobe term, weighted by the blend and gain: ``[(a, Fresnel cosine), ...]``."""
+    return [((w * a) if g is None else (w * g) * a, c) for lobe, w, g in lobes for a, c in lobe.terms(L, V)]
 
 
 # ---------------------------------------------------------------- the shader
