@@ -53,7 +53,8 @@ from :mod:`jkatana.models` and :mod:`jkatana.spectral`:
    one point (the agreement test of the sun-glint view under
    ``sunrise.exr`` measures the difference).
    k̂ is the normalised prefilter kernel
-   D(α/2, μ)/cos(α/2) of :func:`_kernel` in closed form, exp(−c h²)/cos h
+   D(α/2, μ)/cos(α/2) (the paper's Gaussian lobe in reflected directions, as
+   :func:`jkatana.light.prefilter.kernel_table` tabulates it) in closed form, exp(−c h²)/cos h
    with h = α/2, c = ln2/μ², normalised by
    8π ∫₀^{π/2} e^{−c h²} sin h dh ≈ (4π/c)(1 − 1/(6c) + 1/(60c²)) (sin h to
    its fifth-order Taylor term), convolved with the cap's uniform disc as a

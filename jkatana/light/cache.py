@@ -113,7 +113,8 @@ def environment_key(rad_key: str, *, rank, prefilter_mus, prefilter_resolution: 
     """Key of :func:`jkatana.render.shading.build_environment`'s result for radiance ``rad_key``."""
     mus = tuple(round(float(m), 12) for m in prefilter_mus)
     return _key("environment", rad_key, rank, mus, int(prefilter_resolution), np.dtype(dtype).name,
-                _source_digest("jkatana.render.shading", "jkatana.light.sampling", "jkatana.light.prefilter"))
+                _source_digest("jkatana.render.shading", "jkatana.light.sampling", "jkatana.light.prefilter",
+                               "jkatana.models.lobes"))
 
 
 def fresnel_key(n, k, dtype) -> str:
