@@ -127,6 +127,11 @@ class EnvSampler(eqx.Module):
     def shape(self) -> tuple[int, int]:
         return self.texel_pdf.shape
 
+    def _texel(self, u_row, u_col):
+        """``(row j, column i)`` chosen by the marginal CDF at ``u_row`` and the row's conditional at ``u_col``."""
+        j = jnp.clip(jnp.searchsorted(self.marginal, u_row, side="right") - 1, 0, self.shape[0] - 1)
+        return j, _row_search(self.conditional, j, u_col)
+
     def sample(self, key, n: int) -> tuple[Float[Array, "n 3"], Float[Array, "n"]]:
         """``n`` world directions and their density (per steradian)."""
         return self.sample_uniform(jax.random.uniform(key, (n, 4), self.texel_pdf.dtype))
@@ -139,8 +144,7 @@ class EnvSampler(eqx.Module):
         u = jnp.asarray(u, self.texel_pdf.dtype)
         shape = u.shape[:-1]
         u = u.reshape(-1, 4)
-        j = jnp.clip(jnp.searchsorted(self.marginal, u[:, 0], side="right") - 1, 0, H - 1)
-        i = _row_search(self.conditional, j, u[:, 1])
+        j, i = self._texel(u[:, 0], u[:, 1])
         c0, c1 = self.cos_edges[j], self.cos_edges[j + 1]
         cos_t = c0 + (c1 - c0) * u[:, 3]
         sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
@@ -165,10 +169,9 @@ class EnvSampler(eqx.Module):
         u = jnp.asarray(u, self.texel_pdf.dtype)
         shape = u.shape[:-1]
         u = u.reshape(-1, 2)
-        j = jnp.clip(jnp.searchsorted(self.marginal, u[:, 0], side="right") - 1, 0, H - 1)
+        j, i = self._texel(u[:, 0], u[:, 1])
         m0, m1 = self.marginal[j], self.marginal[j + 1]
         r0 = jnp.clip((u[:, 0] - m0) / jnp.maximum(m1 - m0, 1e-30), 0.0, 1.0)
-        i = _row_search(self.conditional, j, u[:, 1])
         c0, c1 = self.conditional[j, i], self.conditional[j, i + 1]
         r1 = jnp.clip((u[:, 1] - c0) / jnp.maximum(c1 - c0, 1e-30), 0.0, 1.0)
         uu = (i.astype(r1.dtype) + r1) / W
