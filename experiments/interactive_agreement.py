@@ -24,50 +24,7 @@ panel; ``*_moments.png`` the same with the moment-matched taps) and ``summary.js
 
 Run: ``python experiments/interactive_agreement.py [-o experiments/output/interactive] [--res 240 180]``
 
-Measured (160×120, reference 2 × 1024 spp in every view; ΔE2000 over the blade's pixels; GL rank 3
-with the three fitted taps, the default; "moments": the previous moment-matched binomial taps,
-``ShadingState(fit=False)``; "noise": the reference's own Monte-Carlo error, estimated from its two
-seeds; run of 2026-11-22, load average 4.5 from other jobs, which changes times, not ΔE):
-
-========  ======  =====  =====  ==============  ==============  ===========
-env       view    mean   p95    moments mean    moments p95     ref. noise
-========  ======  =====  =====  ==============  ==============  ===========
-sky       demo    0.29   0.57   0.30            0.60            0.01
-sky       left    0.41   1.03   0.37            0.81            0.03
-sky       right   0.40   1.12   0.38            0.89            0.03
-sky       glint   0.35   0.76   0.40            0.93            0.02
-sun       demo    0.29   0.57   0.30            0.61            0.02
-sun       left    0.41   1.04   0.37            0.80            0.04
-sun       right   0.40   1.12   0.38            0.92            0.04
-sun       glint   0.79   2.17   1.00            **3.38**        0.02
-studio    demo    0.52   0.95   0.49            0.75            0.03
-studio    left    0.38   0.55   0.38            0.54            0.01
-studio    right   0.37   0.55   0.37            0.54            0.01
-studio    glint   0.74   1.91   0.98            **2.87**        0.03
-========  ======  =====  =====  ==============  ==============  ===========
-
-Every view meets mean ≤ 1 and p95 ≤ 2.5. Rank 4 instead of 3 changes nothing (≤ 0.01); one
-isotropic tap gives mean 0.5–3.5, p95 up to 9 (``summary.json``).
-
-Where the residual comes from: (1) the GL frame's 8-bit output — rounding the reference itself to
-8 bits costs ΔE mean 0.24–0.36, p95 ≈ 0.5 (this is the whole residual on studio left/right);
-(2) the reference's noise (last column; small at 2 × 1024 spp); (3) rank 3 vs 4: nothing; (4) the
-split-sum lobe: the environment is read prefiltered, at three taps along the plane of incidence.
-The moment-matched taps had the lobe's mean and variance but not its skew: off normal incidence the
-oblique lobe's peak stays near the mirror direction while its mean moves towards N, so a small,
-bright source inside a wide lobe (the 1.5° sun at 120× the sky, the softbox edges, in the hamon's
-μ1 = 0.2 lobe seen at ~55°) got ~3–10 % too little weight: the GL frame was darker and less warm
-along the hamon band (sun glint p95 3.38 — 3.62 on the hamon pixels alone —, studio glint 2.87).
-The fitted taps (:func:`jkatana.interactive.bake.tap_fit`: offsets, weights and filter width per
-(cos θv, μ), least squares against the models' own lobe) remove it: hamon pixels of the sun glint
-ΔE p95 3.62 → 1.91. What remains there is (5) the map's resolution: the sun is ~2 texels of the
-128-row map and the hiraji's lobe (μ0 = 0.05, across-plane filter width ≈ 0.026 rad ≈ 1 texel) does
-not resolve finer kernel shapes — there the fitted taps measured worse than the moment ones (hiraji
-pixels p95 4.7 vs 2.6), so the bake keeps the moment pattern wherever the filter width is below 2
-texels (:func:`~jkatana.interactive.bake.resolved_taps`); the sun glint's max ΔE (10) is on those
-few pixels at the glint's core, and its p95 (2.17) is the closest to the bar. The demo/left/right
-views move by ≤ 0.2 in p95 either way (lobes there are seen nearer normal incidence).
-Raster and ray-cast coverage agree to ≤ 1 pixel per view.
+Results of past runs: ``experiments/RESULTS.md``.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ Writes to experiments/output/:
 - ``sky_xyz_agreement.png``: Y of the CIE XYZ table vs ∫ L ȳ dλ of the spectral table along
   the solar vertical (the two are independent fits).
 
-Run: ``python experiments/light_sky_elevations.py`` (≈ 30 s).
+Run: ``python experiments/light_sky_elevations.py``.
 """
 
 import math
@@ -78,7 +78,7 @@ for e in (10.0, 30.0, 60.0):
     ct = np.cos(np.radians(th))
     gamma = np.abs(np.radians(th) - np.radians(90 - e))
     y_tab = S.hosek_wilkie_tristimulus(ct, gamma, math.radians(e), 3.0, 0.1, "CIEXYZ")[:, 1]
-    y_sp = (S.sky_bands(ct, gamma, math.radians(e), 3.0, 0.1) @ S._band_weights(gxyz.wavelengths)) @ xyz_weights(gxyz)[:, 1]
+    y_sp = (S.sky_bands(ct, gamma, math.radians(e), 3.0, 0.1) @ S.band_weights(gxyz.wavelengths)) @ xyz_weights(gxyz)[:, 1]
     (line,) = ax.plot(th, y_sp, label=f"spectral ∫Lȳ, sun {e:g}°")
     ax.plot(th, y_tab, "--", color=line.get_color(), label=f"XYZ table, sun {e:g}°")
 ax.set(xlabel="view zenith angle in the solar vertical (deg, + towards the sun)", ylabel="Y (k = 1)",

@@ -9,8 +9,7 @@ prints per-channel ratios over the sphere and ΔE2000 for each pairing.
     python experiments/mitsuba_rough_bias.py --gallery  # also the gallery copy of the figure
 
 Frames are cached by their settings only: delete ``experiments/output/mitsuba/cache``
-after changing either renderer. From an empty cache: about 4 min on 2 busy cores (sum of
-the frames' times measured at load average 4–7).
+after changing either renderer. Run times of past runs: ``experiments/RESULTS.md``.
 """
 
 from __future__ import annotations

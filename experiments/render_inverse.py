@@ -32,7 +32,10 @@ from jkatana.models import Conductor  # noqa: E402
 from jkatana.render.camera import Camera  # noqa: E402
 from jkatana.render.film import display, film_weights, write_png  # noqa: E402
 from jkatana.render.gbuffer import gbuffer_sphere  # noqa: E402
-from jkatana.render.shading import Material, Pixels, Plan, build_environment, fresnel_table, shade  # noqa: E402
+from jkatana.render.environment import build_environment  # noqa: E402
+from jkatana.render.fresnel_fold import Material, fresnel_table  # noqa: E402
+from jkatana.render.plan import Pixels, Plan  # noqa: E402
+from jkatana.render.shading import shade  # noqa: E402
 from jkatana.spectral import DEFAULT_GRID  # noqa: E402
 
 TRUE = {"mu": 0.05, "chi": 79000.0}

@@ -26,22 +26,7 @@ and the hamon) and of hamon pixels (w = 0), and their ratio.
 
 Run: ``python experiments/render_paper_check.py [--quick]`` (``--quick``: 400×300, 16 spp).
 
-Measured (2026-11-22, demo scene: sun 34°/220°, camera 32° below; 800×600, 64 spp;
-19423 ji and 17285 hamon pixels; about 1 min on 2 loaded cores):
-
-| frame        | ji luma | hamon luma | hamon/ji Y | over baseline |
-|--------------|---------|------------|------------|---------------|
-| all_hiraji   | 0.700   | 0.728      | 1.084      | 1 (baseline)  |
-| normalised   | 0.700   | 0.728      | 1.083      | 1.00          |
-| calibrated   | 0.747   | 0.646      | 0.727      | 0.67          |
-| builtin_map  | 0.504   | 0.737      | 2.404      | 2.22          |
-
-With the paper's parameters the hamon is invisible in the normalised convention
-(the frame equals the all-hiraji one to 0.1 %) and in the calibrated one it is a
-slightly *darker* band (β/χ = 0.54, softened by Fresnel and geometry), its linear
-level 27× below the normalised one so that auto exposure blows the sky out. The
-built-in map's μ1 = 0.2 rad makes it a band 2.2× brighter than the ji under the
-demo sun. Images: ``experiments/output/render_paper_check_*.png``.
+Results of past runs: ``experiments/RESULTS.md``.
 """
 
 from __future__ import annotations
@@ -59,6 +44,7 @@ import numpy as np  # noqa: E402
 
 from jkatana.maps.reflectance_map import PAPER_PARAMETERS, default_map  # noqa: E402
 from jkatana.render.film import display  # noqa: E402
+from jkatana.spectral.colorimetry import luminance_weights  # noqa: E402
 from jkatana.render.frame import gbuffer  # noqa: E402
 from jkatana.render.renderer import camera_for, exposure_for, prepare, render_view, write_outputs  # noqa: E402
 from jkatana.render.scene import DEMO_SCENE, scene_from_dict  # noqa: E402
@@ -78,7 +64,7 @@ def regions(prep, rmap) -> tuple[np.ndarray, np.ndarray]:
 
 def stats(prep, frame, exposure, rmap) -> dict:
     rgb = display(frame.xyz, prep.scene.film.colourspace, prep.scene.film.transfer, exposure=exposure)
-    luma = rgb @ np.array([0.2126, 0.7152, 0.0722])
+    luma = rgb @ luminance_weights("sRGB")  # luma of the display values (BT.709 weights)
     ji, ha = regions(prep, rmap)
     Y = frame.xyz[..., 1]
     return {"ji_px": int(ji.sum()), "hamon_px": int(ha.sum()),

@@ -7,7 +7,7 @@ whole map (tone-mapped, same exposure for both), the remainder, and a zoom of 48
 texels about the sun — original, remainder, and the cap drawn as its circle over the
 remainder — and prints power fraction, region solid angle, direction and cap radius.
 
-Run: ``python experiments/sun_split.py`` (≈ 1 min, most of it the RGB → spectrum upsampling).
+Run: ``python experiments/sun_split.py`` (most of its time is the RGB → spectrum upsampling).
 """
 
 import math
@@ -24,7 +24,7 @@ from jkatana.light.envmap import direction_to_uv  # noqa: E402
 from jkatana.light.sun import split_compact_sources, split_sky_sun  # noqa: E402
 from jkatana.shared import shared_data  # noqa: E402
 from jkatana.spectral import WavelengthGrid  # noqa: E402
-from jkatana.spectral.colorimetry import to_display  # noqa: E402
+from jkatana.light.commands import preview_display8, preview_exposure  # noqa: E402
 
 OUT = Path(__file__).parent / "output"
 OUT.mkdir(parents=True, exist_ok=True)
@@ -32,9 +32,8 @@ GRID = WavelengthGrid(400, 700, 10)
 
 
 def tone(env, exposure):
-    x = np.asarray(env.xyz(), np.float64) * exposure
-    x = x / (1.0 + x[..., 1:2])
-    return np.clip(to_display(x), 0, 1)
+    """The light stage's preview of ``env`` (Reinhard's operator, sRGB), as floats in [0, 1]."""
+    return preview_display8(env, exposure) / 255.0
 
 
 def describe(name, split):
@@ -62,7 +61,7 @@ fig, axes = plt.subplots(len(cases), 5, figsize=(20, 3.3 * len(cases)),
 for row, (name, env, split) in zip(axes, cases):
     print(describe(name, split))
     Y = np.asarray(env.luminance(), np.float64)
-    exposure = 0.18 / float(np.median(Y[: env.height // 2]))
+    exposure = preview_exposure(env)
     before, after = tone(env, exposure), tone(split.remainder, exposure)
     if split.caps:
         u, v = (float(t) for t in direction_to_uv(np.asarray(split.cap.direction)))

@@ -28,44 +28,10 @@ import pytest
 
 from jkatana.cli import main
 from jkatana.errors import InputError
+from tests._scenes import CLI, cli_env, sphere_scene
 
-ROOT = Path(__file__).resolve().parents[1]
-CLI = [sys.executable, "-m", "jkatana.cli"]
-
-SCENE = """
-[geometry]
-sphere = {radius = 1.0}
-[material]
-w = 0.5
-mu0 = 0.05
-mu1 = 0.1
-[environment]
-type = "sky"
-resolution = [16, 32]
-[camera]
-type = "orbit"
-target = [0, 0, 0]
-distance = 4.0
-elevation_deg = 10
-fov_deg = 35
-resolution = [%d, %d]
-[spectral]
-start = 400.0
-stop = 700.0
-step = 20.0
-[render]
-samples = %d
-[output]
-directory = "out"
-name = "f"
-"""
-
-
-def _env():
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    env.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
-    return env
-
+#: The test sphere's wavelength grid here: 16 bands keep the command-line cases fast.
+GRID = (400.0, 700.0, 20.0)
 
 def run(argv, capsys) -> tuple[int, str, str]:
     rc = main([str(a) for a in argv])
@@ -142,11 +108,10 @@ def test_outputs_never_overwrite_inputs(campaign, tmp_path, capsys):
 
 
 def test_outputs_get_the_umask_permissions(tmp_path):
-    from jkatana.io import atomic
-    from jkatana.io.atomic import write_text
+    from jkatana.io.atomic import file_mode, write_text
 
     old = os.umask(0o022)
-    atomic._UMASK = None
+    file_mode.cache_clear()
     try:
         p = tmp_path / "a.txt"
         p.write_text("old")
@@ -154,12 +119,12 @@ def test_outputs_get_the_umask_permissions(tmp_path):
         write_text(p, "new")  # an overwrite gets the umask's mode, not the temporary's 0600
         assert stat.S_IMODE(p.stat().st_mode) == 0o644
         os.umask(0o077)
-        atomic._UMASK = None
+        file_mode.cache_clear()
         write_text(tmp_path / "b.txt", "x")
         assert stat.S_IMODE((tmp_path / "b.txt").stat().st_mode) == 0o600
     finally:
         os.umask(old)
-        atomic._UMASK = None
+        file_mode.cache_clear()
     assert not list(tmp_path.glob(".*"))
 
 
@@ -245,7 +210,7 @@ def test_refused_requests_stay_under_1_gb(tmp_path):
         print(peaks, file=sys.stderr)
         print(codes, peaks[-1])
     """)
-    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=_env(), capture_output=True, text=True,
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=cli_env(), capture_output=True, text=True,
                        timeout=300)
     codes, peak = r.stdout.strip().rsplit(" ", 1)[0], int(r.stdout.strip().rsplit(" ", 1)[1])
     assert codes == str([2] * len(MEMORY_CASES)), r.stderr
@@ -393,7 +358,7 @@ def test_render_resume_with_other_scene_refused(tmp_path):
     from jkatana.render.batch import _record, finished, plan_batch, plan_resume, scene_inputs
     from jkatana.render.scene import load_scene
 
-    (tmp_path / "scene.toml").write_text(SCENE % (48, 32, 4))
+    (tmp_path / "scene.toml").write_text(sphere_scene(48, 32, 4, spectral=GRID))
     scene = load_scene(tmp_path / "scene.toml")
     jobs = plan_batch(scene, 2, 1)
     inputs = scene_inputs(scene)
@@ -405,7 +370,7 @@ def test_render_resume_with_other_scene_refused(tmp_path):
     assert all(finished(j) for j in jobs)
     todo, skipped = plan_resume(jobs, scene_inputs(scene))
     assert todo == [] and len(skipped) == 2
-    (tmp_path / "scene.toml").write_text(SCENE % (64, 40, 8))
+    (tmp_path / "scene.toml").write_text(sphere_scene(64, 40, 8, spectral=GRID))
     changed = load_scene(tmp_path / "scene.toml")
     with pytest.raises(InputError, match=r"camera\.resolution.*samples|samples.*camera\.resolution"):
         plan_resume(plan_batch(changed, 2, 1), scene_inputs(changed))
@@ -418,7 +383,7 @@ def test_unreachable_scheduler_refused_in_time(tmp_path):
     from jkatana.render.batch import plan_batch, run_batch_dask
     from jkatana.render.scene import load_scene
 
-    (tmp_path / "scene.toml").write_text(SCENE % (8, 8, 1))
+    (tmp_path / "scene.toml").write_text(sphere_scene(8, 8, 1, spectral=GRID))
     scene = load_scene(tmp_path / "scene.toml").with_output_directory(tmp_path / "out")
     t0 = time.perf_counter()
     with pytest.raises(InputError, match="--scheduler"):
@@ -437,7 +402,7 @@ def test_unreachable_scheduler_refused_in_time(tmp_path):
 ])
 def test_scene_fields_one_line(old, new, field, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    text = (SCENE % (8, 8, 1))
+    text = sphere_scene(8, 8, 1, spectral=GRID)
     assert old in text
     text = text.replace(old, new)
     (tmp_path / "scene.toml").write_text(text)
@@ -470,7 +435,7 @@ def test_map_and_report_accept_a_fit_parameter_file(tmp_path, capsys):
 @pytest.mark.slow
 def test_fit_output_feeds_map_and_report(campaign, tmp_path):
     r = subprocess.run(CLI + ["fit", campaign / "table.csv", "--region", "hiraji", "-o", tmp_path / "h.json"],
-                       env=_env(), capture_output=True, text=True, timeout=600)
+                       env=cli_env(), capture_output=True, text=True, timeout=600)
     assert r.returncode in (0, 1), r.stderr
     (tmp_path / "photo.exr").parent.mkdir(exist_ok=True)
     from jkatana.io.exr import write_exr
@@ -478,10 +443,10 @@ def test_fit_output_feeds_map_and_report(campaign, tmp_path):
     y = np.tile(np.linspace(0.1, 1.0, 64), (16, 1))
     write_exr(tmp_path / "photo.exr", {"Y": y})
     r = subprocess.run(CLI + ["map", tmp_path / "photo.exr", "-o", tmp_path / "m.exr", "--resolution", "8", "32",
-                              "--hiraji", tmp_path / "h.json"], env=_env(), capture_output=True, text=True,
+                              "--hiraji", tmp_path / "h.json"], env=cli_env(), capture_output=True, text=True,
                        timeout=600)
     assert r.returncode == 0, r.stderr
-    r = subprocess.run(CLI + ["report", tmp_path / "h.json", "-o", tmp_path / "rep"], env=_env(),
+    r = subprocess.run(CLI + ["report", tmp_path / "h.json", "-o", tmp_path / "rep"], env=cli_env(),
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "rep" / "report.md").is_file()
@@ -492,7 +457,7 @@ def test_fit_output_feeds_map_and_report(campaign, tmp_path):
 def _interrupt(argv, cwd: Path, after: float, sig=signal.SIGINT, timeout: float = 300, when=None):
     """Start ``jkatana argv``; send ``sig`` after ``after`` s, or as soon as ``when()`` is true (checked
     every 10 ms, at most ``after`` s), if it is still running; return (rc, stderr)."""
-    proc = subprocess.Popen(CLI + [str(a) for a in argv], cwd=cwd, env=_env(), stdout=subprocess.DEVNULL,
+    proc = subprocess.Popen(CLI + [str(a) for a in argv], cwd=cwd, env=cli_env(), stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + after
     while proc.poll() is None and time.monotonic() < deadline and not (when is not None and when()):
@@ -528,7 +493,7 @@ def test_sigterm_during_simulate_exits_143_and_resume_completes(tmp_path):
     assert not (tmp_path / "s" / "manifest.csv").exists()
     no_temporaries(tmp_path)
     kept = {p.name: p.stat().st_mtime_ns for p in raw.glob("*.dng")}
-    r = subprocess.run(CLI + [str(a) for a in argv + ["--resume"]], cwd=tmp_path, env=_env(), capture_output=True,
+    r = subprocess.run(CLI + [str(a) for a in argv + ["--resume"]], cwd=tmp_path, env=cli_env(), capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "s" / "manifest.csv").is_file()
@@ -544,10 +509,10 @@ def test_twenty_interrupts_at_random_moments(campaign, tmp_path):
     rng = random.Random(17)
     # a campaign large enough that `measure` takes seconds
     big = tmp_path / "big"
-    r = subprocess.run(CLI + ["simulate", "-o", big, "--size", "256", "256", "--quiet"], env=_env(),
+    r = subprocess.run(CLI + ["simulate", "-o", big, "--size", "256", "256", "--quiet"], env=cli_env(),
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr
-    (tmp_path / "scene.toml").write_text(SCENE % (48, 32, 16))
+    (tmp_path / "scene.toml").write_text(sphere_scene(48, 32, 16, spectral=GRID))
     kinds = ["fit", "measure", "render"]
 
     def argv_for(kind, work):
@@ -564,7 +529,7 @@ def test_twenty_interrupts_at_random_moments(campaign, tmp_path):
         work = tmp_path / f"timing-{kind}"
         work.mkdir()
         t0 = time.perf_counter()
-        r = subprocess.run(CLI + [str(a) for a in argv_for(kind, work)], cwd=work, env=_env(), capture_output=True,
+        r = subprocess.run(CLI + [str(a) for a in argv_for(kind, work)], cwd=work, env=cli_env(), capture_output=True,
                            text=True, timeout=900)
         assert r.returncode in (0, 1), r.stderr
         t = time.perf_counter() - t0
@@ -584,7 +549,7 @@ def test_twenty_interrupts_at_random_moments(campaign, tmp_path):
                 assert not p.exists() or (json.loads(p.read_text()) if p.suffix == ".json"
                                           else len(p.read_text().splitlines()) > 1)
         no_temporaries(work)
-        r = subprocess.run(CLI + [str(a) for a in argv], cwd=work, env=_env(), capture_output=True, text=True,
+        r = subprocess.run(CLI + [str(a) for a in argv], cwd=work, env=cli_env(), capture_output=True, text=True,
                            timeout=900)
         assert r.returncode in (0, 1), r.stderr  # fit: 1 = finished, not converged
         for p in out:

@@ -42,6 +42,37 @@ def test_uv_round_trip(u, v):
     assert abs(float(u2) - u) < 1e-9 and abs(float(v2) - v) < 1e-9
 
 
+def test_one_equirect_convention_for_numpy_and_jax():
+    """Texel directions, uv → direction, the texel index and the sampler's warp share one convention."""
+    from jkatana.light.envmap import equirect_direction, texel_directions_np, texel_index
+
+    H, W = 8, 16
+    d = texel_directions_np(H, W)
+    assert isinstance(d, np.ndarray) and d.dtype == np.float64
+    u = (np.arange(W) + 0.5) / W
+    v = (np.arange(H) + 0.5) / H
+    uu, vv = np.meshgrid(u, v)
+    np.testing.assert_allclose(np.asarray(uv_to_direction(jnp.asarray(uu), jnp.asarray(vv))), d, atol=1e-12)
+    j, i = texel_index(jnp.asarray(uu), jnp.asarray(vv), H, W)
+    np.testing.assert_array_equal(np.asarray(j), np.arange(H)[:, None].repeat(W, 1))
+    np.testing.assert_array_equal(np.asarray(i), np.arange(W)[None].repeat(H, 0))
+    jd = equirect_direction(jnp.asarray(0.75), jnp.asarray(0.0), jnp.asarray(1.0))
+    assert isinstance(jd, jax.Array)
+    np.testing.assert_allclose(np.asarray(jd), [1.0, 0.0, 0.0], atol=1e-12)  # u = 0.75 looks along +X
+
+
+def test_bilinear_uv_is_the_lookup_away_from_the_poles():
+    from jkatana.light.envmap import bilinear_uv
+
+    env = _map_with_texel(value=7.0)
+    rng = np.random.default_rng(5)
+    u = jnp.asarray(rng.random(500))
+    v = jnp.asarray(rng.uniform(0.5 / env.height, 1 - 0.5 / env.height, 500))  # between the rows of centres
+    d = uv_to_direction(u, v)
+    np.testing.assert_array_equal(np.asarray(bilinear_uv(env.radiance, *direction_to_uv(d))),
+                                  np.asarray(env.lookup(d)))
+
+
 def test_bright_texel_at_its_direction():
     env = _map_with_texel()
     d = env.directions()[3, 21]
@@ -155,6 +186,12 @@ def test_colour_science_reads_what_jkatana_writes(tmp_path):
     wl, values = comps["S0"]
     np.testing.assert_allclose(wl, G7.wavelengths)
     np.testing.assert_array_equal(values, L)  # float32 written, float32 read: bit-exact
+    from jkatana.io.exr import read_exr
+
+    path = write_spectral_exr(tmp_path / "h.exr", L, G7, header={"jkatana_samples": 16, "scene": "{}"})
+    _, header = read_exr(path)
+    assert header["spectralLayoutVersion"] == "1.0" and header["emissiveUnits"] == "W.m^-2.sr^-1"
+    assert header["jkatana_samples"] == 16 and header["scene"] == "{}"
 
 
 def test_jkatana_reads_what_colour_science_writes(tmp_path):

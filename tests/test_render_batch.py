@@ -5,49 +5,17 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
-import textwrap
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-SCENE = """
-[geometry]
-sphere = {radius = 1.0}
-[material]
-w = 0.5
-mu0 = 0.05
-mu1 = 0.1
-[environment]
-type = "sky"
-resolution = [16, 32]
-[camera]
-type = "orbit"
-target = [0, 0, 0]
-distance = 4.0
-elevation_deg = 10
-fov_deg = 35
-resolution = [%d, %d]
-[render]
-samples = %d
-[output]
-directory = "out"
-name = "f"
-"""
-
-CLI = [sys.executable, "-c", "import sys; from jkatana.cli import main; sys.exit(main())"]
+from tests._scenes import CLI, cli_env, sphere_scene
 
 
 def _frames(d: Path):
     return sorted(p for p in d.glob("*.png") if not p.name.startswith("."))
-
-
-def _env():
-    env = dict(os.environ)
-    env.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
-    return env
 
 
 def test_killed_batch_resumes_without_redoing_or_corrupting(tmp_path):
@@ -56,10 +24,10 @@ def test_killed_batch_resumes_without_redoing_or_corrupting(tmp_path):
     from jkatana.io.exr import read_exr
 
     scene = tmp_path / "scene.toml"
-    scene.write_text(textwrap.dedent(SCENE % (64, 48, 96)))
+    scene.write_text(sphere_scene(64, 48, 96))
     out = tmp_path / "out"
     n_views = 10
-    proc = subprocess.Popen(CLI + ["render", str(scene), "--views", str(n_views)], cwd=tmp_path, env=_env(),
+    proc = subprocess.Popen(CLI + ["render", str(scene), "--views", str(n_views)], cwd=tmp_path, env=cli_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     deadline = time.time() + 240
     try:
@@ -78,7 +46,7 @@ def test_killed_batch_resumes_without_redoing_or_corrupting(tmp_path):
         Image.open(p).load()
         ch, _ = read_exr(p.with_suffix(".exr"))
         assert np.isfinite(ch["Y"]).all()
-    r = subprocess.run(CLI + ["render", str(scene), "--views", str(n_views)], cwd=tmp_path, env=_env(),
+    r = subprocess.run(CLI + ["render", str(scene), "--views", str(n_views)], cwd=tmp_path, env=cli_env(),
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     after = _frames(out)
@@ -95,7 +63,7 @@ def test_killed_batch_resumes_without_redoing_or_corrupting(tmp_path):
 def test_cli_reports_bad_scene_in_one_line(tmp_path):
     scene = tmp_path / "bad.toml"
     scene.write_text("[camera]\nresolution = [0, 10]\n")
-    r = subprocess.run(CLI + ["render", str(scene)], capture_output=True, text=True, env=_env(), timeout=120)
+    r = subprocess.run(CLI + ["render", str(scene)], capture_output=True, text=True, env=cli_env(), timeout=120)
     assert r.returncode == 2
     lines = [l for l in r.stderr.strip().splitlines() if "error" in l]
     assert len(lines) == 1 and "camera.resolution" in lines[0] and str(scene) in lines[0]
@@ -105,9 +73,9 @@ def test_cli_reports_bad_scene_in_one_line(tmp_path):
 def test_dask_local_cluster_batch(tmp_path):
     pytest.importorskip("dask.distributed")
     scene = tmp_path / "scene.toml"
-    scene.write_text(textwrap.dedent(SCENE % (24, 18, 2)))
+    scene.write_text(sphere_scene(24, 18, 2))
     r = subprocess.run(CLI + ["render", str(scene), "--views", "2", "--lights", "2", "--dask", "--workers", "1"],
-                       cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=600)
+                       cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     assert len(_frames(tmp_path / "out")) == 4
     assert "4 rendered" in r.stdout

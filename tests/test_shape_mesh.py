@@ -10,8 +10,8 @@ import pytest
 import trimesh
 
 from jkatana.shape.katana import default_blade, export_blade, welded
-from jkatana.shape.mesh import (blade_uvs, clean_mesh, guess_units, prepare_mesh, smooth_mesh,
-                                uv_stretch, xatlas_uvs)
+from jkatana.shape.mesh import clean_mesh, guess_units, prepare_mesh, smooth_mesh
+from jkatana.shape.uv import blade_uvs, uv_stretch, xatlas_uvs
 from jkatana.shared import shared_data
 
 

@@ -276,6 +276,31 @@ def test_matrices_equal_colour_science(name, key):
     np.testing.assert_allclose(xyz_to_linear_rgb(xyz, name), xyz @ m.T, rtol=1e-14)
 
 
+def test_decode_inverts_encode_and_luminance_weights_are_bt709():
+    from jkatana.spectral import decode, luminance_weights
+
+    v = np.linspace(0.0, 1.0, 101)
+    for transfer in ("sRGB", "Display P3", "Rec.2020", 2.2, "linear"):
+        np.testing.assert_allclose(decode(encode(v, transfer), transfer), v, atol=1e-12)
+    # IEC 61966-2-1's decoding written out here, independent of colour-science
+    lin = np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+    np.testing.assert_allclose(decode(v, "sRGB"), lin, atol=1e-12)
+    with pytest.raises(InputError):
+        decode(v, -1.0)
+    w = luminance_weights("sRGB")  # ITU-R BT.709-6: Y = 0.2126 R + 0.7152 G + 0.0722 B
+    np.testing.assert_allclose(w, [0.2126, 0.7152, 0.0722], atol=5e-5)
+    assert w.sum() == pytest.approx(1.0, abs=1e-12)  # white (1, 1, 1) has Y = 1
+
+
+def test_equal_energy_weights_give_a_flat_spectrum_y_one():
+    from jkatana.spectral import equal_energy_xyz_weights
+
+    for grid in (WavelengthGrid(400, 700, 5), WavelengthGrid(380, 780, 10)):
+        W = equal_energy_xyz_weights(grid)
+        assert (np.ones(grid.size) @ W)[1] == pytest.approx(1.0, abs=1e-14)
+        np.testing.assert_allclose(W, xyz_weights(grid) / (xyz_weights(grid)[:, 1].sum()), rtol=1e-15)
+
+
 def test_unknown_colourspace_is_input_error():
     with pytest.raises(InputError, match="colourspace"):
         xyz_to_rgb_matrix("CMYK-ish")

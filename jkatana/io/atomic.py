@@ -15,6 +15,7 @@ them before the process exits.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import tempfile
 import threading
@@ -25,17 +26,20 @@ from typing import Iterator
 #: Temporaries being written right now (removed by the interrupt handler).
 LIVE: set[Path] = set()
 _LOCK = threading.Lock()
-_UMASK: int | None = None
 
 
+@functools.cache
 def file_mode() -> int:
-    """The permission bits a new file gets under this process's umask (0666 & ~umask)."""
-    global _UMASK
-    if _UMASK is None:
-        with _LOCK:  # os.umask can only be read by setting it; do that once
-            _UMASK = os.umask(0o022)
-            os.umask(_UMASK)
-    return 0o666 & ~_UMASK
+    """The permission bits a new file gets under this process's umask (0666 & ~umask).
+
+    Read once per process (``file_mode.cache_clear()`` re-reads it after the umask changes):
+    ``os.umask`` can only be read by setting it, so the read holds the lock that keeps two threads
+    from seeing each other's temporary value.
+    """
+    with _LOCK:
+        umask = os.umask(0o022)
+        os.umask(umask)
+    return 0o666 & ~umask
 
 
 _CLOSED = False

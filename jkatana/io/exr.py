@@ -31,7 +31,7 @@ _COMPRESSION = {
 }
 
 
-def _os_name(path: str | Path) -> str | bytes:
+def os_path(path: str | Path) -> str | bytes:
     """The name to hand the bindings: text, or the raw bytes of a name that is not valid UTF-8
     (Python keeps such bytes as surrogates, which the bindings cannot encode)."""
     text = os.fspath(path)
@@ -53,7 +53,7 @@ def read_exr(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     if not path.is_file():
         raise InputError("file not found", path=path)
     try:
-        with OpenEXR.File(_os_name(path), separate_channels=False) as f:
+        with OpenEXR.File(os_path(path), separate_channels=False) as f:
             header = dict(f.header())
             raw = {name: np.array(ch.pixels) for name, ch in f.channels().items()}
     except Exception as err:  # the bindings raise a bare Exception/RuntimeError
@@ -96,7 +96,7 @@ def write_exr(path: str | Path, channels: dict[str, np.ndarray], *,
             hdr[key] = str(value)
     with atomic_path(path) as tmp:
         with OpenEXR.File(hdr, data) as f:
-            f.write(_os_name(tmp))
+            f.write(os_path(tmp))
     return Path(path)
 
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import math
 from pathlib import Path
 
 import numpy as np
@@ -101,34 +100,42 @@ def _need(args, nbytes: float, field: str, what: str) -> None:
     require_memory(nbytes, field, what, getattr(args, "max_memory", None))
 
 
+def preview_exposure(env) -> float:
+    """Exposure of an environment preview: the median luminance of the upper half (the sky) to middle
+    grey 0.18 (:func:`jkatana.render.film.auto_exposure`'s key)."""
+    Y = np.asarray(env.xyz(), np.float64)[..., 1]
+    return 0.18 / (float(np.median(Y[: env.height // 2])) or float(Y.mean()) or 1.0)
+
+
+def preview_display8(env, exposure: float) -> np.ndarray:
+    """8-bit sRGB preview ``(H, W, 3)`` of ``env``: XYZ × ``exposure``, Reinhard's operator on luminance
+    (:func:`jkatana.spectral.colorimetry.reinhard`), encoded for display."""
+    from jkatana.spectral.colorimetry import display8, reinhard
+
+    return display8(reinhard(np.asarray(env.xyz(), np.float64) * exposure))
+
+
 def preview_png(env, path, *, exposure: float | None = None, mark_sun: bool = True, sun_dir=None) -> dict:
     """Write a tone-mapped sRGB PNG of ``env`` with the sun circled; return summary facts."""
     from PIL import Image, ImageDraw
 
     from jkatana.io.atomic import atomic_path
     from jkatana.light.envmap import direction_to_uv
-    from jkatana.spectral.colorimetry import to_display, to_png8
 
     xyz = np.asarray(env.xyz(), np.float64)
     Y = xyz[..., 1]
     omega = np.asarray(env.solid_angles(), np.float64)
     if exposure is None:
-        med = float(np.median(Y[: env.height // 2])) or float(Y.mean()) or 1.0
-        exposure = 0.18 / med
-    x = xyz * exposure
-    # Reinhard on luminance keeps the sun's surroundings readable
-    Yx = x[..., 1:2]
-    x = x / (1.0 + Yx)
-    img = to_png8(to_display(x))
-    im = Image.fromarray(img)
+        exposure = preview_exposure(env)
+    im = Image.fromarray(preview_display8(env, exposure))
     j, i = np.unravel_index(np.argmax(Y), Y.shape)
     d = np.asarray(env.directions())[j, i] if sun_dir is None else np.asarray(sun_dir)
     power = Y * omega
     share = float(np.sort(power.ravel())[::-1][: max(1, Y.size // 1000)].sum() / power.sum()) if power.sum() > 0 else 0
-    elev = math.degrees(math.asin(max(-1.0, min(1.0, float(d[1])))))
-    az = math.degrees(math.atan2(float(d[0]), -float(d[2]))) % 360
+    u, v = (float(t) for t in direction_to_uv(d))
+    elev = 90.0 - 180.0 * v  # the map's convention (jkatana.light.envmap): v = 0 at the zenith
+    az = (360.0 * (u - 0.5)) % 360  # compass azimuth, clockwise from north (−Z)
     if mark_sun:
-        u, v = (float(t) for t in direction_to_uv(d))
         cx, cy = u * env.width, v * env.height
         r = max(6, env.width // 64)
         draw = ImageDraw.Draw(im)

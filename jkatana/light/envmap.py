@@ -60,28 +60,80 @@ def direction_to_uv(d: Float[ArrayLike, "*#b 3"]) -> tuple[Float[Array, "*#b"], 
     return u, v
 
 
+def equirect_direction(u, cos_theta, sin_theta):
+    """Unit world direction at column coordinate ``u`` and polar angle θ (given as ``cos θ``, ``sin θ``).
+
+    ``(sin θ sin φ, cos θ, −sin θ cos φ)`` with azimuth ``φ = (u − 0.5)·2π``: the one statement of
+    the equirectangular convention in this direction (see the module docstring), for NumPy and JAX
+    arrays alike (the result is of the arguments' kind).
+    """
+    xp = np if all(isinstance(a, (np.ndarray, np.generic, float, int)) for a in (u, cos_theta, sin_theta)) else jnp
+    phi = (u - 0.5) * 2 * np.pi
+    return xp.stack(xp.broadcast_arrays(sin_theta * xp.sin(phi), cos_theta, -sin_theta * xp.cos(phi)), axis=-1)
+
+
 def uv_to_direction(u, v) -> Float[Array, "*#b 3"]:
     """Equirectangular ``(u, v)`` → unit world direction (inverse of :func:`direction_to_uv`)."""
     u, v = jnp.broadcast_arrays(jnp.asarray(u), jnp.asarray(v))
-    phi = (u - 0.5) * 2 * jnp.pi
     theta = v * jnp.pi
-    s = jnp.sin(theta)
-    return jnp.stack([s * jnp.sin(phi), jnp.cos(theta), -s * jnp.cos(phi)], axis=-1)
+    return equirect_direction(u, jnp.cos(theta), jnp.sin(theta))
+
+
+def texel_index(u, v, height: int, width: int):
+    """``(row j, column i)`` of the texel containing equirectangular ``(u, v)`` (wraps in u, clamps in v)."""
+    i = jnp.mod(jnp.floor(u * width).astype(jnp.int32), width)
+    j = jnp.clip(jnp.floor(v * height).astype(jnp.int32), 0, height - 1)
+    return j, i
+
+
+def bilinear_uv(image: Float[Array, "H W C"], u, v) -> Float[Array, "*b C"]:
+    """Bilinear lookup of an equirectangular ``(H, W, C)`` image at ``(u, v)``, texel centres at
+    ``((i + ½)/W, (j + ½)/H)``: wraps in u, clamps in v to the first and last rows of centres.
+
+    For any number of channels (spectral bands or basis coefficients); :meth:`EnvMap.lookup` adds
+    the blend towards each pole.
+    """
+    H, W = image.shape[0], image.shape[1]
+    x = u * W - 0.5
+    y = jnp.clip(v * H - 0.5, 0.0, H - 1.0)
+    x0 = jnp.floor(x)
+    y0 = jnp.floor(y)
+    fx = (x - x0).astype(image.dtype)[..., None]
+    fy = (y - y0).astype(image.dtype)[..., None]
+    i0 = jnp.mod(x0.astype(jnp.int32), W)
+    i1 = jnp.mod(i0 + 1, W)
+    j0 = jnp.clip(y0.astype(jnp.int32), 0, H - 1)
+    j1 = jnp.minimum(j0 + 1, H - 1)
+    top = image[j0, i0] * (1 - fx) + image[j0, i1] * fx
+    bottom = image[j1, i0] * (1 - fx) + image[j1, i1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def row_edges_cos(height: int) -> np.ndarray:
+    """cos θ of the ``height + 1`` row edges (θ = jπ/H, from the zenith down), NumPy float64."""
+    return np.cos(np.arange(height + 1) * (np.pi / height))
 
 
 def texel_directions_np(height: int, width: int) -> np.ndarray:
     """Unit directions of the texel centres, NumPy float64 ``(H, W, 3)``."""
-    phi = ((np.arange(width) + 0.5) / width - 0.5) * 2 * np.pi
+    u = (np.arange(width) + 0.5) / width
     theta = (np.arange(height) + 0.5) / height * np.pi
-    st, ct = np.sin(theta)[:, None], np.cos(theta)[:, None]
-    return np.stack(np.broadcast_arrays(st * np.sin(phi)[None], ct, -st * np.cos(phi)[None]), axis=-1)
+    return equirect_direction(u[None, :], np.cos(theta)[:, None], np.sin(theta)[:, None])
 
 
 def texel_solid_angles_np(height: int, width: int) -> np.ndarray:
     """Exact texel solid angles ``(2π/W)(cos θ_top − cos θ_bottom)``, NumPy float64 ``(H, W)`` (sum 4π)."""
-    edges = np.arange(height + 1) * (np.pi / height)
-    band = (np.cos(edges[:-1]) - np.cos(edges[1:])) * (2 * np.pi / width)
+    edges = row_edges_cos(height)
+    band = (edges[:-1] - edges[1:]) * (2 * np.pi / width)
     return np.broadcast_to(band[:, None], (height, width)).copy()
+
+
+def irradiance_weights_np(height: int, width: int, normal=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """``max(d·n, 0)·Ω`` per texel, NumPy float64 ``(H, W)``: the irradiance on a plane with unit
+    ``normal`` is ``Σ w L`` (texel-centre quadrature of ``∫ L cos θ dω``, unoccluded)."""
+    n = np.asarray(normal, np.float64)
+    n = n / np.linalg.norm(n)
+    return np.maximum(texel_directions_np(height, width) @ n, 0.0) * texel_solid_angles_np(height, width)
 
 
 def texel_directions(height: int, width: int, dtype=jnp.float32) -> Float[Array, "H W 3"]:
@@ -135,22 +187,11 @@ class EnvMap(eqx.Module):
         Pure JAX: jittable, and differentiable in :attr:`radiance`.
         """
         u, v = direction_to_uv(d)
-        H, W = self.height, self.width
+        H = self.height
         L = self.radiance
         dt = L.dtype
-        x = u * W - 0.5
+        inner = bilinear_uv(L, u, v)
         y = v * H - 0.5
-        x0 = jnp.floor(x)
-        fx = (x - x0).astype(dt)[..., None]
-        i0 = jnp.mod(x0.astype(jnp.int32), W)
-        i1 = jnp.mod(i0 + 1, W)
-        yc = jnp.clip(y, 0.0, H - 1.0)
-        j0 = jnp.clip(jnp.floor(yc), 0, max(H - 2, 0)).astype(jnp.int32)
-        j1 = jnp.minimum(j0 + 1, H - 1)
-        fy = (yc - j0.astype(yc.dtype)).astype(dt)[..., None]
-        top = L[j0, i0] * (1 - fx) + L[j0, i1] * fx
-        bottom = L[j1, i0] * (1 - fx) + L[j1, i1] * fx
-        inner = top * (1 - fy) + bottom * fy
         # polar caps: y in [-0.5, 0) and (H-1, H-0.5]
         north = jnp.mean(L[0], axis=0)
         south = jnp.mean(L[H - 1], axis=0)
@@ -160,9 +201,7 @@ class EnvMap(eqx.Module):
 
     def lookup_nearest(self, d: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*#b wl"]:
         """Radiance of the texel containing ``d`` (piecewise constant: the density the sampler uses)."""
-        u, v = direction_to_uv(d)
-        i = jnp.mod(jnp.floor(u * self.width).astype(jnp.int32), self.width)
-        j = jnp.clip(jnp.floor(v * self.height).astype(jnp.int32), 0, self.height - 1)
+        j, i = texel_index(*direction_to_uv(d), self.height, self.width)
         return self.radiance[j, i]
 
     def is_grey(self, rtol: float = 1e-6) -> bool:
@@ -229,10 +268,8 @@ class EnvMap(eqx.Module):
 
     def irradiance(self, normal=(0.0, 1.0, 0.0)) -> Float[Array, "wl"]:
         """Spectral irradiance on a plane with ``normal`` (texel quadrature, unoccluded)."""
-        n = jnp.asarray(normal, self.radiance.dtype)
-        n = n / jnp.linalg.norm(n)
-        cos = jnp.maximum(self.directions() @ n, 0.0)
-        return jnp.einsum("hw,hwl->l", cos * self.solid_angles(), self.radiance)
+        w = jnp.asarray(irradiance_weights_np(self.height, self.width, normal), self.radiance.dtype)
+        return jnp.einsum("hw,hwl->l", w, self.radiance)
 
 
 def load_envmap(path: str | Path, grid: WavelengthGrid = DEFAULT_GRID, upsampling: str = "Jakob 2019",

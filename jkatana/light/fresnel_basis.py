@@ -4,7 +4,7 @@ F of a metal is smooth in both angle and wavelength, so a truncated SVD of
 its table over (cos θ, λ) (Eckart & Young 1936: optimal in the Frobenius norm
 over the table) needs only a few spectra b_r. Every user of such a basis —
 the split-sum prefilter (:mod:`jkatana.light.prefilter`), the renderer's
-Fresnel folding (:func:`jkatana.render.shading.fold_fresnel`) and the
+Fresnel folding (:func:`jkatana.render.fresnel_fold.fold_fresnel`) and the
 interactive bake (:mod:`jkatana.interactive.bake`) — takes it from
 :func:`basis_of_table`, so the factorisation and its sign convention live
 in one place.
@@ -14,7 +14,7 @@ with a positive sum (the SVD's sign is otherwise arbitrary; products
 c_r b_r do not depend on it). The default cos θ table of
 :func:`fresnel_basis` is uniform in θ (dense at grazing incidence, where F
 varies fastest); a caller that tabulates F elsewhere (the renderer's
-:func:`~jkatana.render.shading.fresnel_table`, uniform in cos θ) passes its
+:func:`~jkatana.render.fresnel_fold.fresnel_table`, uniform in cos θ) passes its
 own table to :func:`basis_of_table`.
 """
 

@@ -35,9 +35,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from jkatana.light.envmap import EnvMap, direction_to_uv
+from jkatana.light.envmap import (EnvMap, direction_to_uv, equirect_direction, row_edges_cos, texel_index,
+                                  texel_solid_angles_np)
+from jkatana.models import geometry
 from jkatana.models.geometry import tangent_frame
-from jkatana.spectral.colorimetry import cmfs
+from jkatana.models.lobes import reflect
+from jkatana.spectral.colorimetry import equal_energy_xyz_weights
 
 
 # ---------------------------------------------------------------- environment
@@ -91,9 +94,8 @@ class EnvSampler(eqx.Module):
         """
         L = np.asarray(env.radiance, np.float64)
         H, W, n = L.shape
-        ybar = cmfs(env.grid)[:, 1]
-        w = (1 - floor) * ybar / ybar.sum() + floor / n
-        omega = (np.cos(np.arange(H) * np.pi / H) - np.cos(np.arange(1, H + 1) * np.pi / H)) * (2 * np.pi / W)
+        w = (1 - floor) * equal_energy_xyz_weights(env.grid)[:, 1] + floor / n  # luminance weights sum to 1
+        omega = texel_solid_angles_np(H, W)[:, 0]
         y = np.maximum(L, 0.0) @ w
         if bilinear not in (True, False, "max"):
             raise ValueError(f"bilinear must be True, False or 'max', got {bilinear!r}")
@@ -116,7 +118,7 @@ class EnvSampler(eqx.Module):
         marginal[-1] = 1.0
         conditional[:, -1] = 1.0
         pdf = f / f.sum() / omega[:, None]
-        cos_edges = np.cos(np.arange(H + 1) * np.pi / H)
+        cos_edges = row_edges_cos(H)
         dt = env.radiance.dtype
         return cls(jnp.asarray(marginal, dt), jnp.asarray(conditional, dt), jnp.asarray(pdf, dt),
                    jnp.asarray(cos_edges, dt))
@@ -125,6 +127,11 @@ class EnvSampler(eqx.Module):
     def shape(self) -> tuple[int, int]:
         return self.texel_pdf.shape
 
+    def _texel(self, u_row, u_col):
+        """``(row j, column i)`` chosen by the marginal CDF at ``u_row`` and the row's conditional at ``u_col``."""
+        j = jnp.clip(jnp.searchsorted(self.marginal, u_row, side="right") - 1, 0, self.shape[0] - 1)
+        return j, _row_search(self.conditional, j, u_col)
+
     def sample(self, key, n: int) -> tuple[Float[Array, "n 3"], Float[Array, "n"]]:
         """``n`` world directions and their density (per steradian)."""
         return self.sample_uniform(jax.random.uniform(key, (n, 4), self.texel_pdf.dtype))
@@ -132,18 +139,16 @@ class EnvSampler(eqx.Module):
     def sample_uniform(self, u: Float[ArrayLike, "*#b 4"]) -> tuple[Float[Array, "*#b 3"], Float[Array, "*#b"]]:
         """Directions and densities from given uniforms ``u`` in [0, 1)⁴ (row, column, φ and cos θ
         inside the texel): the warp behind :meth:`sample`, for quasi-Monte Carlo points
-        (the renderer's randomised R_d sequence)."""
+        (the renderer's scrambled Sobol points)."""
         H, W = self.shape
         u = jnp.asarray(u, self.texel_pdf.dtype)
         shape = u.shape[:-1]
         u = u.reshape(-1, 4)
-        j = jnp.clip(jnp.searchsorted(self.marginal, u[:, 0], side="right") - 1, 0, H - 1)
-        i = _row_search(self.conditional, j, u[:, 1])
-        phi = ((i.astype(u.dtype) + u[:, 2]) / W - 0.5) * 2 * jnp.pi
+        j, i = self._texel(u[:, 0], u[:, 1])
         c0, c1 = self.cos_edges[j], self.cos_edges[j + 1]
         cos_t = c0 + (c1 - c0) * u[:, 3]
         sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
-        d = jnp.stack([sin_t * jnp.sin(phi), cos_t, -sin_t * jnp.cos(phi)], axis=-1)
+        d = equirect_direction((i.astype(u.dtype) + u[:, 2]) / W, cos_t, sin_t)
         return d.reshape(shape + (3,)), self.texel_pdf[j, i].reshape(shape)
 
     def sample_uniform2(self, u: Float[ArrayLike, "*#b 2"]):
@@ -164,38 +169,29 @@ class EnvSampler(eqx.Module):
         u = jnp.asarray(u, self.texel_pdf.dtype)
         shape = u.shape[:-1]
         u = u.reshape(-1, 2)
-        j = jnp.clip(jnp.searchsorted(self.marginal, u[:, 0], side="right") - 1, 0, H - 1)
+        j, i = self._texel(u[:, 0], u[:, 1])
         m0, m1 = self.marginal[j], self.marginal[j + 1]
         r0 = jnp.clip((u[:, 0] - m0) / jnp.maximum(m1 - m0, 1e-30), 0.0, 1.0)
-        i = _row_search(self.conditional, j, u[:, 1])
         c0, c1 = self.conditional[j, i], self.conditional[j, i + 1]
         r1 = jnp.clip((u[:, 1] - c0) / jnp.maximum(c1 - c0, 1e-30), 0.0, 1.0)
         uu = (i.astype(r1.dtype) + r1) / W
-        phi = (uu - 0.5) * 2 * jnp.pi
         e0, e1 = self.cos_edges[j], self.cos_edges[j + 1]
         cos_t = e0 + (e1 - e0) * r0
         sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
         jf = j.astype(cos_t.dtype)
         v = jnp.clip(jnp.arctan2(sin_t, cos_t) / jnp.pi, jf / H, (jf + 1.0) / H)
-        d = jnp.stack([sin_t * jnp.sin(phi), cos_t, -sin_t * jnp.cos(phi)], axis=-1)
+        d = equirect_direction(uu, cos_t, sin_t)
         return (d.reshape(shape + (3,)), self.texel_pdf[j, i].reshape(shape), uu.reshape(shape),
                 v.reshape(shape))
 
     def pdf_uv(self, u: Float[ArrayLike, "*#b"], v: Float[ArrayLike, "*#b"]) -> Float[Array, "*#b"]:
         """Density (per steradian) at equirectangular ``(u, v)`` (as :meth:`pdf`, without the ``atan2``)."""
-        H, W = self.shape
-        i = jnp.mod(jnp.floor(u * W).astype(jnp.int32), W)
-        j = jnp.clip(jnp.floor(v * H).astype(jnp.int32), 0, H - 1)
+        j, i = texel_index(u, v, *self.shape)
         return self.texel_pdf[j, i]
 
     def pdf(self, d: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*#b"]:
         """Density (per steradian) of :meth:`sample` at world directions ``d``."""
-        H, W = self.shape
-        u, v = direction_to_uv(d)
-        i = jnp.mod(jnp.floor(u * W).astype(jnp.int32), W)
-        # row from cos θ (exact at row edges, unlike v·H in float32)
-        j = jnp.clip(jnp.floor(v * H).astype(jnp.int32), 0, H - 1)
-        return self.texel_pdf[j, i]
+        return self.pdf_uv(*direction_to_uv(d))
 
 
 def _row_search(cdf: Float[Array, "H W1"], j: Int[Array, "n"], x: Float[Array, "n"]) -> Int[Array, "n"]:
@@ -226,11 +222,14 @@ def frame_from_normal(n: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*#b 3 3"]:
 
 
 def to_local(frame, d):
-    return jnp.einsum("...ij,...j->...i", frame, d)
+    """World directions ``d`` in the frame of :func:`frame_from_normal` (:func:`jkatana.models.geometry.to_local`)."""
+    return geometry.to_local(d, frame[..., 0, :], frame[..., 1, :], frame[..., 2, :])
 
 
 def to_world(frame, d):
-    return jnp.einsum("...ij,...i->...j", frame, d)
+    """Local directions ``d`` of a :func:`frame_from_normal` frame in world coordinates
+    (:func:`jkatana.models.geometry.to_world`)."""
+    return geometry.to_world(d, frame[..., 0, :], frame[..., 1, :], frame[..., 2, :])
 
 
 # ---------------------------------------------------------------- MIS
@@ -288,7 +287,7 @@ def reflected_radiance_quadrature(env: EnvMap, brdf_cos: Callable, V_local, fram
     beyond which D < 1e-11), with the same bilinear :meth:`EnvMap.lookup`.
     """
     V_local = jnp.asarray(V_local)
-    R_local = jnp.array([-V_local[0], -V_local[1], V_local[2]])
+    R_local = reflect(V_local, jnp.asarray([0.0, 0.0, 1.0], V_local.dtype))  # the mirror direction
     x, w = np.polynomial.legendre.leggauss(n_radial)
     a = 0.5 * extent * (x + 1)
     wa = 0.5 * extent * w * np.sin(a)

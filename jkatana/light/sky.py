@@ -62,8 +62,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.errors import InputError
-from jkatana.light.envmap import EnvMap, texel_directions_np, texel_solid_angles_np
-from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
+from jkatana.light.envmap import (EnvMap, direction_to_uv, equirect_direction, irradiance_weights_np,
+                                  texel_directions_np, texel_solid_angles_np)
+from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid, resample
 
 DATA_DIR = Path(__file__).resolve().parents[1] / "data" / "sky"
 BANDS = np.arange(320.0, 721.0, 40.0)  # the 11 model bands (nm)
@@ -170,20 +171,14 @@ def hosek_wilkie_tristimulus(cos_theta, gamma, elevation: float, turbidity: floa
     return _internal(configs, ct, g) * rads
 
 
-def _band_weights(wavelengths: np.ndarray) -> np.ndarray:
-    """Linear-interpolation matrix ``(11, n)`` from the model bands to ``wavelengths`` (320–720 nm)."""
+def band_weights(wavelengths: np.ndarray) -> np.ndarray:
+    """``(11, n)`` matrix taking radiance at the model bands to ``wavelengths`` (320–720 nm) by linear
+    interpolation, as the reference code interpolates between its bands (:func:`jkatana.spectral.resample`)."""
     wl = np.asarray(wavelengths, np.float64)
     if wl.min() < BANDS[0] - 1e-9 or wl.max() > BANDS[-1] + 1e-9:
         raise InputError(f"the Hosek–Wilkie model covers 320–720 nm; grid spans {wl.min()}–{wl.max()} nm",
                          field="grid")
-    W = np.zeros((BANDS.size, wl.size))
-    for j, w in enumerate(wl):
-        x = (w - BANDS[0]) / 40.0
-        i = min(int(math.floor(x)), BANDS.size - 2)
-        f = x - i
-        W[i, j] += 1 - f
-        W[i + 1, j] += f
-    return W
+    return resample(BANDS, np.eye(BANDS.size), wl, name="Hosek–Wilkie bands")
 
 
 def solar_direct(wavelengths, view_elevation, turbidity: float) -> np.ndarray:
@@ -222,11 +217,8 @@ def solar_direct(wavelengths, view_elevation, turbidity: float) -> np.ndarray:
 def limb_darkening(wavelengths, gamma) -> np.ndarray:
     """Limb-darkening factor ``(..., n)`` at angle ``gamma`` (rad) from the disc centre (0 outside)."""
     t = _tables("Spectral")
-    wl = np.asarray(wavelengths, np.float64)
-    wl_low = np.minimum(((wl - 320.0) / 40.0).astype(int), 9)
-    wl_frac = (wl - BANDS[wl_low]) / 40.0
     ld = np.stack([t[f"limbDarkeningDataset{int(b)}"] for b in BANDS])  # (11, 6)
-    coef = (1 - wl_frac)[:, None] * ld[wl_low] + wl_frac[:, None] * ld[wl_low + 1]  # (n, 6)
+    coef = band_weights(wavelengths).T @ ld  # (n, 6)
     s = np.sin(np.asarray(gamma, np.float64))[..., None] / math.sin(SOLAR_RADIUS)
     mu = np.sqrt(np.maximum(1.0 - s * s, 0.0))
     poly = sum(coef[:, i] * mu**i for i in range(6))
@@ -308,7 +300,7 @@ def hosek_wilkie_sky(elevation_deg: float = 30.0, azimuth_deg: float = 180.0, tu
     elev = math.radians(elevation_deg)
     _check(elev, turbidity, albedo)
     wl = grid.wavelengths
-    Wb = _band_weights(wl)
+    Wb = band_weights(wl)
     s = sun_direction(elevation_deg, azimuth_deg)
     dirs = texel_directions_np(H, W)
     omega = texel_solid_angles_np(H, W)
@@ -324,7 +316,7 @@ def hosek_wilkie_sky(elevation_deg: float = 30.0, azimuth_deg: float = 180.0, tu
     if sun:
         L += _sun_texels(H, W, s, elev, turbidity, wl, omega, sun_supersampling)
     if ground:
-        E = np.einsum("hw,hwl->l", np.where(upper, dirs[..., 1], 0.0) * omega, L)
+        E = np.einsum("hw,hwl->l", irradiance_weights_np(H, W), L)
         L[~upper] = albedo / math.pi * E
     return EnvMap(jnp.asarray(L, dtype), grid)
 
@@ -332,8 +324,7 @@ def hosek_wilkie_sky(elevation_deg: float = 30.0, azimuth_deg: float = 180.0, tu
 def _sun_texels(H, W, s, elev, turbidity, wl, omega, n_sub) -> np.ndarray:
     """Texel-average solar radiance, rescaled so the disc's power is exact."""
     out = np.zeros((H, W, wl.size))
-    u = 0.5 + math.atan2(s[0], -s[2]) / (2 * math.pi)
-    v = math.acos(max(-1.0, min(1.0, s[1]))) / math.pi
+    u, v = (float(x) for x in direction_to_uv(s))
     # texels whose centre is within the disc radius + one texel diagonal of the sun
     ci, cj = int(u * W) % W, min(int(v * H), H - 1)
     dv = math.pi / H
@@ -348,9 +339,8 @@ def _sun_texels(H, W, s, elev, turbidity, wl, omega, n_sub) -> np.ndarray:
     for j in js:
         theta = (j + t) * dv  # (n,)
         for i in iis:
-            phi = ((i + t) / W - 0.5) * 2 * math.pi
-            th, ph = np.meshgrid(theta, phi, indexing="ij")
-            d = np.stack([np.sin(th) * np.sin(ph), np.cos(th), -np.sin(th) * np.cos(ph)], axis=-1)
+            th, uu = np.meshgrid(theta, (i + t) / W, indexing="ij")
+            d = equirect_direction(uu, np.cos(th), np.sin(th))
             gamma = np.arctan2(np.linalg.norm(np.cross(d, s), axis=-1), d @ s)
             inside = (gamma < SOLAR_RADIUS) & (d[..., 1] >= 0)
             if not inside.any():

@@ -30,14 +30,14 @@ _T_CHANNEL = re.compile(r"^T\.(\d+(?:,\d+)?)(nm|um|pm|Hz)?$")
 def _channel_names(path: Path) -> list[str]:
     import OpenEXR
 
-    from jkatana.io.exr import _os_name
+    from jkatana.io.exr import os_path
 
     try:
-        with OpenEXR.File(_os_name(path), header_only=True) as f:
+        with OpenEXR.File(os_path(path), header_only=True) as f:
             return list(f.header()["channels"].keys()) if "channels" in f.header() else list(f.channels().keys())
     except Exception:
         try:
-            with OpenEXR.File(_os_name(path)) as f:
+            with OpenEXR.File(os_path(path)) as f:
                 return list(f.channels().keys())
         except Exception as err:
             raise InputError(f"not a readable OpenEXR file ({err})", path=path) from None
@@ -85,21 +85,28 @@ def read_spectral_exr(path: str | Path, grid: WavelengthGrid) -> np.ndarray:
 
 
 def write_spectral_exr(path: str | Path, radiance, grid: WavelengthGrid | np.ndarray, *,
-                       bit_depth: str = "float32", emissive: bool = True) -> Path:
+                       bit_depth: str = "float32", emissive: bool = True,
+                       header: dict[str, str | int | float] | None = None) -> Path:
     """Write ``radiance (H, W, wl)`` as a Fichet 2021 spectral EXR (through colour-science), atomically.
 
     colour-science also writes an sRGB preview (``R``, ``G``, ``B``) that any
     EXR viewer shows. ``emissive`` writes ``S0`` channels with
     ``emissiveUnits = W.m^-2.sr^-1`` (per nm); otherwise ``T`` (reflectance).
+    The layout's ``spectralLayoutVersion`` attribute is always written;
+    ``header`` adds further attributes (strings or numbers).
     """
-    from colour.io import Specification_Fichet2021, write_spectral_image_Fichet2021
+    from colour.io import Image_Specification_Attribute, Specification_Fichet2021, write_spectral_image_Fichet2021
 
     wl = grid.wavelengths if isinstance(grid, WavelengthGrid) else np.asarray(grid, np.float64)
     values = np.asarray(radiance, np.float32)
     if values.ndim != 3 or values.shape[-1] != wl.size:
         raise InputError(f"radiance must be (H, W, {wl.size}), got {values.shape}", path=path)
     path = Path(path)
-    spec = Specification_Fichet2021(is_emissive=emissive)
+    # colour-science adds the layout's own attributes only when given none: list them with the caller's
+    attrs = {"spectralLayoutVersion": "1.0", **({"emissiveUnits": "W.m^-2.sr^-1"} if emissive else {}),
+             **(header or {})}
+    spec = Specification_Fichet2021(is_emissive=emissive, attributes=tuple(
+        Image_Specification_Attribute(k, v) for k, v in attrs.items()))
     with atomic_path(path) as tmp:
         tmp_exr = Path(str(tmp) + ".exr") if Path(tmp).suffix.lower() != ".exr" else Path(tmp)
         with warnings.catch_warnings():

@@ -46,7 +46,8 @@ from pathlib import Path
 import numpy as np
 
 from jkatana.errors import InputError
-from jkatana.spectral.colorimetry import cmfs, colourspace as _colourspace, illuminant, xyz_to_rgb_matrix
+from jkatana.spectral.colorimetry import (colourspace as _colourspace, equal_energy_xyz_weights, illuminant,
+                                         xyz_to_rgb_matrix)
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
 
 _DATA = Path(__file__).resolve().parents[1] / "data" / "upsampling"
@@ -61,8 +62,7 @@ def _white(grid: WavelengthGrid, colourspace: str) -> np.ndarray:
         w = illuminant(name, grid)
     except Exception:
         w = illuminant("D65", grid)
-    ybar = cmfs(grid)[:, 1]
-    return w / (w @ ybar / ybar.sum())
+    return w / (w @ equal_energy_xyz_weights(grid)[:, 1])
 
 
 def _rgb_to_xyz(colourspace: str) -> np.ndarray:
@@ -75,8 +75,7 @@ def spectrum_to_rgb(spectrum, grid: WavelengthGrid = DEFAULT_GRID, colourspace: 
     ``XYZ = Σ S x̄ȳz̄ / Σ ȳ`` (equal-energy normalisation), then the
     colourspace's XYZ → RGB matrix.
     """
-    c = cmfs(grid)
-    xyz = np.asarray(spectrum, np.float64) @ c / c[:, 1].sum()
+    xyz = np.asarray(spectrum, np.float64) @ equal_energy_xyz_weights(grid)
     return xyz @ xyz_to_rgb_matrix(colourspace).T
 
 
@@ -126,8 +125,8 @@ def jakob2019_lut(colourspace: str = "sRGB", size: int = 8, path: str | None = N
 
     Looks in ``path``, then the shipped LUT (sRGB, size 8), then
     ``~/.cache/jkatana/jakob2019_<colourspace>_<size>.coeff``; otherwise runs
-    colour-science's optimiser (about 1 s per LUT cell row on one core: ~3 min
-    for size 8) and writes the cache file.
+    colour-science's optimiser (minutes of CPU even at size 8, hence the
+    shipped LUT and the cache) and writes the cache file.
     """
     import colour
 
@@ -150,7 +149,7 @@ def jakob2019_lut(colourspace: str = "sRGB", size: int = 8, path: str | None = N
 
 def _jakob_refine(coeffs, q, grid, colourspace, iters: int = 4):
     """Newton steps on the sigmoid-polynomial coefficients so that the spectrum reproduces ``q``
-    exactly on ``grid`` (the LUT's trilinear interpolation is only approximate: ~3 % at size 8).
+    exactly on ``grid`` (trilinear interpolation of the LUT's coefficients only approximates it).
 
     Works in normalised wavelength ``t = (λ − 550)/150``; a step is kept per texel only where it
     lowers the residual, so colours no sigmoid spectrum can reach keep their best (LUT or refined)
@@ -162,8 +161,7 @@ def _jakob_refine(coeffs, q, grid, colourspace, iters: int = 4):
     s, l0 = 150.0, 550.0
     p = np.stack([c0 * s * s, s * (2 * c0 * l0 + c1), c0 * l0 * l0 + c1 * l0 + c2], axis=1)  # (N, 3)
     white = _white(grid, colourspace)
-    cm = cmfs(grid)
-    A = (white[:, None] * cm / cm[:, 1].sum()) @ xyz_to_rgb_matrix(colourspace).T  # (wl, 3): R → rgb
+    A = (white[:, None] * equal_energy_xyz_weights(grid)) @ xyz_to_rgb_matrix(colourspace).T  # (wl, 3): R → rgb
     T = np.stack([t * t, t, np.ones_like(t)], axis=1)  # (wl, 3)
 
     def model(p):

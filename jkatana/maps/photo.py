@@ -7,8 +7,8 @@ al.). So luminance Y → w: ``Y ≤ dark`` → w = 1 (Fresnel/hiraji), ``Y ≥ b
 taken around Otsu's threshold of the luminance histogram (Otsu, "A threshold
 selection method from gray-level histograms", IEEE SMC 9(1), 1979).
 
-Luminance of linear RGB uses the Rec. 709 / sRGB primaries' Y row
-(0.2126, 0.7152, 0.0722; ITU-R BT.709).
+Luminance of linear RGB is the Y row of the sRGB / Rec. 709 primaries' RGB→XYZ matrix
+(:func:`jkatana.spectral.colorimetry.luminance_weights`; 0.2126, 0.7152, 0.0722, ITU-R BT.709).
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ import numpy as np
 
 from jkatana.errors import InputError
 from jkatana.maps.reflectance_map import PAPER_PARAMETERS, ReflectanceMap
+from jkatana.spectral.colorimetry import decode, luminance_weights
 
-LUMA_709 = np.array([0.2126, 0.7152, 0.0722])
 
 
 def read_photo(path: str | Path) -> np.ndarray:
@@ -67,7 +67,7 @@ def read_photo(path: str | Path) -> np.ndarray:
         raise InputError(f"photo must be .exr, .png, .tif, .tiff or a camera RAW ({', '.join(RAW_SUFFIXES)})",
                          path=path)
     if img.ndim == 3:
-        img = img[..., :3] @ LUMA_709
+        img = img[..., :3] @ luminance_weights("sRGB")
     if img.ndim != 2 or img.size == 0:
         raise InputError(f"not a 2-D image (shape {img.shape})", path=path)
     if not np.all(np.isfinite(img)):
@@ -116,8 +116,7 @@ def _normalise_int(img: np.ndarray, path) -> np.ndarray:
     if img.dtype == np.uint16:
         return img.astype(np.float64) / 65535.0
     if img.dtype == np.uint8:
-        x = img.astype(np.float64) / 255.0  # 8-bit files are display-encoded: undo sRGB
-        return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+        return decode(img.astype(np.float64) / 255.0, "sRGB")  # 8-bit files are display-encoded
     if np.issubdtype(img.dtype, np.floating):
         return img.astype(np.float64)
     raise InputError(f"unsupported pixel type {img.dtype}", path=path)

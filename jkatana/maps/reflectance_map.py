@@ -213,13 +213,6 @@ def default_map(resolution: tuple[int, int] = (256, 1024), *, seed: int = 0,
     - `hada_strength`: relative modulation of μ0 and μ1 by the grain.
     - `hamon_mu`: the hamon's mean μ1 in radians (> 0).
 
-    **Arguments:**
-
-    - `resolution`: ``(H, W)`` = (pixels across, pixels along).
-    - `seed`: the pattern's random seed (deterministic).
-    - `transition`: width in v of the soft hiraji → hamon edge (the nioi line).
-    - `hada_strength`: relative modulation of μ0 and μ1 by the grain.
-
     **Returns:**
 
     A :class:`ReflectanceMap`: w = 1 above the line (and on the shinogi-ji),

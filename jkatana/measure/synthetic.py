@@ -32,11 +32,10 @@ random noise — so ``(value − truth) / sigma`` is standard normal.
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from jkatana.errors import InputError
-from jkatana.fit._solve import NoiseModel
+from jkatana.fit import NoiseModel
 from jkatana.measure.camera import DEFAULT_CAMERA, band_weights, camera_sensitivity, light_spectrum
 from jkatana.measure.protocol import as_pairs
 from jkatana.measure.table import MeasurementTable, check_angles

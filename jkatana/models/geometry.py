@@ -6,7 +6,7 @@ last axis of length 3: L towards the light, V towards the viewer. From them:
 - θi = ∠(N, L), θr = ∠(N, V);
 - H = (L + V)/|L + V|, φ = ∠(N, H) the facet angle, θH = ∠(L, H) = ∠(V, H).
 
-Numerics (measured traps): in float32, ``acos(N·H)`` returns exactly 0 for
+Numerics: in float32, ``acos(N·H)`` returns exactly 0 for
 φ = 1e-4 and is 2× off at 1e-3 — the heart of a μ = 0.05 lobe — and its
 derivative at N·H = 1 is infinite. The facet angle is therefore computed as
 ``atan2(|N × (L+V)|, N · (L+V))``: exact for small angles, scale-invariant

@@ -76,9 +76,8 @@ def _lobe_times_fresnel(lobe, cos_theta, conductor: "Conductor"):
 
     The ``optimization_barrier`` keeps XLA from fusing the per-pair geometry
     (atan2, exp, the shadowing term) into the per-wavelength loop, where it
-    would be recomputed for each of the 61 wavelengths: measured 2× faster in
-    float32 on CPU (``benchmarks/bench_models.py``). Values and gradients are
-    unchanged (the barrier is an identity).
+    would be recomputed for every wavelength (``benchmarks/bench_models.py``
+    times it). Values and gradients are unchanged (the barrier is an identity).
     """
     lobe, cos_theta = jax.lax.optimization_barrier((lobe, cos_theta))
     return lobe[..., None] * conductor.fresnel(cos_theta)

@@ -67,6 +67,14 @@ class Camera:
         up = np.cross(right, fwd)
         return right, up, fwd
 
+    def pose(self) -> np.ndarray:
+        """Camera-to-world 4×4 matrix (OpenGL convention: columns right, up, −forward, position), as
+        rasterisers (pyrender) take it."""
+        right, up, fwd = self.frame()
+        pose = np.eye(4)
+        pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, up, -fwd, self.position
+        return pose
+
     def rays(self) -> tuple[np.ndarray, np.ndarray]:
         """``(origin (3,), directions (height, width, 3))`` unit world directions through pixel centres."""
         right, up, fwd = self.frame()

@@ -6,7 +6,7 @@
   XYZ→RGB matrix, no chromatic adaptation, then its transfer or a gamma).
 - Files: a linear XYZ OpenEXR (channels X, Y, Z, plus ``mask``; spectral
   channels in the Fichet et al. 2021 layout on request, through
-  :mod:`jkatana.light.spectral_exr` when present) and an 8-bit PNG; both carry
+  :mod:`jkatana.light.spectral_exr`) and an 8-bit PNG; both carry
   the scene, the grid, samples and timing (EXR header attributes / PNG text
   chunks). Writes are atomic.
 """
@@ -21,19 +21,23 @@ import numpy as np
 from jkatana.io.atomic import atomic_path
 from jkatana.io.exr import write_exr
 from jkatana.spectral.colorimetry import colourspace as _colourspace
-from jkatana.spectral.colorimetry import encode, to_png8, xyz_to_linear_rgb, xyz_weights
+from jkatana.spectral.colorimetry import decode, equal_energy_xyz_weights, to_display, to_png8
 from jkatana.spectral.grid import WavelengthGrid
 
 
 def film_weights(grid: WavelengthGrid) -> np.ndarray:
-    """``(wl, 3)`` weights: XYZ = S @ W with W = x̄ȳz̄ Δλ / Σ ȳ Δλ."""
-    w = xyz_weights(grid)
-    return w / w[:, 1].sum()
+    """``(wl, 3)`` weights of the film: XYZ = S @ W with W = x̄ȳz̄ Δλ / Σ ȳ Δλ
+    (:func:`jkatana.spectral.colorimetry.equal_energy_xyz_weights`)."""
+    return equal_energy_xyz_weights(grid)
 
 
 def auto_exposure(xyz: np.ndarray, mask: np.ndarray | None = None, key: float = 0.18,
                   percentile: float = 50.0) -> float:
-    """Exposure that maps the ``percentile`` of Y (over ``mask`` or the whole frame) to ``key``."""
+    """Exposure that maps the ``percentile`` of Y (over ``mask`` or the whole frame) to ``key``.
+
+    The default key 0.18 is photography's middle grey, the "key value" of Reinhard, Stark, Shirley &
+    Ferwerda (2002), "Photographic tone reproduction for digital images", SIGGRAPH.
+    """
     Y = xyz[..., 1] if mask is None or not mask.any() else xyz[..., 1][mask]
     ref = float(np.percentile(Y[np.isfinite(Y)], percentile)) if Y.size else 0.0
     return key / ref if ref > 0 else 1.0
@@ -80,24 +84,15 @@ def xyz_from_display(rgb8: np.ndarray, colourspace: str = "sRGB", transfer: str 
     Clipped channels stay clipped (1.0): decode frames exposed so that the
     object's bright end is below white.
     """
-    v = np.asarray(rgb8, np.float64) / 255.0
-    transfer = colourspace if transfer is None else transfer
-    if isinstance(transfer, (int, float)):
-        lin = np.power(v, float(transfer))
-    elif str(transfer).lower() == "linear":
-        lin = v
-    else:
-        lin = np.asarray(_colourspace(str(transfer)).cctf_decoding(v), np.float64)
+    lin = decode(np.asarray(rgb8, np.float64) / 255.0, colourspace if transfer is None else transfer)
     m = np.asarray(_colourspace(colourspace).matrix_RGB_to_XYZ, np.float64)
     return (lin @ m.T) / exposure
 
 
 def display(xyz: np.ndarray, colourspace: str = "sRGB", transfer: str | float | None = None,
             exposure: float = 1.0) -> np.ndarray:
-    """``(H, W, 3)`` XYZ → display-encoded RGB in [0, 1]."""
-    _colourspace(colourspace)  # raises InputError for an unknown name
-    rgb = xyz_to_linear_rgb(np.asarray(xyz, np.float64) * exposure, colourspace)
-    return encode(rgb, colourspace if transfer is None else transfer)
+    """``(H, W, 3)`` XYZ → display-encoded RGB in [0, 1] (:func:`jkatana.spectral.colorimetry.to_display`)."""
+    return to_display(xyz, colourspace, transfer, exposure=exposure)
 
 
 def _text(meta: dict) -> dict[str, str]:
@@ -133,19 +128,8 @@ def write_xyz_exr(path: str | Path, xyz: np.ndarray, mask: np.ndarray | None = N
 
 def write_spectral_exr(path: str | Path, spectra: np.ndarray, grid: WavelengthGrid,
                        meta: dict | None = None) -> Path:
-    """Spectral radiance EXR in the Fichet et al. (2021) layout (``S0.<λ>nm`` channels)."""
-    try:
-        from jkatana.light.spectral_exr import write_spectral_exr as _write
+    """Spectral radiance EXR in the Fichet et al. (2021) layout (``S0.<λ>nm`` channels) with ``meta``
+    as attributes (:func:`jkatana.light.spectral_exr.write_spectral_exr`)."""
+    from jkatana.light.spectral_exr import write_spectral_exr as write  # the light stage, only when asked
 
-        try:
-            return _write(path, spectra, grid, header=_attrs(meta or {}))
-        except TypeError:
-            return _write(path, spectra, grid)
-    except ImportError:
-        ch = {}
-        for i, wl in enumerate(grid.wavelengths):
-            ch[f"S0.{wl:g}nm".replace(".", ",", 1).replace("S0,", "S0.")] = spectra[..., i]
-        hdr = _text(meta or {})
-        hdr["spectralLayoutVersion"] = "1.0"
-        hdr["emissiveUnits"] = "W.m^-2.sr^-1"
-        return write_exr(path, ch, header=hdr)
+    return write(path, spectra, grid, header=_attrs(meta or {}))

@@ -67,7 +67,7 @@ def fresnel_rank_for(ftable, tol: float = FRESNEL_RANK_TOL, max_rank: int = 8, *
 
     F = np.ascontiguousarray(np.asarray(ftable))
     key = (hashlib.blake2b(F.tobytes(), digest_size=16).hexdigest(), F.shape, str(F.dtype), tol, max_rank)
-    if key not in _RANK_CACHE:  # a per-frame host SVD costs ~1 s on a loaded machine: once per table
+    if key not in _RANK_CACHE:  # the host SVD runs once per table, not once per frame
         F = F.astype(np.float64)
         u, s, vt = svd_of_table(F)
         _RANK_CACHE[key] = (0, vt)
@@ -90,8 +90,7 @@ def fold_fresnel(rank: int, mat: Material, env: Environment, cmf, basis=None) ->
     ``Σ_r a_r(cos θ) G_r(L)`` with ``G_r = Σ_λ b_r(λ) E(L, λ) x̄ȳz̄(λ)``: a
     ``3R``-channel map. Bilinear lookups commute with this per-texel linear map,
     so the only approximation is the Fresnel rank. Per sample a ``3R``-channel
-    lookup replaces a ``wl``-band one — the issue's "9-channel bilinear lookup"
-    for R = 3. **Returns:** ``(material with ftable (T, R), environment with
+    lookup (9 channels for R = 3) replaces a ``wl``-band one. **Returns:** ``(material with ftable (T, R), environment with
     channels (H, W, 3R) and folded prefiltered levels)``; pass both to
     :func:`shade` with ``Plan(fresnel_rank=R)``. ``basis``: the ``(R, wl)`` spectra
     if already known (the frame passes the host SVD of :func:`fresnel_rank_for`),

@@ -49,8 +49,8 @@ def _intersector(mesh: trimesh.Trimesh):
 
 
 #: Rays per intersector call. trimesh's pure-Python fallback (no embreex) holds
-#: candidate arrays proportional to the rays in one call — an 800×600 frame in one
-#: call took 24 GB — so rays go in chunks; with Embree chunking costs nothing.
+#: candidate arrays proportional to the rays in one call (tens of GB for a whole
+#: 800×600 frame), so rays go in chunks; with Embree chunking costs nothing.
 RAY_CHUNK = 1 << 15
 
 

@@ -35,13 +35,13 @@ class Plan:
     - `env_sampling`: importance-sample the environment too (MIS).
     - `factored`: shade in the environment's spectral basis (rank = its channels).
     - `fresnel_rank`: ``R > 0``: shade with the Fresnel factor folded into the
-      environment (:func:`fold_fresnel`: per sample a ``3R``-channel lookup and
+      environment (:func:`~jkatana.render.fresnel_fold.fold_fresnel`: per sample a ``3R``-channel lookup and
       ``R`` Fresnel coefficients instead of ``wl`` bands; the caller passes the
       folded material and environment). ``0``: full spectra. ``None`` (default):
       :func:`jkatana.render.frame.shade_pixels` picks the smallest ``R`` whose
-      Fresnel table residual is below :data:`FRESNEL_RANK_TOL` when the plan
+      Fresnel table residual is below :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL` when the plan
       allows it (no spectral output, no lights, not ``factored``), else 0;
-      :func:`shade` called directly treats ``None`` as 0.
+      :func:`~jkatana.render.shading.shade` called directly treats ``None`` as 0.
     - `lights`: number of point/directional lights (0: none evaluated).
     - `calibration`: ``None`` for the normalised convention, else K (see models).
     - `hiraji_lobe`, `hamon_lobe`: the region's lobe other than the paper's, as
@@ -59,7 +59,7 @@ class Plan:
       weighted by a host-computed visibility (:class:`Visibility`). ``False``
       (no occluders) compiles no visibility input at all.
     - `subpixels`: ``S`` G-buffer samples (subpixels) per output pixel. With
-      ``S > 1`` and :class:`PixelIds` passed to :func:`shade`, the MIS modes draw
+      ``S > 1`` and :class:`~jkatana.render.points.PixelIds` passed to :func:`~jkatana.render.shading.shade`, the MIS modes draw
       ONE per-pixel point set of ``S × samples`` points and give each subpixel
       its share (subpixel ``q`` takes points ``q·N … q·N + N − 1`` of the pixel's
       ``S·N``-point Sobol sequence under the pixel's digital shift), so that the union over a pixel's
@@ -104,7 +104,8 @@ class Pixels(NamedTuple):
 
 
 class Rays(NamedTuple):
-    """World directions the shader will trace for given pixels and key (see :func:`ray_directions`).
+    """World directions the shader will trace for given pixels and key
+    (:func:`~jkatana.render.shading.ray_directions`).
 
     Pixel axis first everywhere (so one sharding splits them): ``mirror (P, 3)``
     (mirror direction: the mirror hiraji and the prefiltered lookups),

@@ -297,8 +297,8 @@ def register_sections(scans: list[Scan], *, threshold: float = 1e-3, voxel: floa
     order = sorted(by_section)
     out: list[Registration | None] = [None] * len(scans)
     first = order[0]
-    # registration runs on voxel-downsampled copies (the measured regime: dense range images
-    # make point-to-point ICP creep along the nearly flat blade); transforms apply to all points
+    # registration runs on voxel-downsampled copies (on dense range images point-to-point ICP
+    # creeps along the nearly flat blade); transforms apply to all points
     merged = [voxel_downsample(scans[i].points, voxel) for i in by_section[first]]
     for i in by_section[first]:
         out[i] = Registration(np.eye(4), 0.0, 1.0, 0, True)

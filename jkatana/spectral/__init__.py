@@ -2,12 +2,16 @@
 
 from jkatana.spectral.colorimetry import (
     cmfs as cmfs,
+    decode as decode,
     delta_e_2000 as delta_e_2000,
     delta_e_2000_8bit as delta_e_2000_8bit,
     delta_e_2000_display as delta_e_2000_display,
     display8 as display8,
     encode as encode,
+    equal_energy_xyz_weights as equal_energy_xyz_weights,
     illuminant as illuminant,
+    luminance_weights as luminance_weights,
+    reinhard as reinhard,
     spectrum_to_xyz as spectrum_to_xyz,
     to_display as to_display,
     xyz_to_linear_rgb as xyz_to_linear_rgb,

@@ -109,6 +109,14 @@ def xyz_weights(grid: WavelengthGrid = DEFAULT_GRID) -> np.ndarray:
     return cmfs(grid) * grid.step
 
 
+def equal_energy_xyz_weights(grid: WavelengthGrid = DEFAULT_GRID) -> np.ndarray:
+    """Eq. (6) normalised to the equal-energy white: ``XYZ = S @ W`` with ``W = x̄ȳz̄ Δλ / Σ ȳ Δλ``,
+    so that a flat spectrum of 1 has Y = 1 (k = 1/∫ȳ dλ; Mitsuba 3's film uses the same constant).
+    The renderer's film and the RGB ↔ spectrum conversions of environment maps share it."""
+    w = xyz_weights(grid)
+    return w / w[:, 1].sum()
+
+
 def spectrum_to_xyz(spectrum, grid: WavelengthGrid = DEFAULT_GRID, *, normalise_to=None):
     """Eq. (6): spectra (last axis = wavelength) → CIE XYZ (last axis = 3).
 
@@ -170,6 +178,36 @@ def encode(rgb, transfer: str | float = "sRGB", *, clip: bool = True) -> np.ndar
     if str(transfer).lower() == "linear":
         return rgb
     return np.asarray(colourspace(str(transfer)).cctf_encoding(rgb), dtype=np.float64)
+
+
+def decode(values, transfer: str | float = "sRGB") -> np.ndarray:
+    """Inverse of :func:`encode`: display values → linear RGB (what was clipped stays clipped).
+
+    ``transfer`` as in :func:`encode`: a number γ (``v^γ``), ``"linear"``, or a colourspace name whose
+    decoding CCTF colour-science provides (``"sRGB"``: the IEC 61966-2-1 piecewise curve).
+    """
+    v = np.asarray(values, dtype=np.float64)
+    if isinstance(transfer, (int, float)):
+        if transfer <= 0:
+            raise InputError(f"gamma must be > 0, got {transfer}", field="transfer")
+        return np.power(v, float(transfer))
+    if str(transfer).lower() == "linear":
+        return v
+    return np.asarray(colourspace(str(transfer)).cctf_decoding(v), dtype=np.float64)
+
+
+def reinhard(xyz) -> np.ndarray:
+    """Reinhard, Stark, Shirley & Ferwerda (2002), "Photographic tone reproduction for digital images",
+    SIGGRAPH, eq. 3 on luminance: ``XYZ / (1 + Y)``. Chromaticity is kept and highlights are compressed
+    instead of clipped, so a preview of an HDR map keeps the sun's surroundings readable."""
+    x = np.asarray(xyz, np.float64)
+    return x / (1.0 + x[..., 1:2])
+
+
+def luminance_weights(name: str = "sRGB") -> np.ndarray:
+    """``(3,)`` weights with Y = w · RGB for linear RGB of colourspace ``name``: the Y row of its RGB→XYZ
+    matrix (for sRGB / Rec. 709 primaries 0.2126, 0.7152, 0.0722, ITU-R BT.709-6 item 3.2)."""
+    return np.asarray(colourspace(name).matrix_RGB_to_XYZ, dtype=np.float64)[1]
 
 
 def to_display(xyz, colourspace_name: str = "sRGB", transfer: str | float | None = None,
