@@ -80,11 +80,14 @@ def radiance_key(env, grid) -> str | None:
     return None
 
 
-def environment_key(rad_key: str, *, rank, prefilter_mus, prefilter_resolution: int, dtype) -> str:
-    """Key of :func:`jkatana.render.shading.build_environment`'s result for radiance ``rad_key``."""
+def environment_key(rad_key: str, *, rank, prefilter_mus, prefilter_resolution: int, dtype,
+                    split_sun: bool = False) -> str:
+    """Key of :func:`jkatana.render.shading.build_environment`'s result for radiance ``rad_key``
+    (``split_sun``: compact sources split off as caps, :mod:`jkatana.light.sun`)."""
     mus = tuple(round(float(m), 12) for m in prefilter_mus)
-    return _key("environment", rad_key, rank, mus, int(prefilter_resolution), np.dtype(dtype).name,
-                _source_digest("jkatana.render.shading", "jkatana.light.sampling", "jkatana.light.prefilter"))
+    return _key("environment", rad_key, rank, mus, int(prefilter_resolution), np.dtype(dtype).name, bool(split_sun),
+                _source_digest("jkatana.render.shading", "jkatana.render.environment", "jkatana.light.sampling",
+                               "jkatana.light.prefilter", "jkatana.light.sun"))
 
 
 def fresnel_key(n, k, dtype) -> str:
