@@ -152,7 +152,8 @@ def run(quick: bool) -> list[dict]:
     return rows
 
 
-def _convergence(quick: bool, budget: float, left, scenes: dict | None = None) -> list[dict]:
+def _convergence(quick: bool, budget: float, left, scenes: dict | None = None,
+                 modes: list[str] | None = None) -> list[dict]:
     """Every mode at a few sample counts against a converged frame, with and without the sun split."""
     import jax
 
@@ -180,6 +181,8 @@ def _convergence(quick: bool, budget: float, left, scenes: dict | None = None) -
                                    "max": ref.timing["shade_s"]},
                            reference="itself", items=int(mask.sum()), resolution=raw["camera"]["resolution"]))
         for mode, split, counts in _variants(quick):
+            if modes is not None and mode not in modes:
+                continue
             for spp in counts:
                 if left() < 0.2 * budget:
                     _log(f"[render] {scene_name} {mode} {spp} spp skipped: {left():.0f} s left")
@@ -261,7 +264,7 @@ def plot_split(rows: list[dict], path) -> None:
 
 
 def main(argv=None) -> int:
-    """``python -m benchmarks.bench_render --convergence [--quick] [--scene NAME ...] -o DIR``: the
+    """``python -m benchmarks.bench_render --convergence [--quick] [--scene NAME ...] [--modes M ...] -o DIR``: the
     convergence study alone (every mode, before/after the sun split), its records and Pareto plot in DIR."""
     import argparse
     from pathlib import Path
@@ -270,6 +273,7 @@ def main(argv=None) -> int:
     ap.add_argument("--convergence", action="store_true", required=True)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--scene", nargs="*", default=None)
+    ap.add_argument("--modes", nargs="*", default=None, help="only these modes (default: all)")
     ap.add_argument("-o", "--output", required=True)
     a = ap.parse_args(argv)
     scenes = _scenes(a.quick)
@@ -277,7 +281,7 @@ def main(argv=None) -> int:
         scenes = {k: v for k, v in scenes.items() if a.scene is None or k in a.scene}
     out = Path(a.output)
     out.mkdir(parents=True, exist_ok=True)
-    rows = _convergence(a.quick, math.inf, lambda: math.inf, scenes)
+    rows = _convergence(a.quick, math.inf, lambda: math.inf, scenes, a.modes)
     from jkatana.io.atomic import atomic_path
 
     with atomic_path(out / "records.json") as tmp:

@@ -16,7 +16,8 @@ from jkatana.spectral import DEFAULT_GRID
 # a value different from the default for every field of Plan
 ALTERNATIVES = {"mode": "paper", "samples": 8, "hiraji": False, "hamon": False, "mirror": True,
                 "env_sampling": False, "factored": True, "fresnel_rank": 3, "lights": 1, "rough_model": "beckmann",
-                "calibration": 1e5, "spectral": True, "visibility": True, "subpixels": 4}
+                "calibration": 1e5, "spectral": True, "visibility": True, "subpixels": 4,
+                "cap_rule": "stroud"}
 
 
 def test_every_plan_field_has_an_alternative():

@@ -561,6 +561,9 @@ def cap_disc_nodes(C: Float[Array, "*b 3"], radius) -> tuple[Float[Array, "*b 4 
     return L, w
 
 
+#: Nodes (radial, azimuthal) of :func:`cap_nodes` a renderer uses: the defaults, whose error is stated above.
+CAP_RULE = (4, 16)
+
 #: Smallest lobe width, in cap radii (σ ≥ STROUD_MIN_WIDTH · r), for which :func:`cap_disc_nodes` is used.
 STROUD_MIN_WIDTH = 8.0
 

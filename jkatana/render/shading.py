@@ -41,8 +41,10 @@ sampler and prefiltered levels are the remainder's, and each cap is a light
 of its own:
 
 - ``"prefiltered"`` and ``"paper"``: ``L_cap ∫_cap f_r cos θi dω`` per lobe by
-  the deterministic cap rule (:func:`jkatana.light.sun.cap_nodes`, 4 × 16 nodes
-  about the lobe's mirror direction, Fresnel at the cap centre), no noise;
+  a deterministic cap rule (:func:`jkatana.light.sun.cap_nodes`, 4 × 16 nodes
+  about the lobe's mirror direction, or Stroud's 4 directions of
+  :func:`~jkatana.light.sun.cap_disc_nodes` when every lobe is ≥ 8 cap radii
+  wide, ``Plan.cap_rule``; Fresnel at the cap centre), no noise;
 - ``"reference"`` and ``"lowrank"``: a third strategy, one direction uniform in
   each cap's cone per sample, combined with the lobe samples by the balance
   heuristic (Veach & Guibas 1995) on the cap's integrand, while the lobe and
@@ -89,7 +91,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jkatana.light.sun import STROUD_MIN_WIDTH, cap_disc_nodes, cap_nodes, lobe_width
+from jkatana.light import sun
 from jkatana.models.geometry import tangent_frame, to_local, to_world
 from jkatana.models.lobes import Beckmann, Gaussian, GaussianVCavity, Mixture, reflect
 from jkatana.models.microfacet import gaussian_facet, gaussian_normalisation
@@ -157,13 +159,6 @@ def _fcos_terms(lobes, L, V):
 
 # ---------------------------------------------------------------- spherical-cap lights (a split sun)
 
-#: Nodes (radial, azimuthal) of the cap rule of the deterministic modes (prefiltered, paper):
-#: :func:`jkatana.light.sun.cap_nodes`' default, whose error is stated there.
-CAP_RULE = (4, 16)
-#: Fold-in tag of the caps' sampling streams (independent of the lobe and environment shifts).
-_CAP_STREAM = 0x53554E
-
-
 def _caps(env: Environment) -> Caps | None:
     """The environment's caps, or None: then no cap code is traced."""
     return env.caps if env.caps is not None and env.caps.count else None
@@ -174,7 +169,7 @@ def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
 
     ``rule``: ``"nodes"``: the rule of :func:`jkatana.light.sun.cap_nodes` about each
     lobe's mirror direction with the lobe's own width
-    (:func:`~jkatana.light.sun.lobe_width`), :data:`CAP_RULE` nodes per point, any
+    (:func:`~jkatana.light.sun.lobe_width`), :data:`~jkatana.light.sun.CAP_RULE` nodes per point, any
     lobe width; ``"stroud"``: the 4 fixed directions of
     :func:`~jkatana.light.sun.cap_disc_nodes`, for lobes at least
     :data:`~jkatana.light.sun.STROUD_MIN_WIDTH` cap radii wide. Applied to the
@@ -185,23 +180,52 @@ def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
     Cl = to_local(Cw, *fr)
     out = []
     if rule == "stroud":
-        Lw, q = cap_disc_nodes(Cw, radius)  # (4, 3), (4,): the same for every pixel
+        Lw, q = sun.cap_disc_nodes(Cw, radius)  # (4, 3), (4,): the same for every pixel
         Ll = to_local(Lw[:, None, :], *fr)  # (4, P, 3)
         for lobe, weight in lobes:
             for (a, _), (_, c) in zip(lobe.terms(Ll, Vl), lobe.terms(Cl, Vl)):
                 out.append((weight * jnp.einsum("n,np->p", q.astype(a.dtype), a), c))
         return out
-    n_radial, n_azimuth = CAP_RULE
+    n_radial, n_azimuth = sun.CAP_RULE
     R = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
     N = jnp.asarray([0.0, 0.0, 1.0], Vl.dtype)
     for lobe, weight in lobes:
-        sigma = jnp.broadcast_to(jnp.maximum(lobe_width(lobe), 1e-6), Vl.shape[:1]).astype(Vl.dtype)
-        L, q = cap_nodes(R, Cl, radius, sigma, normal=N, n_radial=n_radial, n_azimuth=n_azimuth)
+        sigma = jnp.broadcast_to(jnp.maximum(sun.lobe_width(lobe), 1e-6), Vl.shape[:1]).astype(Vl.dtype)
+        L, q = sun.cap_nodes(R, Cl, radius, sigma, normal=N, n_radial=n_radial, n_azimuth=n_azimuth)
         nodes = lobe.terms(jnp.moveaxis(L, 0, 2), Vl)  # (A, Q, P): the pixel axis last, as the lobe's parameters
         qt = jnp.moveaxis(q, 0, 2).astype(Vl.dtype)
         for (a, _), (_, c) in zip(nodes, lobe.terms(Cl, Vl)):
             out.append((weight * jnp.sum(qt * a, axis=(0, 1)), c))
     return out
+
+
+def _tabulated_norms(plan: Plan, mat: Material, px: Pixels, n: int = 128):
+    """:func:`_norms` with the paper's normalisation N(μ) interpolated from ``n`` exact values.
+
+    ``μ² N(μ)`` (:func:`~jkatana.models.microfacet.gaussian_normalisation`, a
+    48-node quadrature per call) tends to ln2/π as μ → 0 and is a smooth function
+    of μ² (its expansion in μ² starts ln2/π (1 + a μ² + …)), so it is evaluated at
+    ``n`` nodes uniform in μ² over the pixels' range and interpolated linearly
+    (relative error < 1e-5, ``tests/test_render_sun.py``): one interpolation per
+    pixel instead of a quadrature. For the prefiltered mode, which otherwise
+    evaluates no lobe, where the cap rule is the only user of N.
+    """
+    if plan.calibration is not None:
+        return _norms(plan, mat, px)
+
+    def table(mu):
+        m = jnp.maximum(mu, 1e-8)
+        s2 = m * m
+        lo, hi = jnp.min(s2), jnp.max(s2)
+        hi = jnp.maximum(hi, lo * (1 + 1e-6) + 1e-30)
+        nodes = jnp.sqrt(jnp.linspace(lo, hi, n))
+        g = gaussian_normalisation(nodes) * nodes * nodes
+        t = (s2 - lo) / (hi - lo) * (n - 1)
+        return jnp.interp(t, jnp.arange(n, dtype=t.dtype), g) / s2
+
+    n0 = table(px.mu0) if (plan.hiraji and not plan.mirror) else None
+    n1 = table(px.mu1) if plan.hamon else None
+    return n0, n1
 
 
 def cap_rule_for(plan: Plan, env: Environment, px: Pixels) -> str:
@@ -211,17 +235,18 @@ def cap_rule_for(plan: Plan, env: Environment, px: Pixels) -> str:
     caps = _caps(env)
     if caps is None:
         return "nodes"
-    widths = [np.asarray(jnp.where(weight > 0, lobe_width(lobe), jnp.inf)).min(initial=np.inf)
+    widths = [np.asarray(jnp.where(weight > 0, sun.lobe_width(lobe), jnp.inf)).min(initial=np.inf)
               for lobe, weight in _lobes(plan, px, (1.0, 1.0))]
     if not widths:
         return "nodes"
     r_max = float(np.asarray(caps.radius).max())
-    return "stroud" if min(widths) >= STROUD_MIN_WIDTH * r_max else "nodes"
+    return "stroud" if min(widths) >= sun.STROUD_MIN_WIDTH * r_max else "nodes"
 
 
-def _cap_offsets(plan: Plan, key, P, dtype, ids, K):
-    """Per cap, the random digital shifts of its cone samples (a stream of its own, see :func:`mis_offset`)."""
-    return [mis_offset(jax.random.fold_in(key, _CAP_STREAM + k), P, dtype, plan, ids) for k in range(K)]
+def _cap_offsets(plan: Plan, key, P, dtype, ids, K, stream: int = 0x53554E):
+    """Per cap, the random digital shifts of its cone samples: a stream of its own (``key`` folded with
+    ``stream + k``), independent of the lobe and environment shifts (see :func:`mis_offset`)."""
+    return [mis_offset(jax.random.fold_in(key, stream + k), P, dtype, plan, ids) for k in range(K)]
 
 
 def _cap_ray(caps: Caps, Cw, k: int, u1, u2):
@@ -445,10 +470,13 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         cap_vis = [None if vis is None else vis.lights[:, plan.lights + k] for k in range(K)]
         rule = plan.cap_rule or "nodes"
 
+        # the prefiltered mode evaluates no lobe but the cap's: N(μ) from a table, not a quadrature per pixel
+        cap_lobes = _lobes(plan, px, _tabulated_norms(plan, mat, px)) if plan.mode == "prefiltered" else lobes
+
         def add_cap_rule(acc):
             """The deterministic modes: each cap integrated against each lobe by the cap rule."""
             for k in range(K):
-                for a, c in _cap_rule_terms(lobes, Vl, fr, Cw[k], caps.radius[k].astype(dtype), rule):
+                for a, c in _cap_rule_terms(cap_lobes, Vl, fr, Cw[k], caps.radius[k].astype(dtype), rule):
                     wgt = a if cap_vis[k] is None else a * cap_vis[k]
                     acc = acc + wgt[:, None] * combine(c, Ecap[k])
             return acc
@@ -558,7 +586,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     return spectra @ cmf, (spectra if plan.spectral else None)
 
 
-__all__ = ["CAP_RULE", "MIRROR_MU", "MODES", "FRESNEL_RANK_TOL", "FRESNEL_TABLE", "Caps", "Environment", "Light", "Material", "PixelIds",
+__all__ = ["MIRROR_MU", "MODES", "FRESNEL_RANK_TOL", "FRESNEL_TABLE", "Caps", "Environment", "Light", "Material", "PixelIds",
            "Pixels", "Plan", "Rays", "Visibility", "background", "bilinear_equirect", "bilinear_equirect_uv",
            "build_environment", "env_basis", "env_lookup", "env_uv", "fold_fresnel", "fresnel_rank_for",
            "fresnel_table", "ray_directions", "sample_points", "shade"]
