@@ -28,8 +28,13 @@ Studies (records follow the convention in :mod:`benchmarks`):
   jittered rays, low-rank spectra, prefiltered) at several sample counts, ΔE2000
   (mean, p95, p99 over the object's pixels, display-referred: the converged
   frame's 99th-percentile Y maps to display white) against a converged frame
-  (the reference mode at many samples, another seed), for the default demo
-  scene (blade, sky with a low sun) and a sun-dominated sphere.
+  (the reference mode on the whole map at many samples, another seed), each
+  mode before (whole map; the paper's rays as published) and after the compact
+  sun is split off as a cap light (``split_sun``), for the default demo scene
+  (blade, sky with a low sun), a sun-glint view of the blade under
+  ``sunrise.exr`` and a sun-dominated sphere (quick mode: the demo scene only).
+  ``python -m benchmarks.bench_render --convergence -o DIR`` runs this study
+  alone and draws its before/after Pareto plot (:func:`plot_split`).
 - ``render effects off``: time of a plan with an effect switched off by the
   scene (mirror-only hiraji, grey environment, no hamon, no occluders) against
   the plan that traces it, on the same image (for occluders: an occluder that
@@ -65,6 +70,21 @@ def _log(*a):
     print(*a, file=sys.stderr, flush=True)
 
 
+#: The sun-glint view: the demo's blade and camera under ``sunrise.exr`` (a compact sun holding 55.6 % of
+#: the map's power), the map turned about +Y so that the sun's mirror image falls on the hiraji.
+SUNRISE_ROTATION_DEG = 170.0
+
+
+def _glint_scene(res):
+    from jkatana.render.scene import DEMO_SCENE
+
+    raw = json.loads(json.dumps(DEMO_SCENE))
+    raw["camera"]["resolution"] = res
+    raw["environment"] = {"type": "exr", "path": str(shared_data("envmaps", "sunrise.exr")),
+                          "rotation_deg": SUNRISE_ROTATION_DEG}
+    return raw
+
+
 def _scenes(quick: bool):
     from jkatana.render.scene import DEMO_SCENE
 
@@ -77,10 +97,30 @@ def _scenes(quick: bool):
                            "resolution": [256, 512]},
            "camera": {"type": "lookat", "position": [0.0, 0.3, 3.2], "look_at": [0.0, 0.0, 0.0],
                       "fov_deg": 40.0, "resolution": res}}
-    scenes = {"default (blade, low sun)": demo, "sun-dominated sphere": sun}
+    scenes = {"default (blade, low sun)": demo, "sun glint (blade, sunrise.exr)": _glint_scene(res),
+              "sun-dominated sphere": sun}
     if quick:  # the CI smoke run: one scene (compilation per mode dominates the time on 2 cores)
         scenes.pop("sun-dominated sphere")
+        scenes.pop("sun glint (blade, sunrise.exr)")
     return scenes
+
+
+def _variants(quick: bool):
+    """``(mode, split_sun, sample counts)`` of the convergence study, before (whole map) and after (the
+    compact sun split off as a cap light) side by side; the fast modes first (they are the study's point)."""
+    return [("prefiltered", True, [1]), ("prefiltered", False, [1]),
+            ("paper", True, [30]), ("paper-published", False, [30] if quick else [30, 128]),
+            ("lowrank", True, [64] if quick else [16, 64]), ("lowrank", False, [64] if quick else [16, 64]),
+            ("reference", False, [4, 16, 64] if quick else [4, 16, 64, 128]),
+            ("reference", True, [16] if quick else [16, 64])]
+
+
+def _label(mode: str, split: bool, spp: int, scene) -> str:
+    base = {"prefiltered": "prefiltered", "paper-published": f"paper-published {spp} rays",
+            "paper": f"paper {spp} rays"}.get(mode, f"{mode} {spp} spp")
+    if mode == "lowrank":
+        base += f" (rank {scene.render.rank})"
+    return base + (" + sun cap" if split else " (whole map)")
 
 
 def _de(ref, frame, mask):
@@ -93,11 +133,7 @@ def _de(ref, frame, mask):
 def run(quick: bool) -> list[dict]:
     """All studies, the Mitsuba 3 comparison first (the issue's headline number), then what the
     module's budget (:func:`benchmarks._harness.budget_s`) leaves: cold start, convergence, effects, devices."""
-    import jax
-
     from benchmarks._harness import budget_s
-    from jkatana.render.renderer import prepare, render_view
-    from jkatana.render.scene import scene_from_dict
 
     t_start = time.perf_counter()
     budget = budget_s(90.0 if quick else 460.0)
@@ -108,12 +144,25 @@ def run(quick: bool) -> list[dict]:
     rows = []
     rows += _mitsuba(quick, budget=0.6 * budget)
     rows += _cold_start(quick)
+    rows += _convergence(quick, budget, left)
+    if left() > 0.1 * budget:
+        rows += _effects(quick)
+    if not quick and left() > 0.05 * budget:
+        rows += _devices(quick)
+    return rows
+
+
+def _convergence(quick: bool, budget: float, left, scenes: dict | None = None,
+                 modes: list[str] | None = None) -> list[dict]:
+    """Every mode at a few sample counts against a converged frame, with and without the sun split."""
+    import jax
+
+    from jkatana.render.renderer import prepare, render_view
+    from jkatana.render.scene import scene_from_dict
+
+    rows = []
     ref_spp = 256 if quick else 512
-    sample_sets = {"reference": [4, 16, 64] if quick else [4, 16, 64, 128],
-                   "paper": [30] if quick else [30, 128],
-                   "lowrank": [64] if quick else [16, 64],
-                   "prefiltered": [1]}
-    for scene_name, raw in _scenes(quick).items():
+    for scene_name, raw in (scenes or _scenes(quick)).items():
         if left() < 0.25 * budget:
             _log(f"[render] convergence ({scene_name}) skipped: {left():.0f} s of {budget:.0f} s left")
             continue
@@ -131,12 +180,14 @@ def run(quick: bool) -> list[dict]:
                            time_s={"median": ref.timing["shade_s"], "min": ref.timing["shade_s"],
                                    "max": ref.timing["shade_s"]},
                            reference="itself", items=int(mask.sum()), resolution=raw["camera"]["resolution"]))
-        for mode, counts in sample_sets.items():
+        for mode, split, counts in _variants(quick):
+            if modes is not None and mode not in modes:
+                continue
             for spp in counts:
                 if left() < 0.2 * budget:
                     _log(f"[render] {scene_name} {mode} {spp} spp skipped: {left():.0f} s left")
                     continue
-                prep = prepare(scene, mode=mode, samples=spp)
+                prep = prepare(scene, mode=mode, samples=spp, split_sun=split)
                 holder = {}
 
                 def go():
@@ -146,21 +197,101 @@ def run(quick: bool) -> list[dict]:
                 t = timeit(go, repeats=3, warmup=1)
                 f = holder["f"]
                 err = _de(ref, f, mask)
-                label = f"{mode} {spp} spp" if mode != "prefiltered" else "prefiltered"
-                if mode == "lowrank":
-                    label += f" (rank {scene.render.rank})"
-                rows.append(record(BENCH, {"scene": scene_name, "mode": mode, "samples": spp},
+                label = _label(mode, split, spp, scene)
+                caps = prep.env_info.get("caps", 0)
+                rows.append(record(BENCH, {"scene": scene_name, "mode": mode, "samples": spp, "split_sun": split},
                                    study=study, variant=label, time_s=t, error=err, error_metric="dE2000_mean",
-                                   reference=f"reference mode {ref_spp} spp, other seed", tolerance=1.0,
+                                   reference=f"reference mode {ref_spp} spp, whole map, other seed", tolerance=1.0,
                                    items=int(mask.sum()), shade_s=f.timing["shade_s"],
-                                   devices=len(jax.local_devices()), env=prep.env_info))
-                _log(f"[render] {scene_name} {label}: {t['median']:.3f} s  ΔE mean {err['dE2000_mean']:.3f} "
-                     f"p99 {err['dE2000_p99']:.2f}")
-    if left() > 0.1 * budget:
-        rows += _effects(quick)
-    if not quick and left() > 0.05 * budget:
-        rows += _devices(quick)
+                                   frame_s={k: round(v, 4) for k, v in f.timing.items()},
+                                   series=mode.replace("paper-published", "paper"), split_sun=split, caps=caps,
+                                   devices=len(jax.local_devices()), env=prep.env_info,
+                                   load_avg_1min=os.getloadavg()[0]))
+                _log(f"[render] {scene_name} {label}: {t['median']:.3f} s (shading {f.timing['shade_s']:.3f} s) "
+                     f"ΔE mean {err['dE2000_mean']:.3f} p99 {err['dE2000_p99']:.2f}  caps {caps}  "
+                     f"load {os.getloadavg()[0]:.2f}")
     return rows
+
+
+def plot_split(rows: list[dict], path) -> None:
+    """Pareto plot of the convergence study per scene: ΔE2000 mean against frame time for every mode,
+    whole map (hollow) and with the sun split off (filled), an arrow from each mode's before to after."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = sorted({r["case"]["scene"] for r in rows if r.get("study", "").startswith("render convergence")
+                     and not r.get("is_reference")})
+    if not scenes:
+        return
+    fig, axes = plt.subplots(1, len(scenes), figsize=(6.4 * len(scenes), 4.8), dpi=110, squeeze=False)
+    colours = {"reference": "C0", "paper": "C1", "lowrank": "C2", "prefiltered": "C3"}
+    for ax, sc in zip(axes[0], scenes):
+        pts = [r for r in rows if r.get("case", {}).get("scene") == sc and not r.get("is_reference")
+               and r.get("error")]
+        for r in pts:
+            c = colours.get(r.get("series"), "k")
+            x, y = r["time_s"]["median"], max(r["error"]["dE2000_mean"], 1e-3)
+            ax.plot([x], [y], "o", color=c, mfc=c if r.get("split_sun") else "none", ms=7)
+            ax.annotate(r["variant"], (x, y), textcoords="offset points", xytext=(4, 4), fontsize=6.5)
+        for series in colours:
+            before = sorted((r for r in pts if r.get("series") == series and not r.get("split_sun")),
+                            key=lambda r: r["case"]["samples"])
+            after = sorted((r for r in pts if r.get("series") == series and r.get("split_sun")),
+                           key=lambda r: r["case"]["samples"])
+            for a in after:  # before → after at the same sample count
+                b = [r for r in before if r["case"]["samples"] == a["case"]["samples"]]
+                if b:
+                    ax.annotate("", (a["time_s"]["median"], max(a["error"]["dE2000_mean"], 1e-3)),
+                                (b[0]["time_s"]["median"], max(b[0]["error"]["dE2000_mean"], 1e-3)),
+                                arrowprops=dict(arrowstyle="->", color=colours[series], lw=0.8, alpha=0.7))
+        ax.axhline(0.5, color="0.4", ls="--", lw=0.8, label="ΔE mean 0.5 (goal, prefiltered)")
+        ax.axvline(0.1, color="0.6", ls=":", lw=0.8, label="100 ms")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("frame time (s, median, after compilation)")
+        ax.set_ylabel("ΔE2000 mean vs converged reference")
+        ax.set_title(f"{sc}\nhollow: whole map · filled: sun split off as a cap", fontsize=9)
+        ax.grid(True, which="both", alpha=0.25)
+        ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    from jkatana.io.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    """``python -m benchmarks.bench_render --convergence [--quick] [--scene NAME ...] [--modes M ...] -o DIR``: the
+    convergence study alone (every mode, before/after the sun split), its records and Pareto plot in DIR."""
+    import argparse
+    from pathlib import Path
+
+    ap = argparse.ArgumentParser(description=main.__doc__)
+    ap.add_argument("--convergence", action="store_true", required=True)
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--scene", nargs="*", default=None)
+    ap.add_argument("--modes", nargs="*", default=None, help="only these modes (default: all)")
+    ap.add_argument("-o", "--output", required=True)
+    a = ap.parse_args(argv)
+    scenes = _scenes(a.quick)
+    if not a.quick:
+        scenes = {k: v for k, v in scenes.items() if a.scene is None or k in a.scene}
+    out = Path(a.output)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = _convergence(a.quick, math.inf, lambda: math.inf, scenes, a.modes)
+    from jkatana.io.atomic import atomic_path
+
+    with atomic_path(out / "records.json") as tmp:
+        Path(tmp).write_text(json.dumps(rows, indent=1, default=str))
+    plot_split(rows, out / "pareto_sun_split.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
 
 
 def _jk_frame_probe():

@@ -13,6 +13,7 @@ from jkatana.light.envmap import texel_directions_np, texel_solid_angles_np
 from jkatana.light.sampling import frame_from_normal, to_world
 from jkatana.light.sun import (
     cap_coverage,
+    cap_disc_nodes,
     cap_integral,
     cap_point_integral,
     gaussian_lobe_sigma,
@@ -309,3 +310,30 @@ def test_point_light_limit_for_wide_lobes(mu):
         rule = np.asarray(cap_integral(f, jnp.asarray(V), jnp.asarray(C), SUN_R, sig))
         point = np.asarray(cap_point_integral(f, jnp.asarray(V), jnp.asarray(C), SUN_R))
         assert np.abs(point - rule).max() / on <= 0.5 * (SUN_R / sig) ** 2, off
+
+
+@pytest.mark.parametrize("theta", [0.0, 0.6, 1.22])
+@pytest.mark.parametrize("ratio", [8.0, 20.0])
+def test_stroud_rule_for_lobes_wider_than_eight_cap_radii(ratio, theta):
+    """The 4 fixed directions of ``cap_disc_nodes`` (Stroud 1971, degree 3) against the dense quadrature
+    for a lobe ``ratio`` cap radii wide at incidence up to 70°: within 1e-3 of the on-centre value, for
+    the cap anywhere from the lobe's centre to 3σ off it."""
+    r = math.radians(1.0)
+    sig = ratio * r
+    mu = sig / float(gaussian_lobe_sigma(1.0))
+    f = lobe(mu)
+    V = np.array([math.sin(theta), 0.0, math.cos(theta)])
+    R = V * np.array([-1.0, -1.0, 1.0])
+    on = np.abs(dense_cap(f, V, R, r, 48, 96)).max()
+    for off in (0.0, 0.3, 1.0, 2.0, 3.0):
+        for axis in (np.array([0.0, 1.0, 0.0]), np.array([R[2], 0.0, -R[0]])):
+            C = rotate(R, axis, off * sig * (math.cos(theta) if axis[1] == 0 else 1.0))
+            if C[2] < 0.05:
+                continue
+            ref = dense_cap(f, V, C, r, 48, 96)
+            L, w = cap_disc_nodes(jnp.asarray(C), r)
+            got = np.einsum("n,nl->l", np.asarray(w), np.asarray(f(L, jnp.broadcast_to(jnp.asarray(V), L.shape))))
+            assert np.abs(got - ref).max() / on <= 1e-3, (off, axis)
+    L, w = cap_disc_nodes(jnp.asarray(R), r)
+    np.testing.assert_allclose(np.asarray(L) @ R, math.cos(r / math.sqrt(2.0)), rtol=1e-12)
+    assert float(np.sum(w)) == pytest.approx(2 * math.pi * (1 - math.cos(r)), rel=1e-12)

@@ -21,7 +21,8 @@ TWO_LOBE_KEY = ("mixture", (("first", GGX_KEY), ("second", ("ggx", (("alpha", 8.
 ALTERNATIVES = {"mode": "paper", "samples": 8, "hiraji": False, "hamon": False, "mirror": True,
                 "env_sampling": False, "factored": True, "fresnel_rank": 3, "lights": 1, "hiraji_lobe": GGX_KEY,
                 "hamon_lobe": BECKMANN_KEY,
-                "calibration": 1e5, "spectral": True, "visibility": True, "subpixels": 4}
+                "calibration": 1e5, "spectral": True, "visibility": True, "subpixels": 4,
+                "cap_rule": "stroud"}
 
 
 def test_every_plan_field_has_an_alternative():

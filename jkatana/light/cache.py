@@ -109,11 +109,14 @@ def radiance_key(env, grid) -> str | None:
     return None
 
 
-def environment_key(rad_key: str, *, rank, prefilter_mus, prefilter_resolution: int, dtype) -> str:
-    """Key of :func:`jkatana.render.shading.build_environment`'s result for radiance ``rad_key``."""
+def environment_key(rad_key: str, *, rank, prefilter_mus, prefilter_resolution: int, dtype,
+                    split_sun: bool = False) -> str:
+    """Key of :func:`jkatana.render.shading.build_environment`'s result for radiance ``rad_key``
+    (``split_sun``: compact sources split off as caps, :mod:`jkatana.light.sun`)."""
     mus = tuple(round(float(m), 12) for m in prefilter_mus)
-    return _key("environment", rad_key, rank, mus, int(prefilter_resolution), np.dtype(dtype).name,
-                _source_digest("jkatana.render.shading", "jkatana.light.sampling", "jkatana.light.prefilter",
+    return _key("environment", rad_key, rank, mus, int(prefilter_resolution), np.dtype(dtype).name, bool(split_sun),
+                _source_digest("jkatana.render.shading", "jkatana.render.environment", "jkatana.light.sampling",
+                               "jkatana.light.prefilter", "jkatana.light.sun", "jkatana.light.envmap",
                                "jkatana.models.lobes"))
 
 
@@ -121,7 +124,7 @@ def fresnel_key(n, k, dtype) -> str:
     """Key of :func:`jkatana.render.shading.fresnel_table` for optical constants ``n``, ``k`` on a grid."""
     nk = np.concatenate([np.asarray(n, np.float64).ravel(), np.asarray(k, np.float64).ravel()]).tobytes()
     return _key("fresnel", np.dtype(dtype).name, hashlib.sha256(nk).hexdigest(),
-                _source_digest("jkatana.render.shading", "jkatana.models.fresnel"))
+                _source_digest("jkatana.render.fresnel_fold", "jkatana.models.fresnel"))
 
 
 def cached_radiance(key: str | None, build: Callable[[], np.ndarray], cache_dir=None) -> np.ndarray:

@@ -65,7 +65,8 @@ def light_add_arguments(p: argparse.ArgumentParser) -> None:
     f = sub.add_parser("prefilter", help="build a scene's environment (spectra, sampler, prefiltered levels) into "
                                          "the render cache; later renders of the scene load it at once")
     f.add_argument("scene", help="scene TOML")
-    f.add_argument("--mode", default="prefiltered", choices=("reference", "paper", "prefiltered", "lowrank"),
+    f.add_argument("--mode", default="prefiltered", choices=("reference", "paper", "prefiltered", "lowrank",
+                                                                   "paper-published"),
                    help="the render mode to prepare for (default prefiltered: also builds the prefiltered levels)")
 
     k = sub.add_parser("cache", help="list the environment/bake cache (default) or clear it; size budget "

@@ -7,6 +7,13 @@ Humphreys, *PBRT* 4th ed., §A.5 and §12.5); prefiltered levels come from
 :func:`jkatana.light.prefilter.prefilter` (split sum, Karis 2013); the spectral
 basis of a low-rank environment is its leading principal spectra (SVD,
 Eckart & Young 1936).
+
+Compact bright sources (a sun) can be split off the map first
+(:func:`jkatana.light.sun.split_compact_sources`): the *remainder* is what is
+sampled, prefiltered and looked up, and the sources ride along as spherical-cap
+lights (:class:`Caps`) that the shader integrates on their own — a
+deterministic cap rule in the prefiltered and paper modes, a third sampling
+strategy under multiple importance sampling in the Monte Carlo modes.
 """
 
 from __future__ import annotations
@@ -18,6 +25,68 @@ from jaxtyping import Array, Float
 
 from jkatana.light.envmap import EnvMap, direction_to_uv
 from jkatana.light.sampling import EnvSampler
+from jkatana.light.sun import SunSplit, split_compact_sources
+
+
+#: Render modes that split compact sources off the map by default (where one exists): the fast
+#: deterministic and low-rank modes. The reference mode keeps the whole map (the yardstick) unless asked.
+SPLIT_MODES = ("prefiltered", "paper", "lowrank")
+
+
+class Caps(eqx.Module):
+    """Spherical-cap lights split off an environment, stacked (K caps), in the environment's channel space.
+
+    The shader's form of :class:`jkatana.light.sun.SunCap` (uniform spectral
+    radiance over a cone of half-angle ``radius`` about ``direction``).
+
+    **Fields:**
+
+    - `direction`: ``(K, 3)`` unit cap centres in *map* coordinates (world =
+      ``direction @ rotation`` of the :class:`Environment`, so rotating the
+      environment rotates its caps).
+    - `radius`: ``(K,)`` angular radii (rad).
+    - `channels`: ``(K, C)`` radiance over each cap on the environment's
+      spectral basis (as a texel of `Environment.channels`).
+    """
+
+    direction: Float[Array, "K 3"]
+    radius: Float[Array, "K"]
+    channels: Float[Array, "K C"]
+
+    @property
+    def count(self) -> int:
+        """K (static: the shapes decide what the shader traces)."""
+        return int(self.radius.shape[0])
+
+    def sin2_half(self) -> Float[Array, "K"]:
+        """``sin²(r/2)``: a unit direction d is inside cap k iff ``|d − c_k|² < 4 sin²(r_k/2)`` (chord test)."""
+        return jnp.sin(0.5 * self.radius) ** 2
+
+    def solid_angle(self) -> Float[Array, "K"]:
+        """``Ω = 2π (1 − cos r) = 4π sin²(r/2)`` per cap."""
+        return 4.0 * jnp.pi * self.sin2_half()
+
+    def world(self, rotation: Float[Array, "3 3"]) -> Float[Array, "K 3"]:
+        """Cap centres in world coordinates for a world → map ``rotation``."""
+        return self.direction @ rotation
+
+    def inside(self, d_world, rotation) -> Array:
+        """``(..., K)`` boolean: world directions ``d_world (..., 3)`` inside each cap (chord test)."""
+        c = self.world(rotation)
+        diff = d_world[..., None, :] - c
+        return jnp.sum(diff * diff, -1) < 4.0 * self.sin2_half()
+
+
+def caps_from_split(split: SunSplit, basis: np.ndarray, dtype=jnp.float32) -> Caps | None:
+    """The :class:`Caps` of a :class:`~jkatana.light.sun.SunSplit` projected on a ``(J, wl)`` spectral basis
+    (rows orthonormal, as :func:`env_basis` returns), or None when nothing was split."""
+    if not split.caps:
+        return None
+    b = np.asarray(basis, np.float64)
+    direction = np.stack([np.asarray(c.direction, np.float64) for c in split.caps])
+    radius = np.asarray([float(c.radius) for c in split.caps])
+    radiance = np.stack([np.asarray(c.radiance, np.float64) for c in split.caps])
+    return Caps(jnp.asarray(direction, dtype), jnp.asarray(radius, dtype), jnp.asarray(radiance @ b.T, dtype))
 
 
 class Environment(eqx.Module):
@@ -34,6 +103,9 @@ class Environment(eqx.Module):
     - `prefiltered`: ``M`` lobe-convolved maps ``(H_m, W_m, J)`` for ``prefilter_mus``
       (:func:`jkatana.light.prefilter.prefilter`, projected on ``basis``), or ``()``.
     - `prefilter_mus`: ``(M,)`` μ of each prefiltered level (increasing).
+    - `caps`: compact sources split off the map (:class:`Caps`), or None: nothing
+      split, and the shader traces no cap code. With caps, every other field
+      describes the *remainder* of the map.
     """
 
     channels: Float[Array, "H W J"]
@@ -42,7 +114,7 @@ class Environment(eqx.Module):
     sampler: EnvSampler
     prefiltered: tuple
     prefilter_mus: Float[Array, "M"]
-
+    caps: Caps | None = None
 
 
 def bilinear_equirect(image: Float[Array, "H W C"], d: Float[Array, "*b 3"]) -> Float[Array, "*b C"]:
@@ -105,7 +177,7 @@ def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5
 
 def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation=None,
                       prefilter_mus=(), prefilter_resolution: int = 128, dtype=jnp.float32, grid=None,
-                      env_density="max"):
+                      env_density="max", split_sun: bool | SunSplit = False):
     """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
 
     Environment sampling is :class:`jkatana.light.sampling.EnvSampler` (the light
@@ -117,6 +189,17 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     (:meth:`~jkatana.light.sampling.EnvSampler.build`'s ``bilinear``): ``"max"``
     (3×3 neighbourhood maximum) or ``True`` (exact bilinear integral).
 
+    ``split_sun``: ``True`` splits the map's compact bright sources off as
+    spherical caps (:func:`jkatana.light.sun.split_compact_sources`, its default
+    criterion), a :class:`~jkatana.light.sun.SunSplit` of this radiance uses that
+    split (e.g. the built-in sky's exact solar disc,
+    :func:`~jkatana.light.sun.split_sky_sun`); the sampler, the prefiltered levels
+    and the channels are then the remainder's and the caps go to
+    :attr:`Environment.caps`. The spectral basis is the whole map's (the sun's
+    spectrum included), so a low-rank basis represents the caps as well as the
+    sky. Where no compact source exists nothing changes: the environment is the
+    one ``split_sun=False`` builds, array for array.
+
     **Returns:** ``(environment, factored, rel_residual)``.
     """
     from jkatana.spectral import DEFAULT_GRID
@@ -126,6 +209,17 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     coeffs, basis, factored, resid = env_basis(radiance, rank)
     if grid is None:  # the density only steers sampling: an unknown grid borrows the default range
         grid = DEFAULT_GRID if nwl == DEFAULT_GRID.size else type(DEFAULT_GRID).with_count(DEFAULT_GRID.start, DEFAULT_GRID.stop, nwl)
+    caps = None
+    if split_sun is not False:
+        split = split_sun if isinstance(split_sun, SunSplit) else \
+            split_compact_sources(EnvMap(jnp.asarray(radiance, dtype), grid))
+        caps = caps_from_split(split, basis, dtype)
+        if caps is not None:
+            radiance = np.asarray(split.remainder.radiance, np.float64)
+            if factored:
+                coeffs = (radiance.reshape(-1, nwl) @ basis.T.astype(np.float64)).reshape(H, W, -1).astype(np.float32)
+            else:
+                coeffs = radiance.astype(np.float32)
     sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=env_density)
     rot = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
     mus = tuple(sorted(float(m) for m in prefilter_mus))
@@ -142,7 +236,7 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
         pre = tuple(jnp.asarray(np.asarray(lvl.radiance, np.float64) @ basis.T.astype(np.float64), dtype)
                     for lvl in levels)
     env = Environment(jnp.asarray(coeffs, dtype), jnp.asarray(basis, dtype), jnp.asarray(rot, dtype), sampler,
-                      pre, jnp.asarray(np.asarray(mus, np.float64), dtype))
+                      pre, jnp.asarray(np.asarray(mus, np.float64), dtype), caps)
     return env, factored, resid
 
 
@@ -179,8 +273,11 @@ def unbasis(env: Environment):
 
 
 def background(env: Environment, directions, cmf, spectral: bool = False):
-    """XYZ (and spectra) of the environment seen directly along camera rays."""
+    """XYZ (and spectra) of the environment seen directly along camera rays (the caps included)."""
     C = env_lookup(env, directions)
+    if env.caps is not None:  # a camera ray inside a cap sees its radiance (point-sampled disc)
+        inside = env.caps.inside(directions, env.rotation).astype(C.dtype)
+        C = C + inside @ env.caps.channels.astype(C.dtype)
     if not spectral:  # (J, 3) first: a (P, J) @ (J, wl) product per pixel would dominate large frames
         return C @ (env.basis @ cmf), None
     E = C @ env.basis

@@ -15,6 +15,7 @@ import dataclasses
 import functools
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -23,7 +24,7 @@ from jax.sharding import NamedSharding, PartitionSpec as PS
 from jkatana.render.camera import Camera
 from jkatana.render.gbuffer import GBuffer, gbuffer_mesh, gbuffer_sphere
 from jkatana.render.shading import (Environment, Light, Material, PixelIds, Pixels, Plan, Visibility, background,
-                                    fold_fresnel, fresnel_rank_for, ray_directions, shade)
+                                    cap_rule_for, fold_fresnel, fresnel_rank_for, ray_directions, shade)
 
 DEFAULT_CHUNK = 16384
 
@@ -117,9 +118,23 @@ def visibility(occluders, rays, position, normal) -> Visibility:
                       cast(np.asarray(rays.env)), cast(np.asarray(rays.lights), np.asarray(rays.light_dist)))
 
 
+def fold_with_caps(rank: int, mat: Material, env: Environment, cmf, basis=None) -> tuple[Material, Environment]:
+    """:func:`~jkatana.render.shading.fold_fresnel`, the environment's split caps folded too.
+
+    A cap's radiance is one more texel for the fold (a per-texel linear map), so
+    its channels are folded as a row of texels through the same function.
+    """
+    mat2, env2 = fold_fresnel(rank, mat, env, cmf, basis)
+    if env.caps is None:
+        return mat2, env2
+    row = dataclasses.replace(env, channels=env.caps.channels[None], prefiltered=(), caps=None)
+    _, folded = fold_fresnel(rank, mat, row, cmf, basis)
+    return mat2, eqx.tree_at(lambda e: e.caps.channels, env2, folded.channels[0])
+
+
 @functools.lru_cache(maxsize=8)
 def _compiled_fold(rank: int):
-    return jax.jit(lambda mat, env, cmf, basis: fold_fresnel(rank, mat, env, cmf, basis))
+    return jax.jit(lambda mat, env, cmf, basis: fold_with_caps(rank, mat, env, cmf, basis))
 
 
 def resolve_plan(plan: Plan, mat: Material) -> Plan:
@@ -155,6 +170,8 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     if plan.visibility and occluders is None:
         raise ValueError("plan.visibility needs occluders")
     plan = resolve_plan(plan, mat)
+    if plan.cap_rule is None and env.caps is not None and plan.mode in ("prefiltered", "paper"):
+        plan = dataclasses.replace(plan, cap_rule=cap_rule_for(plan, env, px))
     if plan.fresnel_rank and not plan.factored:  # once per frame: F·E·CMF folded into a 3R-channel map
         _, vt = fresnel_rank_for(mat.ftable, _basis_too=True)  # cached host SVD
         mat, env = _compiled_fold(plan.fresnel_rank)(mat, env, jnp.asarray(cmf, px.normal.dtype),

@@ -16,7 +16,7 @@ from jaxtyping import Array, Float
 
 #: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
 MIRROR_MU = 1e-4
-MODES = ("reference", "paper", "prefiltered", "lowrank")
+MODES = ("reference", "paper", "prefiltered", "lowrank", "paper-published")
 #: The modes that render a lobe other than the paper's: they sample through the lobe's own ``sample``/``pdf``.
 LOBE_MODES = ("reference", "lowrank")
 
@@ -27,7 +27,7 @@ class Plan:
 
     **Fields:**
 
-    - `mode`: one of :data:`MODES`.
+    - `mode`: one of :data:`MODES` (``"paper-published"``: the paper's rays on the whole map, no cap).
     - `samples`: lobe samples per pixel (``"reference"``/``"lowrank"``: pairs of
       one lobe sample and one environment sample; ``"paper"``: jittered rays).
     - `hiraji`, `hamon`: whether any pixel has w > 0 / w < 1.
@@ -65,6 +65,14 @@ class Plan:
       ``S·N``-point Sobol sequence under the pixel's digital shift), so that the union over a pixel's
       subpixels is one well-stratified set instead of ``S`` independently
       shifted ones. Without ids (or ``S = 1``) every G-buffer sample is its own pixel.
+    - `cap_rule`: how the prefiltered and paper modes integrate the environment's
+      split caps (:attr:`~jkatana.render.environment.Environment.caps`):
+      ``"nodes"`` (:func:`jkatana.light.sun.cap_nodes`, 64 lobe evaluations per
+      pixel and cap, any lobe width) or ``"stroud"``
+      (:func:`jkatana.light.sun.cap_disc_nodes`, 4, for lobes ≥ 8 cap radii
+      wide). ``None``: :func:`jkatana.render.frame.shade_pixels` picks it from the
+      pixels' lobe widths (:func:`~jkatana.render.shading.cap_rule_for`);
+      :func:`shade` called directly treats ``None`` as ``"nodes"``.
     """
 
     mode: str = "reference"
@@ -82,6 +90,7 @@ class Plan:
     spectral: bool = False
     visibility: bool = False
     subpixels: int = 1
+    cap_rule: str | None = None  # "nodes" | "stroud" (split caps, prefiltered/paper modes); None: chosen per frame
 
 
 class Light(NamedTuple):

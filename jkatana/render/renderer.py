@@ -27,6 +27,7 @@ from jkatana.render.camera import Camera
 from jkatana.render.film import display, scene_exposure, film_weights, write_png, write_spectral_exr, write_xyz_exr
 from jkatana.render.frame import Frame, pixel_blocks, render_frame
 from jkatana.render.scene import LIMITS, RENDER_MODES, Scene
+from jkatana.render.environment import SPLIT_MODES
 from jkatana.render.shading import MIRROR_MU, Environment, Light, Material, Plan, build_environment, fresnel_table
 from jkatana.spectral.grid import WavelengthGrid
 
@@ -240,11 +241,15 @@ def rotation_y(deg: float) -> np.ndarray:
 
 
 def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None,
-            rank: int | None = None, env_radiance: np.ndarray | None = None) -> Prepared:
+            rank: int | None = None, env_radiance: np.ndarray | None = None,
+            split_sun: bool | None = None) -> Prepared:
     """Load the scene's assets and decide the shading plan (effects on demand).
 
     ``mode``, ``samples`` and ``rank`` override the scene's (``None``: the scene's); an override is
     checked as the scene's own field is (``samples = 0`` is an error, not "the scene's count").
+    ``split_sun``: split the environment's compact bright sources off as cap lights
+    (:func:`~jkatana.render.environment.build_environment`); ``None``: the mode's default
+    (:data:`~jkatana.render.environment.SPLIT_MODES`; never in ``paper-published``).
     """
     mode = scene.render.mode if mode is None else mode
     samples = scene.render.samples if samples is None else samples
@@ -280,14 +285,17 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     # environment and its tables built once per content (jkatana.light.cache); rotation set afterwards
     from jkatana.light.cache import environment_key, radiance_key
 
+    split = (mode in SPLIT_MODES) if split_sun is None else bool(split_sun)
+    if mode == "paper-published" and split:
+        raise InputError("the paper-published mode shades the whole map: no sun split", field="mode")
     rad_key = radiance_key(scene.environment, grid) if env_radiance is None else None
     env_key = None if rad_key is None else environment_key(rad_key, rank=env_rank, prefilter_mus=mus,
-                                                           prefilter_resolution=128, dtype=dtype)
+                                                           prefilter_resolution=128, dtype=dtype, split_sun=split)
 
     def build():
         radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
         return build_environment(radiance, rank=env_rank, prefilter_mus=mus, prefilter_resolution=128,
-                                 dtype=dtype, grid=grid)
+                                 dtype=dtype, grid=grid, split_sun=split)
 
     env, factored, resid = cached_tree(env_key, build)
     env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rotation_y(scene.environment.rotation_deg), dtype))
@@ -316,7 +324,8 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
 
         occluders = Occluders(occluder_mesh(scene.occluders))
     env_info = {"channels": int(env.channels.shape[-1]), "factored": factored, "rank_residual": resid,
-                "grey": bool(factored and env_rank is None), "resolution": list(env.channels.shape[:2])}
+                "grey": bool(factored and env_rank is None), "resolution": list(env.channels.shape[:2]),
+                "caps": 0 if env.caps is None else env.caps.count}
     return Prepared(scene, grid, dtype, geometry, maps, mat, env, env_info, lights, plan,
                     film_weights(grid), time.perf_counter() - t0, occluders)
 

@@ -59,8 +59,10 @@ to the scene file)::
     step = 5.0
 
     [render]
-    mode = "reference"               # reference | paper | prefiltered | lowrank; paper = the paper's
-                                     # 30 jittered lobe rays: misses compact bright sources (a sun's glint)
+    mode = "reference"               # reference | paper | prefiltered | lowrank | paper-published;
+                                     # prefiltered, paper, lowrank split a compact sun off as a cap light;
+                                     # paper-published = the paper's 30 jittered lobe rays on the whole
+                                     # map, as published: misses compact bright sources (a sun's glint)
     samples = 64
     rank = 3                         # lowrank mode
     seed = 0
@@ -100,7 +102,7 @@ from jkatana.spectral.grid import WavelengthGrid
 SECTIONS = ("scene", "geometry", "material", "environment", "lights", "occluders", "camera", "spectral",
             "render", "film", "output")
 ENV_TYPES = ("sky", "exr", "hdr", "constant")
-RENDER_MODES = ("reference", "paper", "prefiltered", "lowrank")
+RENDER_MODES = ("reference", "paper", "prefiltered", "lowrank", "paper-published")
 
 #: Upper bounds on what a scene may ask for. The camera and environment sides keep one frame's
 #: buffers (G-buffer, XYZ, optional spectra) and the environment's float64 spectral radiance and

@@ -21,7 +21,10 @@ static (trace-time) choices recorded in a :class:`Plan`:
 - ``"paper"`` — the paper's method (§5): a fixed number of jittered reflection
   rays around the mirror direction (stratified facet normals in a disk of
   radius 2.5 μ), averaged with Gaussian weights D(φ, μ). Biased (truncated,
-  self-normalised) but cheap; 30 rays in the paper.
+  self-normalised) but cheap; 30 rays in the paper. With split caps (below)
+  the rays see the remainder and the caps are added by the cap rule;
+  ``"paper-published"`` is the same estimator on the whole map, exactly as
+  published (a sun's glint falls between its rays).
 - ``"prefiltered"`` — split-sum: the environment pre-convolved with the
   reflection lobe for a few μ, looked up at the mirror direction and
   multiplied by the Fresnel factor (Karis 2013, "Real Shading in Unreal
@@ -31,6 +34,25 @@ static (trace-time) choices recorded in a :class:`Plan`:
   per sample only ``rank`` channels are looked up and the Fresnel factor is
   folded into a (cos θ, rank, XYZ) table. A grey environment is exactly rank 1:
   the renderer detects it and always runs one band (:func:`env_basis`).
+
+Compact sources split off the map (:attr:`Environment.caps`, spherical caps
+of uniform radiance, :mod:`jkatana.light.sun`): the environment's lookups,
+sampler and prefiltered levels are the remainder's, and each cap is a light
+of its own:
+
+- ``"prefiltered"`` and ``"paper"``: ``L_cap ∫_cap f_r cos θi dω`` per lobe by
+  a deterministic cap rule (:func:`jkatana.light.sun.cap_nodes`, 4 × 16 nodes
+  about the lobe's mirror direction, or Stroud's 4 directions of
+  :func:`~jkatana.light.sun.cap_disc_nodes` when every lobe is ≥ 8 cap radii
+  wide, ``Plan.cap_rule``; Fresnel at the cap centre), no noise;
+- ``"reference"`` and ``"lowrank"``: a third strategy, one direction uniform in
+  each cap's cone per sample, combined with the lobe samples by the balance
+  heuristic (Veach & Guibas 1995) on the cap's integrand, while the lobe and
+  environment samples share the remainder's: unbiased for the split map;
+- a perfect-mirror hiraji sees a cap where its mirror ray falls inside it;
+  camera rays see the caps in the background.
+
+Without caps (none found, or not split) none of this is traced.
 
 Sampling design of the MIS modes:
 
@@ -67,14 +89,16 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
+from jkatana.light import sun
 from jkatana.models.geometry import tangent_frame, to_local, to_world
 from jkatana.models.lobes import (Gaussian, GaussianVCavity, Mixture, key_params, lobe_key, lobe_with_width,
                                   normalised_params, reflect)
 from jkatana.models.microfacet import gaussian_facet, gaussian_normalisation
 # the shader's inputs and helpers live by job in their own modules; re-exported here as the render API
-from jkatana.render.environment import (Environment, background, bilinear_equirect, bilinear_equirect_uv,  # noqa: F401
+from jkatana.render.environment import (Caps, Environment, background, bilinear_equirect, bilinear_equirect_uv,  # noqa: F401
                                         build_environment, env_basis, env_lookup, env_uv, lookup_prefiltered,
                                         unbasis)
 from jkatana.render.fresnel_fold import (FRESNEL_RANK_TOL, FRESNEL_TABLE, Material, fold_fresnel,  # noqa: F401
@@ -159,6 +183,114 @@ def _fcos_terms(lobes, L, V):
     return [((w * a) if g is None else (w * g) * a, c) for lobe, w, g in lobes for a, c in lobe.terms(L, V)]
 
 
+# ---------------------------------------------------------------- spherical-cap lights (a split sun)
+
+def _caps(env: Environment) -> Caps | None:
+    """The environment's caps, or None: then no cap code is traced."""
+    return env.caps if env.caps is not None and env.caps.count else None
+
+
+def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
+    """``[(weight · ∫_cap a dω, Fresnel cosine at the cap centre), ...]`` per lobe term, ``(P,)`` each.
+
+    ``rule``: ``"nodes"``: the rule of :func:`jkatana.light.sun.cap_nodes` about each
+    lobe's mirror direction with the lobe's own width
+    (:func:`~jkatana.light.sun.lobe_width`), :data:`~jkatana.light.sun.CAP_RULE` nodes per point, any
+    lobe width; ``"stroud"``: the 4 fixed directions of
+    :func:`~jkatana.light.sun.cap_disc_nodes`, for lobes at least
+    :data:`~jkatana.light.sun.STROUD_MIN_WIDTH` cap radii wide. Applied to the
+    Fresnel-free values ``a`` of the lobe objects; the Fresnel factor is taken at
+    the cap's centre (it varies by ``|dF/dθ| · r`` across the cap, below 1e-4 for
+    a sub-degree sun on iron).
+    """
+    Cl = to_local(Cw, *fr)
+    out = []
+    if rule == "stroud":
+        Lw, q = sun.cap_disc_nodes(Cw, radius)  # (4, 3), (4,): the same for every pixel
+        Ll = to_local(Lw[:, None, :], *fr)  # (4, P, 3)
+        for lobe, weight in lobes:
+            for (a, _), (_, c) in zip(lobe.terms(Ll, Vl), lobe.terms(Cl, Vl)):
+                out.append((weight * jnp.einsum("n,np->p", q.astype(a.dtype), a), c))
+        return out
+    n_radial, n_azimuth = sun.CAP_RULE
+    R = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
+    N = jnp.asarray([0.0, 0.0, 1.0], Vl.dtype)
+    for lobe, weight in lobes:
+        sigma = jnp.broadcast_to(jnp.maximum(sun.lobe_width(lobe), 1e-6), Vl.shape[:1]).astype(Vl.dtype)
+        L, q = sun.cap_nodes(R, Cl, radius, sigma, normal=N, n_radial=n_radial, n_azimuth=n_azimuth)
+        nodes = lobe.terms(jnp.moveaxis(L, 0, 2), Vl)  # (A, Q, P): the pixel axis last, as the lobe's parameters
+        qt = jnp.moveaxis(q, 0, 2).astype(Vl.dtype)
+        for (a, _), (_, c) in zip(nodes, lobe.terms(Cl, Vl)):
+            out.append((weight * jnp.sum(qt * a, axis=(0, 1)), c))
+    return out
+
+
+def _tabulated_norms(plan: Plan, mat: Material, px: Pixels, n: int = 128):
+    """:func:`_norms` with the paper's normalisation N(μ) interpolated from ``n`` exact values.
+
+    ``μ² N(μ)`` (:func:`~jkatana.models.microfacet.gaussian_normalisation`, a
+    48-node quadrature per call) tends to ln2/π as μ → 0 and is a smooth function
+    of μ² (its expansion in μ² starts ln2/π (1 + a μ² + …)), so it is evaluated at
+    ``n`` nodes uniform in μ² over the pixels' range and interpolated linearly
+    (relative error < 1e-5, ``tests/test_render_sun.py``): one interpolation per
+    pixel instead of a quadrature. For the prefiltered mode, which otherwise
+    evaluates no lobe, where the cap rule is the only user of N.
+    """
+    if plan.calibration is not None:
+        return _norms(plan, mat, px)
+
+    def table(mu):
+        m = jnp.maximum(mu, 1e-8)
+        s2 = m * m
+        lo, hi = jnp.min(s2), jnp.max(s2)
+        hi = jnp.maximum(hi, lo * (1 + 1e-6) + 1e-30)
+        nodes = jnp.sqrt(jnp.linspace(lo, hi, n))
+        g = gaussian_normalisation(nodes) * nodes * nodes
+        t = (s2 - lo) / (hi - lo) * (n - 1)
+        return jnp.interp(t, jnp.arange(n, dtype=t.dtype), g) / s2
+
+    n0 = table(px.mu0) if (plan.hiraji and not plan.mirror) else None
+    n1 = table(px.mu1) if plan.hamon else None
+    return n0, n1
+
+
+def cap_rule_for(plan: Plan, env: Environment, px: Pixels) -> str:
+    """The cap rule the deterministic modes use for these pixels: ``"stroud"`` where every lobe in use is
+    at least :data:`~jkatana.light.sun.STROUD_MIN_WIDTH` times wider than the largest cap, else
+    ``"nodes"``. Host-side, on concrete pixels (a static choice, as ``Plan.fresnel_rank``)."""
+    caps = _caps(env)
+    if caps is None:
+        return "nodes"
+    widths = [np.asarray(jnp.where(weight > 0, sun.lobe_width(lobe), jnp.inf)).min(initial=np.inf)
+              for lobe, weight in _lobes(plan, px, (1.0, 1.0))]
+    if not widths:
+        return "nodes"
+    r_max = float(np.asarray(caps.radius).max())
+    return "stroud" if min(widths) >= sun.STROUD_MIN_WIDTH * r_max else "nodes"
+
+
+def _cap_offsets(plan: Plan, key, P, dtype, ids, K, stream: int = 0x53554E):
+    """Per cap, the random digital shifts of its cone samples: a stream of its own (``key`` folded with
+    ``stream + k``), independent of the lobe and environment shifts (see :func:`mis_offset`)."""
+    return [mis_offset(jax.random.fold_in(key, stream + k), P, dtype, plan, ids) for k in range(K)]
+
+
+def _cap_ray(caps: Caps, Cw, k: int, u1, u2):
+    """A direction uniform in solid angle in cap ``k`` (world): ``sin²(ψ/2) = u₁ sin²(r/2)``, φ = 2π u₂.
+
+    The half-angle form keeps a sub-degree cone resolved in float32 (``1 − cos ψ``
+    would not); density ``1/Ω_k`` (Pharr, Jakob & Humphreys, *PBRT* 4th ed., §A.5.6,
+    uniform cone sampling).
+    """
+    c = Cw[k]
+    t, b = tangent_frame(c)
+    s = jnp.sqrt(u1) * jnp.sin(0.5 * caps.radius[k]).astype(u1.dtype)
+    psi = 2.0 * jnp.arcsin(jnp.clip(s, 0.0, 1.0))
+    phi = 2.0 * jnp.pi * u2
+    sp = jnp.sin(psi)
+    return (jnp.cos(psi)[:, None] * c + (sp * jnp.cos(phi))[:, None] * t + (sp * jnp.sin(phi))[:, None] * b)
+
+
 # ---------------------------------------------------------------- the shader
 
 
@@ -236,6 +368,14 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
     Built from the same sampling helpers as :func:`shade` (same key → same
     directions), so a host step can ray-cast them against occluders and hand
     the result back to :func:`shade` as a :class:`Visibility`. Pure JAX.
+
+    An environment with split caps adds one direction per cap after the
+    lights (``Rays.lights[:, plan.lights + k]``, distance ∞): the ray toward the
+    cap's centre. Its visibility stands for the whole cap (a sub-degree sun:
+    penumbrae narrower than the cap's angular size are not resolved), for the
+    cap rule of the deterministic modes and for the cap's own samples in the
+    Monte Carlo modes; lobe samples that fall in a cap keep their own
+    visibility.
     """
     fr, Vl = _frame(px)
     P, dtype = Vl.shape[0], Vl.dtype
@@ -243,7 +383,7 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
     empty = jnp.zeros((P, 0, 3), dtype)
     lobe, envd = empty, empty
     ks = jnp.arange(plan.samples)
-    if plan.mode == "paper" and _has_lobe(plan):
+    if plan.mode in ("paper", "paper-published") and _has_lobe(plan):
         lobe = jax.vmap(lambda k: _paper_ray(plan, px, Vl, fr, key, k)[1], out_axes=1)(ks)
     elif plan.mode in ("reference", "lowrank") and _has_lobe(plan):
         offset = mis_offset(key, P, dtype, plan, ids)
@@ -257,10 +397,16 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
         if not plan.env_sampling:
             envd = empty
     n = plan.lights if lights is not None else 0
-    if n:
-        ls = [_light_ray(lights, j, px) for j in range(n)]
-        ldir = jnp.stack([x[0] for x in ls], 1)
-        ldist = jnp.stack([jnp.broadcast_to(x[2], (P,)) for x in ls], 1)
+    ls = [_light_ray(lights, j, px) for j in range(n)]
+    dirs = [x[0] for x in ls]
+    dists = [jnp.broadcast_to(x[2], (P,)) for x in ls]
+    caps = _caps(env)
+    if caps is not None:  # one shadow ray per pixel toward each cap's centre, after the lights
+        Cw = caps.world(env.rotation).astype(dtype)
+        dirs += [jnp.broadcast_to(Cw[k], (P, 3)) for k in range(caps.count)]
+        dists += [jnp.full((P,), jnp.inf, dtype)] * caps.count
+    if dirs:
+        ldir, ldist = jnp.stack(dirs, 1), jnp.stack(dists, 1)
     else:
         ldir, ldist = empty, jnp.zeros((P, 0), dtype)
     return Rays(mirror, lobe, envd, ldir, ldist)
@@ -316,10 +462,12 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
             return jnp.einsum("pjc,pj->pc", table_lookup(xtable, cos), E)
         return table_lookup(mat.ftable, cos) * E
 
-    def radiance_terms(Ll, Lw, weight, uv=None):
-        """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space (``uv``: map coordinates of Lw)."""
+    def radiance_terms(Ll, Lw, weight, uv=None, E=None):
+        """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space (``uv``: map coordinates of Lw;
+        ``E``: the incident channels if already known)."""
         terms = _fcos_terms(lobes, Ll, Vl)
-        E = env_lookup(env, Lw) if uv is None else bilinear_equirect_uv(env.channels, *uv)  # (P, J)
+        if E is None:
+            E = env_lookup(env, Lw) if uv is None else bilinear_equirect_uv(env.channels, *uv)  # (P, J)
         total = 0.0
         for a, c in terms:
             total = total + (a * weight)[:, None] * combine(c, E)
@@ -336,6 +484,35 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         _, Rw = _mirror_ray(Vl, fr)
         acc = add_mirror_like(acc, px.w, env_lookup(env, Rw), jnp.clip(Vl[:, 2], 0.0, 1.0))
 
+    # --- split caps: constants of the frame (world centres, densities, channels)
+    caps = _caps(env)
+    if caps is not None:
+        if plan.mode == "paper-published":
+            raise ValueError("the paper-published mode shades the whole map: build its environment without split_sun")
+        K = caps.count
+        Cw = caps.world(env.rotation).astype(dtype)
+        p_cap = (1.0 / caps.solid_angle()).astype(dtype)
+        Ecap = [jnp.broadcast_to(caps.channels[k].astype(dtype), (P, caps.channels.shape[-1])) for k in range(K)]
+        cap_vis = [None if vis is None else vis.lights[:, plan.lights + k] for k in range(K)]
+        rule = plan.cap_rule or "nodes"
+
+        # the prefiltered mode evaluates no lobe but the cap's: N(μ) from a table, not a quadrature per pixel
+        cap_lobes = _lobes(plan, px, _tabulated_norms(plan, mat, px)) if plan.mode == "prefiltered" else lobes
+
+        def add_cap_rule(acc):
+            """The deterministic modes: each cap integrated against each lobe by the cap rule."""
+            for k in range(K):
+                for a, c in _cap_rule_terms(cap_lobes, Vl, fr, Cw[k], caps.radius[k].astype(dtype), rule):
+                    wgt = a if cap_vis[k] is None else a * cap_vis[k]
+                    acc = acc + wgt[:, None] * combine(c, Ecap[k])
+            return acc
+
+        if plan.hiraji and plan.mirror:  # a perfect mirror sees a cap where its mirror ray falls inside it
+            _, Rw = _mirror_ray(Vl, fr)
+            ins = caps.inside(Rw, env.rotation).astype(dtype)
+            for k in range(K):
+                acc = add_mirror_like(acc, px.w * ins[:, k], Ecap[k], jnp.clip(Vl[:, 2], 0.0, 1.0))
+
     S = plan.samples
     ks = jnp.arange(S)
     if plan.mode == "prefiltered" and _has_lobe(plan):
@@ -345,7 +522,9 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         for on, weight, mu in ((plan.hiraji and not plan.mirror, px.w, px.mu0), (plan.hamon, 1.0 - px.w, px.mu1)):
             if on:
                 acc = add_mirror_like(acc, weight, lookup_prefiltered(env, mu, Rw), cos)
-    elif plan.mode == "paper" and _has_lobe(plan):
+        if caps is not None:
+            acc = add_cap_rule(acc)
+    elif plan.mode in ("paper", "paper-published") and _has_lobe(plan):
         def body(carry, xs):
             acc_, wsum = carry
             k, v = xs
@@ -361,8 +540,11 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         xs = (ks, None if vis is None else vis.lobe.T)
         (lob, wsum), _ = jax.lax.scan(body, (jnp.zeros_like(acc), jnp.zeros((P,), dtype)), xs)
         acc = acc + lob / jnp.maximum(wsum, 1e-30)[:, None]
-    elif _has_lobe(plan):  # reference / lowrank: MIS of lobe and environment sampling
+        if caps is not None:
+            acc = add_cap_rule(acc)
+    elif _has_lobe(plan):  # reference / lowrank: MIS of lobe and environment sampling (and of each cap)
         offset = mis_offset(key, P, dtype, plan, ids)
+        cap_offset = _cap_offsets(plan, key, P, dtype, ids, caps.count) if caps is not None else []
 
         def body(acc_, xs):
             k, v1, v2 = xs
@@ -373,7 +555,30 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
             wgt = jnp.where(ok, 1.0 / jnp.where(ok, pb + pe, 1.0), 0.0)
             if v1 is not None:
                 wgt = wgt * v1
-            acc_ = acc_ + radiance_terms(Ll, Lw, wgt, uv)
+            if caps is None:
+                acc_ = acc_ + radiance_terms(Ll, Lw, wgt, uv)
+            else:
+                # the lobe sample serves two integrands: the remainder (MIS with the environment
+                # strategy) and each cap it falls in (MIS with that cap's cone strategy)
+                E = wgt[:, None] * bilinear_equirect_uv(env.channels, *uv)
+                ins = caps.inside(Lw, env.rotation)
+                for kc in range(caps.count):
+                    wc = jnp.where(ok & ins[:, kc], 1.0 / jnp.where(ok, pb + p_cap[kc], 1.0), 0.0)
+                    if v1 is not None:
+                        wc = wc * v1
+                    E = E + wc[:, None] * Ecap[kc]
+                acc_ = acc_ + radiance_terms(Ll, Lw, 1.0, E=E)
+                # each cap's own sample: uniform in its cone, balance heuristic with the lobe
+                for kc in range(caps.count):
+                    _, u1, u2, _ = uniforms(plan, cap_offset[kc], k, dtype, ids)
+                    Lwc = _cap_ray(caps, Cw, kc, u1, u2)
+                    Llc = to_local(Lwc, *fr)
+                    pbc = sampler.pdf(Llc, Vl)
+                    okc = Llc[:, 2] > 0
+                    wc = jnp.where(okc, 1.0 / (pbc + p_cap[kc]), 0.0)
+                    if cap_vis[kc] is not None:
+                        wc = wc * cap_vis[kc]
+                    acc_ = acc_ + radiance_terms(Llc, Lwc, 1.0, E=wc[:, None] * Ecap[kc])
             if plan.env_sampling:
                 pb2 = sampler.pdf(Ll2, Vl)
                 ok2 = (Ll2[:, 2] > 0) & (pe2 > 0)
@@ -407,7 +612,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     return spectra @ cmf, (spectra if plan.spectral else None)
 
 
-__all__ = ["MIRROR_MU", "MODES", "FRESNEL_RANK_TOL", "FRESNEL_TABLE", "Environment", "Light", "Material", "PixelIds",
+__all__ = ["MIRROR_MU", "MODES", "FRESNEL_RANK_TOL", "FRESNEL_TABLE", "Caps", "Environment", "Light", "Material", "PixelIds",
            "Pixels", "Plan", "Rays", "Visibility", "background", "bilinear_equirect", "bilinear_equirect_uv",
            "build_environment", "env_basis", "env_lookup", "env_uv", "fold_fresnel", "fresnel_rank_for",
            "fresnel_table", "ray_directions", "sample_points", "shade"]
