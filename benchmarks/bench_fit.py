@@ -66,11 +66,9 @@ def _pixels(P, dtype, seed=0):
 
 def _float32_worker():
     """Runs in a subprocess with x64 off: float32 region fits (LM, Dogleg; near and far start), pixels."""
-    import jax
     import jax.numpy as jnp
 
     from jkatana.fit import fit_pixels
-    from jkatana.fit._solve import NoiseModel
     from jkatana.fit.region import fit_region
 
     out = {}
@@ -203,7 +201,6 @@ def run(quick: bool) -> list[dict]:
 
     from jkatana.fit import fit_pixels, fit_region, sample
     from jkatana.fit._solve import closed_form_start, solve
-    from jkatana.fit.region import fit_arrays
 
     rows = []
     log = lambda *a: print(*a, file=sys.stderr, flush=True)  # noqa: E731

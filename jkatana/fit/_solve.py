@@ -339,7 +339,6 @@ def natural_intervals(p, cov, spec: ModelSpec, z: float = Z95) -> tuple[dict, di
     p = np.asarray(p, np.float64)
     cov = np.asarray(cov, np.float64)
     ok = bool(np.all(np.isfinite(cov)) and np.all(np.diag(cov) > 0))
-    ns = spec.n_shape
     fm = spec.fit_model
     from scipy.special import expit as sig
     exp = lambda t: math.exp(min(t, 700.0))  # noqa: E731

@@ -82,7 +82,7 @@ def _grid(args):
 
 
 def _check_grid(args) -> tuple[float, float, float]:
-    from jkatana.io.limits import number, numbers
+    from jkatana.io.limits import numbers
 
     start, stop, step = numbers(args.grid, "--grid", lo=0, lo_open=True, hi=1e5)
     if not stop > start:

@@ -146,6 +146,15 @@ def texel_solid_angles(height: int, width: int, dtype=jnp.float32) -> Float[Arra
     return jnp.asarray(texel_solid_angles_np(height, width), dtype)
 
 
+def box_downsample(image: Float[np.ndarray, "H W C"], factor: int) -> Float[np.ndarray, "h w C"]:
+    """Box-filter an equirectangular ``(H, W, C)`` image by ``factor`` in both axes, each block weighted by
+    its texels' solid angles (power-preserving: Σ L Ω unchanged)."""
+    H, W = image.shape[:2]
+    f = int(factor)
+    num = (image * texel_solid_angles_np(H, W)[..., None]).reshape(H // f, f, W // f, f, -1).sum(axis=(1, 3))
+    return num / texel_solid_angles_np(H // f, W // f)[..., None]
+
+
 class EnvMap(eqx.Module):
     """A spectral equirectangular environment map (see the module docstring for axes).
 
@@ -238,11 +247,8 @@ class EnvMap(eqx.Module):
         H, W = self.height, self.width
         if f < 1 or H % f or W % f:
             raise InputError(f"downsample factor {factor} must divide the map size {H}×{W}", field="factor")
-        om = texel_solid_angles_np(H, W)[:, :1]  # (H, 1)
-        L = np.asarray(self.radiance, np.float64) * om[..., None]
-        L = L.reshape(H // f, f, W // f, f, -1).sum(axis=(1, 3))
-        om2 = texel_solid_angles_np(H // f, W // f)[:, :1]
-        return EnvMap(jnp.asarray(L / om2[..., None], self.radiance.dtype), self.grid)
+        L = box_downsample(np.asarray(self.radiance, np.float64), f)
+        return EnvMap(jnp.asarray(L, self.radiance.dtype), self.grid)
 
     def resample_grid(self, grid: WavelengthGrid) -> "EnvMap":
         """Linearly resample the spectral axis onto ``grid`` (must lie within the map's range)."""

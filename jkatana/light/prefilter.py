@@ -70,7 +70,7 @@ import scipy.fft as sfft
 from jaxtyping import Array, ArrayLike, Float
 
 from jkatana.errors import InputError
-from jkatana.light.envmap import EnvMap, texel_solid_angles_np
+from jkatana.light.envmap import EnvMap, box_downsample  # noqa: F401 (box_downsample re-exported)
 from jkatana.light.fresnel_basis import FresnelBasis, fresnel_basis  # noqa: F401 (the basis' home; re-exported)
 from jkatana.models.lobes import Gaussian, Lobe
 from jkatana.spectral.colorimetry import xyz_weights
@@ -157,15 +157,6 @@ def level_shape(mu: float, source_shape: tuple[int, int], texels_per_mu: float =
     while math.pi / h > mu / texels_per_mu and 2 * h <= H * max_upsample:
         h, w = 2 * h, 2 * w
     return h, w
-
-
-def box_downsample(image: Float[np.ndarray, "H W C"], factor: int) -> Float[np.ndarray, "h w C"]:
-    """Box-filter an equirectangular ``(H, W, C)`` image by ``factor`` in both axes, each block weighted by
-    its texels' solid angles (power-preserving: Σ L Ω unchanged)."""
-    H, W = image.shape[:2]
-    f = int(factor)
-    num = (image * texel_solid_angles_np(H, W)[..., None]).reshape(H // f, f, W // f, f, -1).sum(axis=(1, 3))
-    return num / texel_solid_angles_np(H // f, W // f)[..., None]
 
 
 def convolve(image: Float[np.ndarray, "H W C"], table: tuple[np.ndarray, np.ndarray], *, sub: int = 3,

@@ -23,7 +23,6 @@ is one multi-channel OpenEXR (:mod:`jkatana.io.exr`) with those channel names.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
