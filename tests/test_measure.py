@@ -108,6 +108,7 @@ def test_read_table_names_row_and_column(tmp_path, row, column, bad, field):
     table = MeasurementTable.from_columns(capture=["a", "b", "c"], region=["hiraji"] * 3,
                                           theta_i_deg=[15, 15, 15], theta_r_deg=[14, 15, 16],
                                           value=[1.0, 2.0, 1.0], sigma=[0.1] * 3)
+    cols = table.columns()
     lines = (tmp_path / "ok.csv")
     write_table(table, lines)
     text = lines.read_text().splitlines()

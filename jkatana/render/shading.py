@@ -208,14 +208,16 @@ def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
     if rule == "stroud":
         Lw, q = sun.cap_disc_nodes(Cw, radius)  # (4, 3), (4,): the same for every pixel
         Ll = to_local(Lw[:, None, :], *fr)  # (4, P, 3)
-        for lobe, weight in lobes:
+        for lobe, weight, gain in lobes:
+            weight = weight if gain is None else weight * gain
             for (a, _), (_, c) in zip(lobe.terms(Ll, Vl), lobe.terms(Cl, Vl)):
                 out.append((weight * jnp.einsum("n,np->p", q.astype(a.dtype), a), c))
         return out
     n_radial, n_azimuth = sun.CAP_RULE
     R = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
     N = jnp.asarray([0.0, 0.0, 1.0], Vl.dtype)
-    for lobe, weight in lobes:
+    for lobe, weight, gain in lobes:
+        weight = weight if gain is None else weight * gain
         sigma = jnp.broadcast_to(jnp.maximum(sun.lobe_width(lobe), 1e-6), Vl.shape[:1]).astype(Vl.dtype)
         L, q = sun.cap_nodes(R, Cl, radius, sigma, normal=N, n_radial=n_radial, n_azimuth=n_azimuth)
         nodes = lobe.terms(jnp.moveaxis(L, 0, 2), Vl)  # (A, Q, P): the pixel axis last, as the lobe's parameters
@@ -262,7 +264,7 @@ def cap_rule_for(plan: Plan, env: Environment, px: Pixels) -> str:
     if caps is None:
         return "nodes"
     widths = [np.asarray(jnp.where(weight > 0, sun.lobe_width(lobe), jnp.inf)).min(initial=np.inf)
-              for lobe, weight in _lobes(plan, px, (1.0, 1.0))]
+              for lobe, weight, _ in _lobes(plan, px, (1.0, 1.0))]
     if not widths:
         return "nodes"
     r_max = float(np.asarray(caps.radius).max())
