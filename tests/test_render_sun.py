@@ -313,7 +313,7 @@ def test_tabulated_normalisation_matches_the_quadrature():
     """The prefiltered mode's N(μ) table (128 nodes uniform in μ² over the pixels' range) against
     :func:`gaussian_normalisation` per pixel: relative error < 1e-5 from μ = 1e-4 to 0.5."""
     from jkatana.models.microfacet import gaussian_normalisation
-    from jkatana.render.shading import _tabulated_norms
+    from jkatana.render.caps import _tabulated_norms
 
     mu = np.geomspace(1e-4, 0.5, 997)
     P = mu.size

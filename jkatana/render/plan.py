@@ -71,7 +71,7 @@ class Plan:
       pixel and cap, any lobe width) or ``"stroud"``
       (:func:`jkatana.light.sun.cap_disc_nodes`, 4, for lobes ≥ 8 cap radii
       wide). ``None``: :func:`jkatana.render.frame.shade_pixels` picks it from the
-      pixels' lobe widths (:func:`~jkatana.render.shading.cap_rule_for`);
+      pixels' lobe widths (:func:`~jkatana.render.caps.cap_rule_for`);
       :func:`shade` called directly treats ``None`` as ``"nodes"``.
     """
 

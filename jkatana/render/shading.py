@@ -89,208 +89,23 @@ import math
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
-from jkatana.light import sun
 from jkatana.models.geometry import tangent_frame, to_local, to_world
-from jkatana.models.lobes import (Gaussian, GaussianVCavity, Mixture, key_params, lobe_key, lobe_with_width,
-                                  normalised_params, reflect)
-from jkatana.models.microfacet import gaussian_facet, gaussian_normalisation
+from jkatana.models.lobes import reflect
+from jkatana.models.microfacet import gaussian_facet
 # the shader's inputs and helpers live by job in their own modules; re-exported here as the render API
 from jkatana.render.environment import (Caps, Environment, background, bilinear_equirect, bilinear_equirect_uv,  # noqa: F401
                                         build_environment, env_basis, env_lookup, env_uv, lookup_prefiltered,
                                         unbasis)
 from jkatana.render.fresnel_fold import (FRESNEL_RANK_TOL, FRESNEL_TABLE, Material, fold_fresnel,  # noqa: F401
                                          fresnel_rank_for, fresnel_table, is_folded, table_lookup)
-from jkatana.render.plan import LOBE_MODES, MIRROR_MU, MODES, Light, Pixels, Plan, Rays, Visibility  # noqa: F401
+from jkatana.render.plan import MIRROR_MU, MODES, Light, Pixels, Plan, Rays, Visibility  # noqa: F401
 from jkatana.render.points import PixelIds, mis_offset, sample_points, uniforms  # noqa: F401
 
-# ---------------------------------------------------------------- lobes per region
-
-
-def _norms(plan: Plan, mat: Material, px: Pixels):
-    """Per-pixel lobe scales: N(μ) of the paper's lobes (normalised convention; ``None`` where a region has
-    another lobe, normalised by itself) or χ/K, β/K (calibrated). Hoisted out of the sample loop."""
-    if plan.calibration is None:
-        n0 = (gaussian_normalisation(px.mu0) if (plan.hiraji and not plan.mirror and plan.hiraji_lobe is None)
-              else None)
-        n1 = gaussian_normalisation(px.mu1) if (plan.hamon and plan.hamon_lobe is None) else None
-        return n0, n1
-    return mat.chi / plan.calibration, mat.beta / plan.calibration
-
-
-def _region_lobe(plan: Plan, key, width, norm, paper):
-    """``(lobe, gain)`` of one region: the paper's lobe ``paper`` (scale ``norm``, gain ``None``) or, for a
-    :func:`~jkatana.models.lobes.lobe_shape` key, that lobe at the per-pixel ``width``.
-
-    Another lobe in the normalised convention is its energy-normalised form
-    (:func:`~jkatana.models.lobes.normalised_params`, gain ``None``); calibrated,
-    it is the lobe as fitted times ``norm`` = s/K, where s is the params file's
-    scale: the fit's model is ρ = s · f_r cos θi · F̄ (:mod:`jkatana.fit._model`),
-    so s/K converts camera units to reflectance exactly as χ/K does for the
-    paper's lobe.
-    """
-    normalised = plan.calibration is None
-    if key is None:
-        return paper(width, norm, normalised=normalised), None
-    if plan.mode not in LOBE_MODES:
-        raise ValueError(f"lobe {key[0]!r} renders in modes {list(LOBE_MODES)} only, not {plan.mode!r}")
-    if normalised:
-        key = lobe_key(normalised_params(key_params(key)))
-    return lobe_with_width(key, width, width.dtype), (None if normalised else norm)
-
-
-def _lobes(plan: Plan, px: Pixels, norms):
-    """The sampled lobes of the pixels with their blend weights and gains: ``[(lobe, weight, gain), ...]``.
-
-    Hiraji: ``plan.hiraji_lobe`` at width μ0 (the paper's
-    :class:`~jkatana.models.lobes.Gaussian` when ``None``) unless it is a perfect
-    mirror, weight w; hamon: ``plan.hamon_lobe`` at width μ1 (the paper's
-    :class:`~jkatana.models.lobes.GaussianVCavity` when ``None``), weight 1 − w
-    (Mochizuki et al., eq. 5). ``gain`` (``None``: 1) multiplies a lobe's value
-    but not its sampling weight.
-    """
-    out = []
-    if plan.hiraji and not plan.mirror:
-        lobe, gain = _region_lobe(plan, plan.hiraji_lobe, px.mu0, norms[0], Gaussian)
-        out.append((lobe, px.w, gain))
-    if plan.hamon:
-        lobe, gain = _region_lobe(plan, plan.hamon_lobe, px.mu1, norms[1], GaussianVCavity)
-        out.append((lobe, 1.0 - px.w, gain))
-    return out
-
-
-def _sampler(lobes):
-    """One lobe, or the blend of two sampled by its weights (:class:`~jkatana.models.lobes.Mixture`)."""
-    if len(lobes) == 1:
-        return lobes[0][0]
-    (a, w, _), (b, _, _) = lobes
-    return Mixture(a, b, w)
-
-
-def _mix_w(plan: Plan, px: Pixels):
-    """Probability of sampling the hiraji lobe."""
-    if plan.mirror or not plan.hiraji:
-        return jnp.zeros_like(px.w)
-    if not plan.hamon:
-        return jnp.ones_like(px.w)
-    return px.w
-
-
-def _fcos_terms(lobes, L, V):
-    """f·cos θi without Fresnel per lobe term, weighted by the blend and gain: ``[(a, Fresnel cosine), ...]``."""
-    return [((w * a) if g is None else (w * g) * a, c) for lobe, w, g in lobes for a, c in lobe.terms(L, V)]
-
-
-# ---------------------------------------------------------------- spherical-cap lights (a split sun)
-
-def _caps(env: Environment) -> Caps | None:
-    """The environment's caps, or None: then no cap code is traced."""
-    return env.caps if env.caps is not None and env.caps.count else None
-
-
-def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
-    """``[(weight · ∫_cap a dω, Fresnel cosine at the cap centre), ...]`` per lobe term, ``(P,)`` each.
-
-    ``rule``: ``"nodes"``: the rule of :func:`jkatana.light.sun.cap_nodes` about each
-    lobe's mirror direction with the lobe's own width
-    (:func:`~jkatana.light.sun.lobe_width`), :data:`~jkatana.light.sun.CAP_RULE` nodes per point, any
-    lobe width; ``"stroud"``: the 4 fixed directions of
-    :func:`~jkatana.light.sun.cap_disc_nodes`, for lobes at least
-    :data:`~jkatana.light.sun.STROUD_MIN_WIDTH` cap radii wide. Applied to the
-    Fresnel-free values ``a`` of the lobe objects; the Fresnel factor is taken at
-    the cap's centre (it varies by ``|dF/dθ| · r`` across the cap, below 1e-4 for
-    a sub-degree sun on iron).
-    """
-    Cl = to_local(Cw, *fr)
-    out = []
-    if rule == "stroud":
-        Lw, q = sun.cap_disc_nodes(Cw, radius)  # (4, 3), (4,): the same for every pixel
-        Ll = to_local(Lw[:, None, :], *fr)  # (4, P, 3)
-        for lobe, weight, gain in lobes:
-            weight = weight if gain is None else weight * gain
-            for (a, _), (_, c) in zip(lobe.terms(Ll, Vl), lobe.terms(Cl, Vl)):
-                out.append((weight * jnp.einsum("n,np->p", q.astype(a.dtype), a), c))
-        return out
-    n_radial, n_azimuth = sun.CAP_RULE
-    R = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
-    N = jnp.asarray([0.0, 0.0, 1.0], Vl.dtype)
-    for lobe, weight, gain in lobes:
-        weight = weight if gain is None else weight * gain
-        sigma = jnp.broadcast_to(jnp.maximum(sun.lobe_width(lobe), 1e-6), Vl.shape[:1]).astype(Vl.dtype)
-        L, q = sun.cap_nodes(R, Cl, radius, sigma, normal=N, n_radial=n_radial, n_azimuth=n_azimuth)
-        nodes = lobe.terms(jnp.moveaxis(L, 0, 2), Vl)  # (A, Q, P): the pixel axis last, as the lobe's parameters
-        qt = jnp.moveaxis(q, 0, 2).astype(Vl.dtype)
-        for (a, _), (_, c) in zip(nodes, lobe.terms(Cl, Vl)):
-            out.append((weight * jnp.sum(qt * a, axis=(0, 1)), c))
-    return out
-
-
-def _tabulated_norms(plan: Plan, mat: Material, px: Pixels, n: int = 128):
-    """:func:`_norms` with the paper's normalisation N(μ) interpolated from ``n`` exact values.
-
-    ``μ² N(μ)`` (:func:`~jkatana.models.microfacet.gaussian_normalisation`, a
-    48-node quadrature per call) tends to ln2/π as μ → 0 and is a smooth function
-    of μ² (its expansion in μ² starts ln2/π (1 + a μ² + …)), so it is evaluated at
-    ``n`` nodes uniform in μ² over the pixels' range and interpolated linearly
-    (relative error < 1e-5, ``tests/test_render_sun.py``): one interpolation per
-    pixel instead of a quadrature. For the prefiltered mode, which otherwise
-    evaluates no lobe, where the cap rule is the only user of N.
-    """
-    if plan.calibration is not None:
-        return _norms(plan, mat, px)
-
-    def table(mu):
-        m = jnp.maximum(mu, 1e-8)
-        s2 = m * m
-        lo, hi = jnp.min(s2), jnp.max(s2)
-        hi = jnp.maximum(hi, lo * (1 + 1e-6) + 1e-30)
-        nodes = jnp.sqrt(jnp.linspace(lo, hi, n))
-        g = gaussian_normalisation(nodes) * nodes * nodes
-        t = (s2 - lo) / (hi - lo) * (n - 1)
-        return jnp.interp(t, jnp.arange(n, dtype=t.dtype), g) / s2
-
-    n0 = table(px.mu0) if (plan.hiraji and not plan.mirror) else None
-    n1 = table(px.mu1) if plan.hamon else None
-    return n0, n1
-
-
-def cap_rule_for(plan: Plan, env: Environment, px: Pixels) -> str:
-    """The cap rule the deterministic modes use for these pixels: ``"stroud"`` where every lobe in use is
-    at least :data:`~jkatana.light.sun.STROUD_MIN_WIDTH` times wider than the largest cap, else
-    ``"nodes"``. Host-side, on concrete pixels (a static choice, as ``Plan.fresnel_rank``)."""
-    caps = _caps(env)
-    if caps is None:
-        return "nodes"
-    widths = [np.asarray(jnp.where(weight > 0, sun.lobe_width(lobe), jnp.inf)).min(initial=np.inf)
-              for lobe, weight, _ in _lobes(plan, px, (1.0, 1.0))]
-    if not widths:
-        return "nodes"
-    r_max = float(np.asarray(caps.radius).max())
-    return "stroud" if min(widths) >= sun.STROUD_MIN_WIDTH * r_max else "nodes"
-
-
-def _cap_offsets(plan: Plan, key, P, dtype, ids, K, stream: int = 0x53554E):
-    """Per cap, the random digital shifts of its cone samples: a stream of its own (``key`` folded with
-    ``stream + k``), independent of the lobe and environment shifts (see :func:`mis_offset`)."""
-    return [mis_offset(jax.random.fold_in(key, stream + k), P, dtype, plan, ids) for k in range(K)]
-
-
-def _cap_ray(caps: Caps, Cw, k: int, u1, u2):
-    """A direction uniform in solid angle in cap ``k`` (world): ``sin²(ψ/2) = u₁ sin²(r/2)``, φ = 2π u₂.
-
-    The half-angle form keeps a sub-degree cone resolved in float32 (``1 − cos ψ``
-    would not); density ``1/Ω_k`` (Pharr, Jakob & Humphreys, *PBRT* 4th ed., §A.5.6,
-    uniform cone sampling).
-    """
-    c = Cw[k]
-    t, b = tangent_frame(c)
-    s = jnp.sqrt(u1) * jnp.sin(0.5 * caps.radius[k]).astype(u1.dtype)
-    psi = 2.0 * jnp.arcsin(jnp.clip(s, 0.0, 1.0))
-    phi = 2.0 * jnp.pi * u2
-    sp = jnp.sin(psi)
-    return (jnp.cos(psi)[:, None] * c + (sp * jnp.cos(phi))[:, None] * t + (sp * jnp.sin(phi))[:, None] * b)
+# the lobes per region and the cap lights live in their own modules
+from jkatana.render.caps import _cap_offsets, _cap_ray, _cap_rule_terms, _caps, _tabulated_norms, cap_rule_for  # noqa: F401
+from jkatana.render.regions import _fcos_terms, _lobes, _mix_w, _norms, _sampler
 
 
 # ---------------------------------------------------------------- the shader
