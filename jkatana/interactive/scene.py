@@ -126,16 +126,14 @@ def reflectance_map() -> LobeMaps:
 
 
 def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """Camera-to-world pose (OpenGL convention: the camera looks along its −Z, +Y up)."""
-    eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
-    f = target - eye
-    f /= np.linalg.norm(f)
-    r = np.cross(f, up)
-    r /= np.linalg.norm(r)
-    u = np.cross(r, f)
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = r, u, -f, eye
-    return pose
+    """Camera-to-world pose (OpenGL convention: the camera looks along its −Z, +Y up): the offline
+    camera's own frame (:meth:`jkatana.render.camera.Camera.pose`), so both paths aim alike."""
+    from jkatana.render.camera import Camera
+
+    def point(a):
+        return tuple(float(x) for x in np.asarray(a, np.float64))
+
+    return Camera(position=point(eye), look_at=point(target), up=point(up)).pose()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -24,6 +24,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jkatana.light.envmap import EnvMap, direction_to_uv
+from jkatana.light.envmap import bilinear_uv as bilinear_equirect_uv  # the one bilinear lookup, under the render name
 from jkatana.light.sampling import EnvSampler
 from jkatana.light.sun import SunSplit, split_compact_sources
 
@@ -125,25 +126,7 @@ def bilinear_equirect(image: Float[Array, "H W C"], d: Float[Array, "*b 3"]) -> 
     basis coefficients).
     """
     u, v = direction_to_uv(d)
-    return bilinear_equirect_uv(image, u, v)
-
-
-def bilinear_equirect_uv(image: Float[Array, "H W C"], u, v) -> Float[Array, "*b C"]:
-    """:func:`bilinear_equirect` at given equirectangular coordinates ``(u, v)`` (no ``atan2``)."""
-    H, W = image.shape[0], image.shape[1]
-    x = u * W - 0.5
-    y = jnp.clip(v * H - 0.5, 0.0, H - 1.0)
-    x0 = jnp.floor(x)
-    y0 = jnp.floor(y)
-    fx = (x - x0).astype(image.dtype)[..., None]
-    fy = (y - y0).astype(image.dtype)[..., None]
-    i0 = jnp.mod(x0.astype(jnp.int32), W)
-    i1 = jnp.mod(i0 + 1, W)
-    j0 = jnp.clip(y0.astype(jnp.int32), 0, H - 1)
-    j1 = jnp.minimum(j0 + 1, H - 1)
-    top = image[j0, i0] * (1 - fx) + image[j0, i1] * fx
-    bottom = image[j1, i0] * (1 - fx) + image[j1, i1] * fx
-    return top * (1 - fy) + bottom * fy
+    return bilinear_equirect_uv(image, u, v)  # jkatana.light.envmap.bilinear_uv
 
 
 def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5):
