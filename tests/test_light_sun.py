@@ -24,6 +24,7 @@ from jkatana.light.sun import (
 from jkatana.models import Conductor, Hiraji
 from jkatana.shared import shared_data
 from jkatana.spectral.grid import WavelengthGrid
+from tests._scenes import paste_disc
 
 GRID = WavelengthGrid(400.0, 700.0, 10.0)
 SUN_R = S.SOLAR_RADIUS  # 0.00445 rad
@@ -53,24 +54,6 @@ def smooth_sky(H, W):
     wl = GRID.wavelengths
     shape = 1.0 + 0.8 * (700.0 - wl) / 300.0  # bluish
     return (0.3 + 0.7 * np.maximum(d[..., 1], 0.0) + 0.05 * d[..., 0])[..., None] * shape
-
-
-def paste_disc(L, s, radius, spectrum, sub=16):
-    """Add a uniform disc (texel averages by ``sub × sub`` supersampling in θ, φ with sin θ weights)."""
-    H, W = L.shape[:2]
-    d = texel_directions_np(H, W)
-    near = np.arccos(np.clip(d @ s, -1, 1)) < radius + 3 * math.pi / H
-    t = (np.arange(sub) + 0.5) / sub
-    cover = np.zeros((H, W))
-    for j, i in zip(*np.nonzero(near)):
-        th = (j + t) * math.pi / H
-        ph = ((i + t) / W - 0.5) * 2 * math.pi
-        th, ph = np.meshgrid(th, ph, indexing="ij")
-        dd = np.stack([np.sin(th) * np.sin(ph), np.cos(th), -np.sin(th) * np.cos(ph)], -1)
-        inside = np.arccos(np.clip(dd @ s, -1, 1)) < radius
-        cover[j, i] = (inside * np.sin(th)).sum() / np.sin(th).sum()
-    out = L + cover[..., None] * spectrum
-    return out, (cover * texel_solid_angles_np(H, W)).sum()
 
 
 @pytest.mark.parametrize("H, radius_deg, elev, az, radius_rtol",

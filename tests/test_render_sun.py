@@ -26,6 +26,7 @@ from jkatana.render.frame import render_frame
 from jkatana.render.gbuffer import gbuffer_sphere
 from jkatana.render.shading import Material, Pixels, Plan, build_environment, fresnel_table, shade
 from jkatana.spectral.grid import WavelengthGrid
+from tests._scenes import paste_disc
 
 GRID = WavelengthGrid(400.0, 700.0, 20.0)
 CMF = film_weights(GRID)
@@ -43,17 +44,8 @@ def _sky(H=128, W=256):
 
 def _with_sun(L, radiance=2.0e4, s=SUN_DIR, radius=SUN_R, sub=12):
     """``L`` plus a uniform disc of ``radiance`` (a warm spectrum) — texel coverage by ``sub²`` supersampling."""
-    H, W = L.shape[:2]
-    d = texel_directions_np(H, W)
-    near = np.arccos(np.clip(d @ s, -1, 1)) < radius + 3 * math.pi / H
-    t = (np.arange(sub) + 0.5) / sub
-    cover = np.zeros((H, W))
-    for j, i in zip(*np.nonzero(near)):
-        th, ph = np.meshgrid((j + t) * math.pi / H, ((i + t) / W - 0.5) * 2 * math.pi, indexing="ij")
-        dd = np.stack([np.sin(th) * np.sin(ph), np.cos(th), -np.sin(th) * np.cos(ph)], -1)
-        cover[j, i] = ((np.arccos(np.clip(dd @ s, -1, 1)) < radius) * np.sin(th)).sum() / np.sin(th).sum()
     spectrum = radiance * (0.7 + 0.3 * (GRID.wavelengths - 400.0) / 300.0)
-    return L + cover[..., None] * spectrum
+    return paste_disc(L, s, radius, spectrum, sub=sub)[0]
 
 
 def _iron():
