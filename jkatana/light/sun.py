@@ -111,10 +111,11 @@ from jaxtyping import Array, Float
 from jkatana.errors import InputError
 from jkatana.light.envmap import EnvMap, texel_directions_np, texel_solid_angles_np
 from jkatana.models._safe import norm, normalize, safe_atan2, safe_div, safe_sqrt
+from jkatana.models.geometry import tangent_frame
+from jkatana.models.microfacet import LN2
 from jkatana.spectral.colorimetry import xyz_weights
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
 
-LN2 = math.log(2.0)
 
 
 class SunCap(eqx.Module):
@@ -387,14 +388,6 @@ def lobe_width(lobe) -> Float[Array, "*p"]:
     raise TypeError(f"no cap-rule width for a {type(lobe).__name__} lobe (integrate a mixture's parts)")
 
 
-def _perpendicular(R):
-    """A unit vector ⟂ R (Duff et al. 2017's branchless basis, first axis)."""
-    sign = jnp.where(R[..., 2] >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + R[..., 2])
-    b = R[..., 0] * R[..., 1] * a
-    return jnp.stack([1.0 + sign * R[..., 0] ** 2 * a, sign * b, -sign * R[..., 0]], axis=-1)
-
-
 def cap_nodes(R: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, sigma, *, normal=None,
               n_radial: int = 4, n_azimuth: int = 16) -> tuple[Float[Array, "*b A Q 3"], Float[Array, "*b A Q"]]:
     """Directions and weights of the cap rule about a lobe centre (module docstring).
@@ -427,7 +420,7 @@ def cap_nodes(R: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, sigma, *
     sin_d = norm(perp)
     delta = safe_atan2(sin_d, cos_d)
     perp = perp - jnp.sum(perp * R, -1, keepdims=True) * R  # C ≈ R: perp is rounding noise, not ⟂ R
-    e1 = jnp.where((norm(perp) > 16 * float(jnp.finfo(dt).eps))[..., None], normalize(perp), _perpendicular(R))
+    e1 = jnp.where((norm(perp) > 16 * float(jnp.finfo(dt).eps))[..., None], normalize(perp), tangent_frame(R)[0])
     e2 = jnp.cross(R, e1)
     inside = (delta < r[..., 0])[..., None]
     # anisotropy of a reflection lobe: in-plane axis p (azimuth φ_p about R) and c = cos θ
@@ -552,7 +545,7 @@ def cap_disc_nodes(C: Float[Array, "*b 3"], radius) -> tuple[Float[Array, "*b 4 
     """
     C = normalize(jnp.asarray(C))
     r = jnp.asarray(radius, C.dtype)
-    e1 = normalize(_perpendicular(C))
+    e1 = normalize(tangent_frame(C)[0])
     e2 = jnp.cross(C, e1)
     a = r / math.sqrt(2.0)
     ca, sa = jnp.cos(a)[..., None], jnp.sin(a)[..., None]
