@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jkatana.models.microfacet import LN2, gaussian_facet as _facet, vcavity_over_cos  # noqa: F401
+from jkatana.models.microfacet import vcavity_over_cos
 
 _TABLE_NODES = 4097
 

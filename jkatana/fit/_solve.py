@@ -48,7 +48,8 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from jkatana.fit._model import LN2, ModelSpec, Terms, default_shape, green, to_natural
+from jkatana.fit._model import ModelSpec, Terms, default_shape, green, to_natural
+from jkatana.models.microfacet import LN2
 
 SOLVERS = ("lm", "dogleg", "gn", "jaxopt")
 Z95 = 1.959963984540054

@@ -26,13 +26,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jkatana.fit._model import LN2, ModelSpec, Terms, _facet
+from jkatana.fit._model import ModelSpec, Terms
 from jkatana.fit._solve import NoiseModel, closed_form_start
+from jkatana.models.microfacet import LN2, gaussian_facet
 
 
 def _cost_jac(p, terms, y, w):
     s, mu = jnp.exp(p[0]), jnp.exp(p[1])
-    m = s * _facet(terms.phi, mu) * terms.amp
+    m = s * gaussian_facet(terms.phi, mu) * terms.amp
     r = (m - y) * w
     j0 = m * w
     j1 = j0 * (2 * LN2) * (terms.phi / mu) ** 2
