@@ -121,12 +121,12 @@ def test_bake_without_a_compact_source_is_unchanged():
 def test_cap_kernel_is_the_prefilter_kernel_over_the_cap():
     """:func:`bake.cap_kernel` (the shader's closed form: the prefilter kernel convolved with the cap's
     disc by moment matching) against the same kernel (:func:`bake._prefilter_kernel_normalised`)
-    integrated over the cap by :func:`jkatana.light.sun.cap_nodes`' rule (8 × 32 nodes), for level widths
+    integrated over the cap by :func:`jkatana.light.capquad.cap_nodes`' rule (8 × 32 nodes), for level widths
     μ 0.004–0.4 and caps of 0.26°–1.1° radius, centred on the tap and 0.5–3 widths away. Error relative
     to the value at the centre."""
     import jax.numpy as jnp
 
-    from jkatana.light.sun import cap_nodes
+    from jkatana.light.capquad import cap_nodes
 
     R = np.array([0.0, 0.0, 1.0])
     worst = {}
@@ -163,7 +163,7 @@ CAP_KERNEL_TOL = 0.01
 def test_cap_response_against_the_models_over_the_cap():
     """The shader's cap rule for the paper's lobes — the lobe's energy times Ω_cap × :func:`bake.cap_kernel`
     over the moment-matched pattern (¼, ½, ¼ at the mean offset and ± √2 × the in-plane spread, each at the
-    across-plane width; :func:`bake.lobe_lut`'s moments) — against :func:`jkatana.light.sun.cap_integral` of
+    across-plane width; :func:`bake.lobe_lut`'s moments) — against :func:`jkatana.light.capquad.cap_integral` of
     :meth:`Hiraji.brdf_cos` / :meth:`Hamon.brdf_cos` over a 0.31° cap (sunrise.exr's sun), summed over λ,
     with the cap on the lobe's mean direction and 0.7–1.4 widths away along and across the plane of
     incidence. Errors relative to the value on the mean: within 2 % at normal incidence, 6 % at 45°; at
@@ -172,8 +172,9 @@ def test_cap_response_against_the_models_over_the_cap():
 
     import jax.numpy as jnp
 
-    from jkatana.light.sun import cap_integral, gaussian_lobe_sigma
+    from jkatana.light.capquad import cap_integral
     from jkatana.models import Conductor, Hamon, Hiraji
+    from jkatana.models.lobes import Gaussian
 
     import jax
 
@@ -207,7 +208,7 @@ def test_cap_response_against_the_models_over_the_cap():
                         continue
                     truth = float(np.sum(np.asarray(cap_integral(
                         functools.partial(model.brdf_cos, conductor=iron), jnp.asarray(V, dt),
-                        jnp.asarray(C, dt), r, float(gaussian_lobe_sigma(mu))))))
+                        jnp.asarray(C, dt), r, float(Gaussian(jnp.asarray(mu), jnp.asarray(1.0), normalised=False).reflected_width())))))
                     rule = energy * omega * sum(w * float(B.cap_kernel(np.cos(o) * R + np.sin(o) * t, mu_e, C, r))
                                                 for o, w in taps)
                     peak = truth if peak is None else peak

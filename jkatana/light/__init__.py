@@ -1,10 +1,16 @@
 """Lighting: spectral environment maps, RGB upsampling, the Hosek–Wilkie sky, sampling, prefiltering,
-compact sources (suns) split off as cap lights.
+compact sources (suns) split off as cap lights and their cap × lobe quadrature.
 
 See :mod:`jkatana.light.envmap` for the orientation convention (Y up, image
 centre looks along −Z, row 0 = zenith).
 """
 
+from jkatana.light.capquad import (
+    cap_coverage as cap_coverage,
+    cap_integral as cap_integral,
+    cap_point_integral as cap_point_integral,
+    reflected_cap_radiance as reflected_cap_radiance,
+)
 from jkatana.light.envmap import (
     EnvMap as EnvMap,
     direction_to_uv as direction_to_uv,
@@ -33,12 +39,7 @@ from jkatana.light.sky import (
 from jkatana.light.sun import (
     SunCap as SunCap,
     SunSplit as SunSplit,
-    cap_coverage as cap_coverage,
-    cap_integral as cap_integral,
-    cap_point_integral as cap_point_integral,
     find_compact_sources as find_compact_sources,
-    gaussian_lobe_sigma as gaussian_lobe_sigma,
-    reflected_cap_radiance as reflected_cap_radiance,
     split_compact_sources as split_compact_sources,
     split_sky_sun as split_sky_sun,
 )

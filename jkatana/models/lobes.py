@@ -27,6 +27,11 @@ API of every lobe:
 - ``pdf(L, V)``: the density of ``sample`` per steradian of L.
 - ``sample_h(u)``, ``pdf_h(φ, cos φ)``: the facet-normal sampler and its density
   per steradian of h, for callers that reflect themselves.
+- ``reflected_width()``: the angular width σ (rad) of the reflected lobe about
+  the mirror direction, that of the Gaussian ``exp(−ψ²/2σ²)`` in the angle ψ
+  from it whose second moment ``E[ψ²] = 2σ²`` is the lobe's f·cos at normal
+  incidence (narrow-lobe limit): the scale of the cap rules' nodes
+  (:mod:`jkatana.light.capquad`).
 - ``to_params() -> dict`` / ``LOBES[name].from_params(dict)`` /
   :func:`lobe_from_params`: a JSON-able description ``{"lobe": name, ...}``
   so that a parameter file can name its lobe.
@@ -106,6 +111,10 @@ class Lobe(eqx.Module):
         raise NotImplementedError
 
     def pdf(self, L, V):
+        raise NotImplementedError
+
+    def reflected_width(self) -> Float[Array, "*p"]:
+        """Width σ (rad) of the reflected lobe about the mirror direction (module docstring)."""
         raise NotImplementedError
 
     def f_cos(self, L: Float[Array, "*#b 3"], V: Float[Array, "*#b 3"]) -> Float[Array, "*#b"]:
@@ -232,6 +241,17 @@ class _GaussianBase(Lobe):
         """Density per steradian of sampled facet normals at facet angle φ."""
         return _rayleigh_pdf_h(self.mu, phi)
 
+    def reflected_width(self) -> Float[Array, "*p"]:
+        """σ = μ √(2/ln2): the moment-matched width of the reflected lobe.
+
+        D = exp(−ln2 φ²/μ²) (Mochizuki et al., eq. 1) is a Gaussian in the facet
+        tilt with ``E[φ²] = μ²/ln2`` over the tangent plane; at normal incidence
+        the reflected ray lies at ``ψ = 2φ`` from the mirror direction, so
+        ``E[ψ²] = 4μ²/ln2 = 2σ²``, up to a relative ``O(σ²)`` from
+        ``sin ψ ≠ ψ`` and the lobe's 1/cos θH or shadowing factor.
+        """
+        return jnp.asarray(self.mu) * math.sqrt(2.0 / LN2)
+
     def facet_mass(self):
         """Probability that a sampled facet normal lies in the upper hemisphere: 1 − exp(−ln2 (π/2)²/μ²)."""
         mu = jnp.maximum(jnp.asarray(self.mu), WIDTH_MIN)
@@ -317,6 +337,24 @@ class _Microfacet(Lobe):
     def pdf_h(self, phi, cos_phi):
         """Density per steradian of sampled facet normals: D cos φ."""
         return self.D(phi, cos_phi) * cos_phi
+
+    def reflected_width(self) -> Float[Array, "*p"]:
+        """σ = √2 α: the moment-matched width of the Beckmann lobe of this α, shared by GGX and GTR.
+
+        Beckmann: α is the RMS slope of the facets (Beckmann & Spizzichino 1963;
+        Walter et al. 2007, eq. 25), ``E[tan²φ] = α²`` under D cos φ dω_h, and the
+        reflected ray at normal incidence lies at ``ψ = 2φ``, so
+        ``E[ψ²] ≈ 4α² = 2σ²`` (relative ``O(α²)`` from ``φ ≠ tan φ``). GTR's
+        slopes have the core density ∝ (α² + tan²φ)^−γ (Burley 2012), whose
+        second moment is ``α²/(γ − 2)`` for γ > 2 (moment-matched width
+        ``α √(2/(γ − 2))``: this σ at γ = 3, α at γ = 4) and unbounded for
+        γ ≤ 2 (GGX is γ = 2): a heavy tail has no moment-matched Gaussian.
+        For GGX and GTR σ is the scale of the core, √γ times its
+        peak-curvature width ``α √(2/γ)`` (the Gaussian with the same second
+        derivative of ln f·cos at the mirror direction). The width places a
+        cap rule's nodes: a wrong one costs accuracy there, not correctness.
+        """
+        return jnp.asarray(self.alpha) * math.sqrt(2.0)
 
     def sample(self, V, u, uc=None):
         return _sampled(self, V, self.sample_h(u))
@@ -511,6 +549,18 @@ class Mixture(Lobe):
 
     def pdf_h(self, phi, cos_phi):
         return self.weight * self.first.pdf_h(phi, cos_phi) + (1.0 - self.weight) * self.second.pdf_h(phi, cos_phi)
+
+    def reflected_width(self) -> Float[Array, "*p"]:
+        """σ = √(w σ₁² + (1 − w) σ₂²): the second moment of the mixture, that of its parts weighted.
+
+        Exact for the mixture's pdf and for the f·cos of parts that each reflect
+        the same energy at normal incidence (normalised lobes, to their
+        ``O(σ²)`` albedo loss). For a sharp part over a wide haze one Gaussian
+        is a coarse node scale: a cap rule resolves such a mixture better part
+        by part, each at its own width.
+        """
+        w = self.weight
+        return jnp.sqrt(w * self.first.reflected_width() ** 2 + (1.0 - w) * self.second.reflected_width() ** 2)
 
     def sample_h(self, u, uc):
         """Facet normal of the part ``uc`` picks.

@@ -2,7 +2,7 @@
 
 A sun found in the environment (:mod:`jkatana.light.sun`) travels as
 :class:`~jkatana.render.environment.Caps`; the deterministic modes integrate each
-cap against each lobe by a fixed rule (:func:`jkatana.light.sun.cap_nodes`, or
+cap against each lobe by a fixed rule (:func:`jkatana.light.capquad.cap_nodes`, or
 Stroud's 4-point disc rule, Stroud 1971, for lobes much wider than the cap), and
 the sampling modes draw one direction per cap, uniform in its cone, combined with
 the other strategies by the balance heuristic (Veach & Guibas 1995). Without caps
@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jkatana.light import sun
+from jkatana.light import capquad
 from jkatana.models.geometry import tangent_frame, to_local
 from jkatana.models.microfacet import gaussian_normalisation
 from jkatana.render.environment import Caps, Environment
@@ -33,12 +33,12 @@ def _caps(env: Environment) -> Caps | None:
 def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
     """``[(weight · ∫_cap a dω, Fresnel cosine at the cap centre), ...]`` per lobe term, ``(P,)`` each.
 
-    ``rule``: ``"nodes"``: the rule of :func:`jkatana.light.sun.cap_nodes` about each
+    ``rule``: ``"nodes"``: the rule of :func:`jkatana.light.capquad.cap_nodes` about each
     lobe's mirror direction with the lobe's own width
-    (:func:`~jkatana.light.sun.lobe_width`), :data:`~jkatana.light.sun.CAP_RULE` nodes per point, any
-    lobe width; ``"stroud"``: the 4 fixed directions of
-    :func:`~jkatana.light.sun.cap_disc_nodes`, for lobes at least
-    :data:`~jkatana.light.sun.STROUD_MIN_WIDTH` cap radii wide. Applied to the
+    (:meth:`~jkatana.models.lobes.Lobe.reflected_width`),
+    :data:`~jkatana.light.capquad.CAP_RULE` nodes per point, any lobe width; ``"stroud"``: the 4 fixed
+    directions of :func:`~jkatana.light.capquad.cap_disc_nodes`, for lobes at least
+    :data:`~jkatana.light.capquad.STROUD_MIN_WIDTH` cap radii wide. Applied to the
     Fresnel-free values ``a`` of the lobe objects; the Fresnel factor is taken at
     the cap's centre (it varies by ``|dF/dθ| · r`` across the cap, below 1e-4 for
     a sub-degree sun on iron).
@@ -46,20 +46,20 @@ def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
     Cl = to_local(Cw, *fr)
     out = []
     if rule == "stroud":
-        Lw, q = sun.cap_disc_nodes(Cw, radius)  # (4, 3), (4,): the same for every pixel
+        Lw, q = capquad.cap_disc_nodes(Cw, radius)  # (4, 3), (4,): the same for every pixel
         Ll = to_local(Lw[:, None, :], *fr)  # (4, P, 3)
         for lobe, weight, gain in lobes:
             weight = weight if gain is None else weight * gain
             for (a, _), (_, c) in zip(lobe.terms(Ll, Vl), lobe.terms(Cl, Vl)):
                 out.append((weight * jnp.einsum("n,np->p", q.astype(a.dtype), a), c))
         return out
-    n_radial, n_azimuth = sun.CAP_RULE
+    n_radial, n_azimuth = capquad.CAP_RULE
     R = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
     N = jnp.asarray([0.0, 0.0, 1.0], Vl.dtype)
     for lobe, weight, gain in lobes:
         weight = weight if gain is None else weight * gain
-        sigma = jnp.broadcast_to(jnp.maximum(sun.lobe_width(lobe), 1e-6), Vl.shape[:1]).astype(Vl.dtype)
-        L, q = sun.cap_nodes(R, Cl, radius, sigma, normal=N, n_radial=n_radial, n_azimuth=n_azimuth)
+        sigma = jnp.broadcast_to(jnp.maximum(lobe.reflected_width(), 1e-6), Vl.shape[:1]).astype(Vl.dtype)
+        L, q = capquad.cap_nodes(R, Cl, radius, sigma, normal=N, n_radial=n_radial, n_azimuth=n_azimuth)
         nodes = lobe.terms(jnp.moveaxis(L, 0, 2), Vl)  # (A, Q, P): the pixel axis last, as the lobe's parameters
         qt = jnp.moveaxis(q, 0, 2).astype(Vl.dtype)
         for (a, _), (_, c) in zip(nodes, lobe.terms(Cl, Vl)):
@@ -98,17 +98,17 @@ def _tabulated_norms(plan: Plan, mat: Material, px: Pixels, n: int = 128):
 
 def cap_rule_for(plan: Plan, env: Environment, px: Pixels) -> str:
     """The cap rule the deterministic modes use for these pixels: ``"stroud"`` where every lobe in use is
-    at least :data:`~jkatana.light.sun.STROUD_MIN_WIDTH` times wider than the largest cap, else
+    at least :data:`~jkatana.light.capquad.STROUD_MIN_WIDTH` times wider than the largest cap, else
     ``"nodes"``. Host-side, on concrete pixels (a static choice, as ``Plan.fresnel_rank``)."""
     caps = _caps(env)
     if caps is None:
         return "nodes"
-    widths = [np.asarray(jnp.where(weight > 0, sun.lobe_width(lobe), jnp.inf)).min(initial=np.inf)
+    widths = [np.asarray(jnp.where(weight > 0, lobe.reflected_width(), jnp.inf)).min(initial=np.inf)
               for lobe, weight, _ in _lobes(plan, px, (1.0, 1.0))]
     if not widths:
         return "nodes"
     r_max = float(np.asarray(caps.radius).max())
-    return "stroud" if min(widths) >= sun.STROUD_MIN_WIDTH * r_max else "nodes"
+    return "stroud" if min(widths) >= capquad.STROUD_MIN_WIDTH * r_max else "nodes"
 
 
 def _cap_offsets(plan: Plan, key, P, dtype, ids, K, stream: int = 0x53554E):

@@ -67,9 +67,9 @@ class Plan:
       shifted ones. Without ids (or ``S = 1``) every G-buffer sample is its own pixel.
     - `cap_rule`: how the prefiltered and paper modes integrate the environment's
       split caps (:attr:`~jkatana.render.environment.Environment.caps`):
-      ``"nodes"`` (:func:`jkatana.light.sun.cap_nodes`, 64 lobe evaluations per
+      ``"nodes"`` (:func:`jkatana.light.capquad.cap_nodes`, 64 lobe evaluations per
       pixel and cap, any lobe width) or ``"stroud"``
-      (:func:`jkatana.light.sun.cap_disc_nodes`, 4, for lobes ≥ 8 cap radii
+      (:func:`jkatana.light.capquad.cap_disc_nodes`, 4, for lobes ≥ 8 cap radii
       wide). ``None``: :func:`jkatana.render.frame.shade_pixels` picks it from the
       pixels' lobe widths (:func:`~jkatana.render.caps.cap_rule_for`);
       :func:`shade` called directly treats ``None`` as ``"nodes"``.

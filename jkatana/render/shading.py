@@ -41,9 +41,9 @@ sampler and prefiltered levels are the remainder's, and each cap is a light
 of its own:
 
 - ``"prefiltered"`` and ``"paper"``: ``L_cap ∫_cap f_r cos θi dω`` per lobe by
-  a deterministic cap rule (:func:`jkatana.light.sun.cap_nodes`, 4 × 16 nodes
+  a deterministic cap rule (:func:`jkatana.light.capquad.cap_nodes`, 4 × 16 nodes
   about the lobe's mirror direction, or Stroud's 4 directions of
-  :func:`~jkatana.light.sun.cap_disc_nodes` when every lobe is ≥ 8 cap radii
+  :func:`~jkatana.light.capquad.cap_disc_nodes` when every lobe is ≥ 8 cap radii
   wide, ``Plan.cap_rule``; Fresnel at the cap centre), no noise;
 - ``"reference"`` and ``"lowrank"``: a third strategy, one direction uniform in
   each cap's cone per sample, combined with the lobe samples by the balance
