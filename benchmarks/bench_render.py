@@ -76,7 +76,7 @@ SUNRISE_ROTATION_DEG = 170.0
 
 
 def _glint_scene(res):
-    from jkatana.render.scene import DEMO_SCENE
+    from jkatana.render.scenefile import DEMO_SCENE
 
     raw = json.loads(json.dumps(DEMO_SCENE))
     raw["camera"]["resolution"] = res
@@ -86,7 +86,7 @@ def _glint_scene(res):
 
 
 def _scenes(quick: bool):
-    from jkatana.render.scene import DEMO_SCENE
+    from jkatana.render.scenefile import DEMO_SCENE
 
     res = [200, 150] if quick else [800, 600]
     demo = json.loads(json.dumps(DEMO_SCENE))
@@ -158,7 +158,7 @@ def _convergence(quick: bool, budget: float, left, scenes: dict | None = None,
     import jax
 
     from jkatana.render.renderer import prepare, render_view
-    from jkatana.render.scene import scene_from_dict
+    from jkatana.render.scenefile import scene_from_dict
 
     rows = []
     ref_spp = 256 if quick else 512
@@ -675,7 +675,7 @@ def _low_noise_extension(mitsuba, jkatana, mc, spps, curves, size, ss, left) -> 
 def _effects(quick: bool) -> list[dict]:
     """An effect the scene does not need, switched off, against the same image with it traced."""
     from jkatana.render.renderer import prepare, render_view
-    from jkatana.render.scene import scene_from_dict
+    from jkatana.render.scenefile import scene_from_dict
 
     res = [160, 120] if quick else [400, 300]
     base = {"geometry": {"sphere": {"radius": 1.0}}, "material": {"w": 1.0, "mu0": 0.05, "mu1": 0.05},
@@ -741,7 +741,7 @@ def _devices(quick: bool) -> list[dict]:
 
     from jkatana.render.frame import render_frame
     from jkatana.render.renderer import prepare
-    from jkatana.render.scene import DEMO_SCENE, scene_from_dict
+    from jkatana.render.scenefile import DEMO_SCENE, scene_from_dict
 
     raw = json.loads(json.dumps(DEMO_SCENE))
     raw["camera"]["resolution"] = [200, 150] if quick else [800, 600]

@@ -22,7 +22,7 @@ from pathlib import Path
 _BAKE = """
 import json, resource, sys, time, numpy as np
 from pathlib import Path
-from jkatana.render.scene import scene_from_dict
+from jkatana.render.scenefile import scene_from_dict
 from jkatana.render.renderer import load_environment
 from jkatana.interactive.bake import cached_bake
 scene = scene_from_dict({{"environment": {{"type": "hdr", "path": {hdr!r}}}}})
@@ -41,7 +41,7 @@ print(json.dumps({{"first_s": first, "reload_s": again, "peak_rss_mb": peak, "ca
 _LOAD = """
 import json, os, time
 os.environ["JKATANA_CACHE"] = {cache!r}
-from jkatana.render.scene import scene_from_dict
+from jkatana.render.scenefile import scene_from_dict
 from jkatana.render.renderer import prepare
 scene = scene_from_dict({{"environment": {{"type": "hdr", "path": {hdr!r}}}}})
 out = []

@@ -47,7 +47,7 @@ from jkatana.render.film import display  # noqa: E402
 from jkatana.spectral.colorimetry import luminance_weights  # noqa: E402
 from jkatana.render.frame import gbuffer  # noqa: E402
 from jkatana.render.renderer import camera_for, exposure_for, prepare, render_view, write_outputs  # noqa: E402
-from jkatana.render.scene import DEMO_SCENE, scene_from_dict  # noqa: E402
+from jkatana.render.scenefile import DEMO_SCENE, scene_from_dict  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "output"
 #: v of the shinogi on the built-in blade (KatanaSpec.shinogi_position): the ji starts below it.

@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     try:
         from jkatana.render.batch import plan_batch, run_batch_serial, summary_table
-        from jkatana.render.scene import DEMO_SCENE, scene_from_dict
+        from jkatana.render.scenefile import DEMO_SCENE, scene_from_dict
     except ImportError as err:
         print(f"turntable: needs the reference renderer's batch API (jkatana.render.batch: plan_batch, "
               f"run_batch_serial; jkatana.render.scene) which is not available here ({err})", file=sys.stderr)

@@ -356,7 +356,7 @@ def test_simulate_resume_with_other_inputs_refused(tmp_path, capsys):
 
 def test_render_resume_with_other_scene_refused(tmp_path):
     from jkatana.render.batch import _record, finished, plan_batch, plan_resume, scene_inputs
-    from jkatana.render.scene import load_scene
+    from jkatana.render.scenefile import load_scene
 
     (tmp_path / "scene.toml").write_text(sphere_scene(48, 32, 4, spectral=GRID))
     scene = load_scene(tmp_path / "scene.toml")
@@ -381,7 +381,7 @@ def test_render_resume_with_other_scene_refused(tmp_path):
 
 def test_unreachable_scheduler_refused_in_time(tmp_path):
     from jkatana.render.batch import plan_batch, run_batch_dask
-    from jkatana.render.scene import load_scene
+    from jkatana.render.scenefile import load_scene
 
     (tmp_path / "scene.toml").write_text(sphere_scene(8, 8, 1, spectral=GRID))
     scene = load_scene(tmp_path / "scene.toml").with_output_directory(tmp_path / "out")

@@ -10,7 +10,7 @@ from jkatana.light import cache
 
 
 def _scene(tmp_path, env_path, rotation=0.0, mode="reference"):
-    from jkatana.render.scene import scene_from_dict
+    from jkatana.render.scenefile import scene_from_dict
 
     return scene_from_dict({
         "geometry": {"sphere": {"center": [0.0, 0.0, 0.0], "radius": 1.0}},
@@ -114,10 +114,11 @@ def test_light_prefilter_fills_the_cache_a_render_then_reads(tmp_path, monkeypat
     """`jkatana light prefilter SCENE` builds the scene's environment into the cache; `prepare` then hits it."""
     from jkatana.cli import main
     from jkatana.render.renderer import prepare
+    from jkatana.render.scenefile import scene_to_toml
 
     monkeypatch.setenv("JKATANA_CACHE", str(tmp_path / "cache"))
     scene = _scene(tmp_path, _env_file(tmp_path), mode="prefiltered")
-    (tmp_path / "scene.toml").write_text(scene.to_toml_text())
+    (tmp_path / "scene.toml").write_text(scene_to_toml(scene))
     assert main(["light", "prefilter", str(tmp_path / "scene.toml")]) == 0
     assert "cached" in capsys.readouterr().out
     made = sorted(p.name for p in cache.cache_root().rglob("*") if p.is_file())

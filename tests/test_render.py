@@ -17,7 +17,7 @@ from jkatana.render.camera import Camera
 from jkatana.render.film import film_weights
 from jkatana.render.frame import render_frame
 from jkatana.render.gbuffer import gbuffer_sphere
-from jkatana.render.scene import load_scene, scene_from_dict
+from jkatana.render.scenefile import load_scene, scene_from_dict, scene_to_toml
 from jkatana.render.shading import Material, Plan, build_environment, fresnel_table
 from jkatana.spectral import DEFAULT_GRID
 
@@ -360,7 +360,7 @@ def test_scene_types_and_ranges_are_strict(tmp_path, text, field):
 
 
 def test_scene_is_typed_and_its_toml_text_reads_back(tmp_path):
-    """Every section is a typed dataclass; to_toml_text is TOML that validates to the same scene."""
+    """Every section is a typed dataclass; scene_to_toml writes TOML that validates to the same scene."""
     text = SMALL + textwrap.dedent("""
         [[lights]]
         type = "directional"
@@ -378,10 +378,32 @@ def test_scene_is_typed_and_its_toml_text_reads_back(tmp_path):
     assert scene.environment.sun is True and scene.output.spectral is False
     assert scene.material.uniform.mu1 == 0.08 and scene.lights[0].spectrum == 5000.0
     assert scene.spectral.grid.size == GRID.size and scene.occluders[0].radius == 0.2
-    back = scene_from_dict(tomllib.loads(scene.to_toml_text()), scene.path)
+    back = scene_from_dict(tomllib.loads(scene_to_toml(scene)), scene.path)
     assert back == scene
     moved = scene.with_output_directory(tmp_path / "elsewhere")
     assert moved.output.directory == tmp_path / "elsewhere" and scene.output.directory == tmp_path / "out"
+
+
+def test_the_typed_scene_does_not_import_its_reader():
+    """``jkatana.render.scene`` (the dataclasses) has no module-level import of ``jkatana.render.scenefile``
+    (which imports it: no cycle); the reader's names are still reachable from it, as the reader's objects."""
+    import ast
+    import inspect
+
+    import jkatana.render.scene as S
+    import jkatana.render.scenefile as F
+
+    tree = ast.parse(inspect.getsource(S))
+    top = [n for n in tree.body if isinstance(n, (ast.Import, ast.ImportFrom))]
+    names = [a.name for n in top for a in n.names] + [n.module for n in top if isinstance(n, ast.ImportFrom)]
+    assert not any("scenefile" in (m or "") for m in names), names
+    from jkatana.render.scene import DEMO_SCENE, default_scene, load_scene, scene_from_dict
+
+    assert (load_scene, scene_from_dict, default_scene, DEMO_SCENE) == (F.load_scene, F.scene_from_dict,
+                                                                       F.default_scene, F.DEMO_SCENE)
+    with pytest.raises(AttributeError):
+        S.no_such_name
+
 
 
 def test_zero_area_and_degenerate_cameras():

@@ -12,7 +12,7 @@ import trimesh
 from jkatana.errors import InputError
 from jkatana.render.camera import Camera
 from jkatana.render.check import SceneWarning, check_scene, warn_scene
-from jkatana.render.scene import DEMO_SCENE, scene_from_dict
+from jkatana.render.scenefile import DEMO_SCENE, scene_from_dict
 from jkatana.shape.katana import default_blade, export_blade, welded
 
 

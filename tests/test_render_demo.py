@@ -15,7 +15,7 @@ from jkatana.light.sky import sun_direction
 from jkatana.maps.reflectance_map import PAPER_PARAMETERS, default_map
 from jkatana.render.frame import gbuffer
 from jkatana.render.renderer import camera_for, load_geometry
-from jkatana.render.scene import DEMO_SCENE, default_scene
+from jkatana.render.scenefile import DEMO_SCENE, default_scene
 
 
 @pytest.fixture(scope="module")

@@ -24,7 +24,7 @@ from jkatana.errors import InputError
 from jkatana.fit._model import FIT_MODELS, MODELS, ModelSpec, from_natural, green, prepare as prepare_terms
 from jkatana.models.lobes import lobe_from_params, lobe_shape, lobe_with_width, normalised_params
 from jkatana.render.renderer import camera_for, prepare, render_view
-from jkatana.render.scene import load_scene
+from jkatana.render.scenefile import load_scene
 
 #: Natural values of every fit model (widths where the lobes differ visibly on a sphere).
 VALUES = {"hiraji": {"chi": 79000.0, "mu": 0.05}, "hamon": {"beta": 43000.0, "mu": 0.1},

@@ -136,7 +136,7 @@ def test_render_view_supersample_box_averages_a_shared_set():
     with one per-pixel set (equal to averaging ``render_frame(supersample=2)`` by hand), close to the
     1-subpixel frame where the image is smooth."""
     from jkatana.render.renderer import camera_for, prepare, render_view
-    from jkatana.render.scene import scene_from_dict
+    from jkatana.render.scenefile import scene_from_dict
 
     raw = {"geometry": {"sphere": {"radius": 1.0}}, "material": {"w": 0.0, "mu0": 0.05, "mu1": 0.2},
            "environment": {"type": "sky", "resolution": [16, 32]}, "camera": {"type": "lookat",

@@ -18,7 +18,8 @@ from jkatana.render.camera import Camera
 from jkatana.render.film import film_weights
 from jkatana.render.frame import render_frame
 from jkatana.render.gbuffer import Occluders, gbuffer_sphere, occluder_mesh
-from jkatana.render.scene import Occluder, load_scene, scene_from_dict
+from jkatana.render.scene import Occluder
+from jkatana.render.scenefile import load_scene, scene_from_dict
 from jkatana.render.shading import Light, Material, Plan, build_environment, fresnel_table
 from jkatana.spectral import DEFAULT_GRID
 

@@ -116,7 +116,7 @@ def test_blade_uv_layout_renders_the_procedural_hamon_as_before(tmp_path):
     import colour
 
     from jkatana.render.renderer import prepare, render_view
-    from jkatana.render.scene import DEMO_SCENE, scene_from_dict
+    from jkatana.render.scenefile import DEMO_SCENE, scene_from_dict
 
     mesh, _ = prepare_mesh(_blade_in_mm_without_uvs(), source="blade.ply", suffix=".ply")
     export_blade(mesh, tmp_path / "blade.ply")

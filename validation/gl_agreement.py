@@ -48,7 +48,7 @@ def shared_environment(name: str) -> np.ndarray:
     :func:`jkatana.shared.shared_data`) as ``jkatana render`` loads it (the scene's default upsampling and
     scale, through :func:`jkatana.render.renderer.load_environment` and its cache)."""
     from jkatana.render.renderer import load_environment
-    from jkatana.render.scene import scene_from_dict
+    from jkatana.render.scenefile import scene_from_dict
     from jkatana.shared import shared_data
 
     d = render_scene(View(np.eye(4), 0.5, 8, 6))
@@ -76,7 +76,7 @@ def sun_glint_view(mesh, radiance: np.ndarray, width: int, height: int) -> View:
 def view_camera(view: View) -> Camera:
     """The :class:`jkatana.render.camera.Camera` of ``view`` (the camera :func:`render_scene` describes)."""
     from jkatana.render.renderer import camera_for
-    from jkatana.render.scene import scene_from_dict
+    from jkatana.render.scenefile import scene_from_dict
 
     return camera_for(scene_from_dict(render_scene(view)))
 
@@ -92,7 +92,7 @@ def reference_frame(radiance: np.ndarray, view: View, *, mode: str = "reference"
                     seed: int = 0):
     """:class:`jkatana.render.frame.Frame` of ``view`` under the spectral environment ``radiance (H, W, 61)``."""
     from jkatana.render.renderer import prepare, render_view
-    from jkatana.render.scene import scene_from_dict
+    from jkatana.render.scenefile import scene_from_dict
 
     sc = scene_from_dict(render_scene(view, mode=mode, samples=samples, seed=seed))
     prep = prepare(sc, env_radiance=np.asarray(radiance, np.float32))

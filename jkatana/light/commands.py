@@ -257,7 +257,7 @@ def _prefilter(args) -> int:
 
     from jkatana.light.cache import cache_root
     from jkatana.render.renderer import prepare
-    from jkatana.render.scene import load_scene
+    from jkatana.render.scenefile import load_scene
 
     scene = load_scene(args.scene)
     t0 = time.perf_counter()

@@ -75,7 +75,7 @@ def _flatten(value, prefix: str, out: dict) -> None:
 def scene_inputs(scene: Scene, *, mode=None, samples=None) -> dict:
     """Everything that decides a frame's pixels, flat and JSON-comparable (no output location).
 
-    The scene's fields (from :meth:`Scene.to_toml_text`), the effective shading mode and samples
+    The scene's fields (:meth:`Scene.to_dict`, the file's schema), the effective shading mode and samples
     (command-line overrides applied), and for each file the scene names its size and
     modification time (a replaced environment map or mesh changes the frame too).
     """

@@ -100,7 +100,7 @@ def demo_run(args: argparse.Namespace) -> int:
     numbers(args.resolution, "--resolution", lo=1, hi=2 ** 15, integer=True)
     check_outputs([Output(args.output, "--output", folder=True)])
     _setup_devices(args.devices)
-    from jkatana.render.scene import DEMO_SCENE, scene_from_dict
+    from jkatana.render.scenefile import DEMO_SCENE, scene_from_dict
 
     raw = {k: dict(v) if isinstance(v, dict) else v for k, v in DEMO_SCENE.items()}
     raw["output"] = {"directory": str(Path(args.output)), "name": "demo"}
@@ -131,7 +131,7 @@ def demo_run(args: argparse.Namespace) -> int:
 
 
 def render_add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scene", help="scene TOML file (schema: jkatana.render.scene)")
+    p.add_argument("scene", help="scene TOML file (schema: jkatana.render.scenefile)")
     p.add_argument("--views", type=int, default=1, help="camera azimuths evenly around the target")
     p.add_argument("--lights", type=int, default=1, help="environment rotations evenly about +Y")
     p.add_argument("-o", "--output", default=None, help="output folder (default: the scene's)")
@@ -156,7 +156,7 @@ def render_run(args: argparse.Namespace) -> int:
         raise InputError(f"not a scheduler address: {args.scheduler!r}", field="--scheduler")
     _setup_devices(args.devices)
     from jkatana.render.batch import plan_batch, run_batch_dask, run_batch_serial, summary_table
-    from jkatana.render.scene import load_scene
+    from jkatana.render.scenefile import load_scene
 
     scene = load_scene(args.scene)
     if args.output:

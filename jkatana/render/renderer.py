@@ -27,6 +27,7 @@ from jkatana.render.camera import Camera
 from jkatana.render.film import display, scene_exposure, film_weights, write_png, write_spectral_exr, write_xyz_exr
 from jkatana.render.frame import Frame, pixel_blocks, render_frame
 from jkatana.render.scene import LIMITS, RENDER_MODES, Scene
+from jkatana.render.scenefile import scene_to_toml
 from jkatana.render.environment import SPLIT_MODES
 from jkatana.render.shading import MIRROR_MU, Environment, Light, Material, Plan, build_environment, fresnel_table
 from jkatana.spectral.grid import WavelengthGrid
@@ -405,7 +406,7 @@ def metadata(prep: Prepared, frame: Frame, exposure: float, extra: dict | None =
     p = prep.plan
     return {
         "jkatana_version": ver,
-        "jkatana_scene": prep.scene.to_toml_text(),
+        "jkatana_scene": scene_to_toml(prep.scene),
         "jkatana_grid": f"{prep.grid.start:g}-{prep.grid.stop:g} nm step {prep.grid.step:g} ({prep.grid.size})",
         "jkatana_mode": p.mode,
         "jkatana_samples": int(p.samples),
@@ -440,6 +441,6 @@ def write_outputs(prep: Prepared, frame: Frame, stem: Path, extra: dict | None =
 
 @functools.lru_cache(maxsize=4)
 def _cached_prepare(scene_path: str, mode, samples):  # pragma: no cover - used by dask workers
-    from jkatana.render.scene import load_scene
+    from jkatana.render.scenefile import load_scene
 
     return prepare(load_scene(scene_path), mode=mode, samples=samples)
