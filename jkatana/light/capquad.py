@@ -62,7 +62,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jkatana.light.sun import SunCap
+from jkatana.light.sun import SunCap, cap_solid_angle
 from jkatana.models._safe import norm, normalize, safe_atan2, safe_div, safe_sqrt
 from jkatana.models.geometry import tangent_frame
 
@@ -199,7 +199,7 @@ def cap_point_integral(brdf_cos: Callable, V: Float[Array, "*b 3"], C: Float[Arr
     """
     V = jnp.asarray(V)
     C = normalize(jnp.asarray(C, V.dtype))
-    omega = 4.0 * jnp.pi * jnp.sin(0.5 * jnp.asarray(radius, V.dtype)) ** 2
+    omega = cap_solid_angle(jnp.asarray(radius, V.dtype))
     return brdf_cos(C, jnp.broadcast_to(V, C.shape)) * omega[..., None]
 
 
@@ -229,7 +229,7 @@ def cap_disc_nodes(C: Float[Array, "*b 3"], radius) -> tuple[Float[Array, "*b 4 
     a = r / math.sqrt(2.0)
     ca, sa = jnp.cos(a)[..., None], jnp.sin(a)[..., None]
     L = jnp.stack([ca * C + sa * e1, ca * C - sa * e1, ca * C + sa * e2, ca * C - sa * e2], axis=-2)
-    w = jnp.broadcast_to((jnp.pi * jnp.sin(0.5 * r) ** 2)[..., None], L.shape[:-1])  # Ω/4 each
+    w = jnp.broadcast_to((0.25 * cap_solid_angle(r))[..., None], L.shape[:-1])  # Ω/4 each
     return L, w
 
 

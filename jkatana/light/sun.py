@@ -62,6 +62,7 @@ import math
 from dataclasses import dataclass
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -70,6 +71,18 @@ from jkatana.errors import InputError
 from jkatana.light.envmap import EnvMap, texel_directions_np, texel_solid_angles_np
 from jkatana.spectral.colorimetry import xyz_weights
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
+
+
+def cap_solid_angle(radius):
+    """Solid angle of a spherical cap of angular radius ``r``: ``Ω = 2π (1 − cos r) = 4π sin²(r/2)``.
+
+    The half-angle form keeps sub-degree caps accurate in float32 (``1 − cos r``
+    would cancel). A JAX array (traced or not) gives a JAX array of its dtype;
+    a Python or NumPy number is evaluated on the host in float64.
+    """
+    if isinstance(radius, jax.Array):
+        return 4.0 * jnp.pi * jnp.sin(0.5 * radius) ** 2
+    return 4.0 * np.pi * np.sin(0.5 * np.float64(radius)) ** 2
 
 
 class SunCap(eqx.Module):
@@ -90,8 +103,8 @@ class SunCap(eqx.Module):
 
     @property
     def solid_angle(self) -> Float[Array, ""]:
-        """``Ω = 2π (1 − cos r) = 4π sin²(r/2)`` (the half-angle form keeps small caps accurate)."""
-        return 4.0 * jnp.pi * jnp.sin(0.5 * self.radius) ** 2
+        """``Ω`` of the cap (:func:`cap_solid_angle`)."""
+        return cap_solid_angle(self.radius)
 
     def power(self) -> Float[Array, "wl"]:
         """``L_cap Ω_cap`` per band (units of the map × sr), comparable to ``Σ L Ω`` of a map."""
@@ -124,6 +137,11 @@ class SunSplit:
 
 
 # ---------------------------------------------------------------- detection
+
+
+def _luminance(L: np.ndarray, grid: WavelengthGrid) -> np.ndarray:
+    """CIE Y of spectral radiances ``L (..., wl)`` (the grid's ȳ quadrature weights), in L's NumPy precision."""
+    return L @ xyz_weights(grid)[:, 1]
 
 
 def _weighted_median(y: np.ndarray, w: np.ndarray) -> float:
@@ -191,7 +209,7 @@ def find_compact_sources(env: EnvMap, *, contrast: float = 1000.0, max_solid_ang
                          field="sun")
     L = np.asarray(env.radiance, np.float64)
     H, W, _ = L.shape
-    y = L @ xyz_weights(env.grid)[:, 1]
+    y = _luminance(L, env.grid)
     omega = texel_solid_angles_np(H, W)
     power = y * omega
     total = power.sum()
@@ -228,7 +246,7 @@ def _cap_geometry(y: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def _cap_from_powers(direction, radius: float, removed_power: np.ndarray, grid: WavelengthGrid, dtype) -> SunCap:
-    omega_cap = 4.0 * math.pi * math.sin(0.5 * radius) ** 2
+    omega_cap = cap_solid_angle(radius)
     return SunCap(jnp.asarray(direction, dtype), jnp.asarray(radius, dtype),
                   jnp.asarray(np.maximum(removed_power, 0.0) / omega_cap, dtype), grid)
 
@@ -256,7 +274,7 @@ def split_compact_sources(env: EnvMap, *, contrast: float = 1000.0, max_solid_an
         return SunSplit((), env)
     dtype = env.radiance.dtype
     L = np.asarray(env.radiance, np.float64)
-    y = L @ xyz_weights(env.grid)[:, 1]
+    y = _luminance(L, env.grid)
     rest = L.copy()
     fills = []
     for reg in regions:
@@ -306,7 +324,7 @@ def split_sky_sun(elevation_deg: float = 30.0, azimuth_deg: float = 180.0, turbi
     remainder = EnvMap(jnp.asarray(np.where(mask[..., None], np.maximum(L - disc, 0.0), L), dtype), grid)
     removed = _band_power(L) - _band_power(np.asarray(remainder.radiance, np.float64))
     cap = _cap_from_powers(s, sky.SOLAR_RADIUS, removed, grid, dtype)
-    y = L @ xyz_weights(grid)[:, 1]
+    y = _luminance(L, grid)
     omega = texel_solid_angles_np(H, W)
-    fraction = float((disc @ xyz_weights(grid)[:, 1] * omega).sum() / (y * omega).sum())
+    fraction = float((_luminance(disc, grid) * omega).sum() / (y * omega).sum())
     return env, SunSplit((cap,), remainder, (mask,), (fraction,), (float(omega[mask].sum()),))
