@@ -45,7 +45,7 @@ quadrature rules", Math. Comp. 23, via :func:`numpy.polynomial.legendre.leggauss
 Error bound of the default rule (4 radial × 16 azimuthal nodes, 64 BRDF
 evaluations), relative to the value with the cap centred on R, for the
 paper's lobe at μ = 0.001…0.3, incidence 0–69°, the sun's 0.255° cap, pinned
-against a dense quadrature in ``tests/test_light_sun.py``: ≤ 2e-2 where the
+against a dense quadrature in ``tests/test_light_capquad.py``: ≤ 2e-2 where the
 cap's edge crosses a lobe narrower than the cap (the antialiasing of the
 glint's outline: there the integrand has a near-step in φ that the rule
 resolves only to its node spacing), ≤ 1e-3 everywhere else. More azimuths
@@ -214,7 +214,7 @@ def cap_disc_nodes(C: Float[Array, "*b 3"], radius) -> tuple[Float[Array, "*b 4 
     of width σ ≫ r the error is of order ``(r/σ)⁴`` (the lobe's quartic term
     across the cap; for a Gaussian centred on the cap ``t²/24`` with
     ``t = r²/(2σ²)``), against ``(r/σ)²`` for the point light of
-    :func:`cap_point_integral`: pinned in ``tests/test_light_sun.py`` (≤ 1e-3 of
+    :func:`cap_point_integral`: pinned in ``tests/test_light_capquad.py`` (≤ 1e-3 of
     the peak value for σ ≥ 8 r, :data:`STROUD_MIN_WIDTH`, at incidence up to 70°,
     where a reflection lobe is narrowed to σ cos θ across the plane of incidence). The directions are the
     same for every shading point, so a renderer evaluates its lobe 4 times per
