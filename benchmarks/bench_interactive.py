@@ -24,7 +24,7 @@ then the shader once per covered pixel, see :mod:`jkatana.interactive.glrender`)
 - ``msaa4``: ``full`` with pyrender's 4× MSAA framebuffer (what pyrender does by default).
 
 Extra cases: ``env_f16`` / ``gbuffer_f16`` (``full`` with RGBA16F environment textures / G-buffer:
-the alternatives measured and not kept, see :data:`jkatana.interactive.glrender.ENV_FORMAT`), and
+the alternatives measured and not kept, see :data:`jkatana.interactive.glstate.ENV_FORMAT`), and
 ``viewer`` (the windowed Viewer under Xvfb, below).
 
 Two times per case, both honest, for two uses:
@@ -211,27 +211,25 @@ def run(quick: bool = False) -> list[dict]:
             if quick and cname in QUICK_SKIP.get(vname, ()):
                 continue
             tables = baked_sun[cfg.get("split_sun", True)] if vname == "glint_sunrise" else baked
-            G.ENV_FORMAT = formats[cfg.get("env_format", "RGBA32F")]
-            G.GBUFFER_FORMAT = formats[cfg.get("gbuffer_format", "RGBA32F")]
-            try:
-                st = G.ShadingState(tables, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
-                                    two_tap=cfg["two_tap"], taps=cfg.get("taps", 3), exposure=exposure)
-                r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"],
-                                             deferred=cfg.get("deferred"))
-                scene = G.build_scene(sc.mesh, view)
-                ctx = ctx or describe_context()
-                drawn = timeit(lambda: r.draw(scene), repeats=reps, warmup=2)
-                readback = timeit(lambda: r.render(scene), repeats=max(reps // 2, 3), warmup=1)
-                cpu_s = _cpu_per_frame(lambda: r.draw(scene), 5)
-                stages = _stages(r, scene, reps) if cname == "full" else None
-                frame = r.render(scene)
-                covered = int(np.any(frame != frame[0, 0], -1).sum())
-                r.delete()
-                r2 = G.BakedOffscreenRenderer(st, *err_res, samples=cfg["samples"], deferred=cfg.get("deferred"))
-                img = r2.render(G.build_scene(sc.mesh, small))
-                r2.delete()
-            finally:
-                G.ENV_FORMAT = G.GBUFFER_FORMAT = GL.GL_RGBA32F
+            gbuffer_format = formats[cfg.get("gbuffer_format", "RGBA32F")]
+            st = G.ShadingState(tables, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
+                                two_tap=cfg["two_tap"], taps=cfg.get("taps", 3), exposure=exposure,
+                                env_format=formats[cfg.get("env_format", "RGBA32F")])
+            r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"],
+                                         deferred=cfg.get("deferred"), gbuffer_format=gbuffer_format)
+            scene = G.build_scene(sc.mesh, view)
+            ctx = ctx or describe_context()
+            drawn = timeit(lambda: r.draw(scene), repeats=reps, warmup=2)
+            readback = timeit(lambda: r.render(scene), repeats=max(reps // 2, 3), warmup=1)
+            cpu_s = _cpu_per_frame(lambda: r.draw(scene), 5)
+            stages = _stages(r, scene, reps) if cname == "full" else None
+            frame = r.render(scene)
+            covered = int(np.any(frame != frame[0, 0], -1).sum())
+            r.delete()
+            r2 = G.BakedOffscreenRenderer(st, *err_res, samples=cfg["samples"], deferred=cfg.get("deferred"),
+                                          gbuffer_format=gbuffer_format)
+            img = r2.render(G.build_scene(sc.mesh, small))
+            r2.delete()
             stats, _ = A.compare(img, ref, fr.mask & np.any(img != img[0, 0], -1))
             err = {"dE00_mean": stats["mean"], "dE00_p95": stats["p95"], "dE00_max": stats["max"]}
             fps = 1.0 / drawn["median"]
