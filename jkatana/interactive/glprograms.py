@@ -222,7 +222,7 @@ class BakedProgramCache(ShaderProgramCache):
                                                 str(self._dir / fragment_shader), defines=defines)
                 program.state = self.state
                 if fragment_shader == "deferred.frag":
-                    program.gbuffer = {"jk_g0": 0, "jk_g1": 0}
+                    program.gbuffer = {"jk_g0": 0}
             self._program_cache[key] = program
         return self._program_cache[key]
 

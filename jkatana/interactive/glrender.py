@@ -4,10 +4,10 @@ Two ways to draw a frame, the same shading (``shaders/shade.glsl``, programs fro
 :mod:`jkatana.interactive.glprograms`, tables from :mod:`jkatana.interactive.glstate`):
 
 - **deferred** (headless default): pyrender's forward pass draws the mesh with
-  ``gbuffer.frag`` into two G-buffer targets (unit normal + u, world position + v)
-  and a depth buffer; then one full-screen triangle on the far plane, depth test
-  ``GL_GREATER`` against that depth, runs ``deferred.frag`` once per covered
-  pixel. llvmpipe rasterises in 4×4 blocks and runs the fragment shader on every
+  ``gbuffer.frag`` into one G-buffer target (the unit normal in octahedral
+  coordinates, u, v) and a depth buffer; then one full-screen triangle on the far
+  plane, depth test ``GL_GREATER`` against that depth, runs ``deferred.frag`` once
+  per covered pixel, with the view direction from the camera ray through the pixel. llvmpipe rasterises in 4×4 blocks and runs the fragment shader on every
   block a triangle touches, so on the dense blade mesh (51k triangles, most a few
   pixels) a forward shader runs 2–4× per covered pixel; deferred, the expensive
   shader runs once per pixel and the G-buffer pass costs a few stores per block.
@@ -48,9 +48,9 @@ from pyrender.renderer import Renderer  # noqa: E402
 from jkatana.interactive.glprograms import SHADER_DIR, BakedProgramCache  # noqa: E402
 from jkatana.interactive.glstate import ShadingState  # noqa: E402
 
-#: Default GL internal format of the two G-buffer targets: float32 keeps positions exact; RGBA16F (half
-#: the bytes) is no faster on llvmpipe, where the shading's arithmetic and filtered fetches, not memory
-#: traffic, bound the frame (bench_interactive's ``gbuffer_f16`` case).
+#: Default GL internal format of the G-buffer target: float32 keeps the map coordinates exact; RGBA16F
+#: (half the bytes) is no faster on llvmpipe, where the shading's arithmetic and filtered fetches, not
+#: memory traffic, bound the frame (bench_interactive's ``gbuffer_f16`` case).
 GBUFFER_FORMAT = GL.GL_RGBA32F
 
 
@@ -59,7 +59,7 @@ class SampleCountRenderer(Renderer):
     and, with ``deferred=True`` (needs ``samples=0``), deferred shading (see the module docstring).
 
     Deferred: :meth:`_forward_pass` draws the meshes into :attr:`_main_fb_ms`, which here is the
-    G-buffer framebuffer (two RGBA32F textures and a depth renderbuffer), then shades into
+    G-buffer framebuffer (one RGBA32F texture and a depth renderbuffer), then shades into
     :attr:`_main_fb` (an RGBA8 renderbuffer sharing that depth renderbuffer), which is read back
     (offscreen) or blitted to the window (on screen, pyrender's Viewer).
     After each frame :attr:`last_mask` holds the rasterised blade pixels (row 0 at the top) when
@@ -110,8 +110,8 @@ class SampleCountRenderer(Renderer):
         if not self.deferred:
             self._main_fb_ms, self._main_cb_ms, self._main_db_ms = fbo(self.samples)
         else:
-            # G-buffer: two float textures + the output framebuffer's depth renderbuffer
-            self._gtex = [int(x) for x in np.atleast_1d(GL.glGenTextures(2))]
+            # G-buffer: one float texture (octahedral normal, u, v) + the output framebuffer's depth renderbuffer
+            self._gtex = [int(x) for x in np.atleast_1d(GL.glGenTextures(1))]
             for tex in self._gtex:
                 GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
                 GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, self.gbuffer_format, w, h, 0, GL.GL_RGBA, GL.GL_FLOAT, None)
@@ -125,7 +125,7 @@ class SampleCountRenderer(Renderer):
                                           tex, 0)
             GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER,
                                          self._main_db)
-            GL.glDrawBuffers(2, [GL.GL_COLOR_ATTACHMENT0, GL.GL_COLOR_ATTACHMENT1])
+            GL.glDrawBuffers(1, [GL.GL_COLOR_ATTACHMENT0])
             status = GL.glCheckFramebufferStatus(GL.GL_DRAW_FRAMEBUFFER)
             if status != GL.GL_FRAMEBUFFER_COMPLETE:
                 raise RuntimeError(f"G-buffer framebuffer incomplete (status 0x{int(status):x})")
@@ -234,7 +234,7 @@ class SampleCountRenderer(Renderer):
         program = self._program_cache.get_program("deferred.vert", "deferred.frag")
         if not program._in_context():
             program._add_to_context()
-        program.gbuffer = {"jk_g0": self._gtex[0], "jk_g1": self._gtex[1]}
+        program.gbuffer = {"jk_g0": self._gtex[0]}
         GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
         GL.glViewport(0, 0, w, h)
         GL.glClearColor(*scene.bg_color)
@@ -249,8 +249,7 @@ class SampleCountRenderer(Renderer):
         GL.glDisable(GL.GL_BLEND)
         GL.glDisable(GL.GL_CULL_FACE)
         program._bind()
-        GL.glUniform3fv(GL.glGetUniformLocation(program._program_id, "cam_pos"), 1,
-                        np.asarray(scene.get_pose(scene.main_camera_node)[:3, 3], np.float32))
+        self._set_camera_ray_uniforms(program._program_id, scene, w, h)
         GL.glBindVertexArray(program._vao_id)
         GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
         GL.glBindVertexArray(0)
@@ -261,6 +260,16 @@ class SampleCountRenderer(Renderer):
         GL.glDepthFunc(GL.GL_LESS)
         GL.glDepthMask(GL.GL_TRUE)
 
+    def _set_camera_ray_uniforms(self, pid, scene, w, h):
+        """What a full-screen pass needs for the camera ray through each pixel: ``cam_pos``, ``jk_inv_vp``
+        ((P V)⁻¹) and ``jk_viewport`` (the pass's w × h)."""
+        V, P = self._get_camera_matrices(scene)
+        inv_vp = np.linalg.inv(np.asarray(P, np.float64) @ np.asarray(V, np.float64)).astype(np.float32)
+        GL.glUniformMatrix4fv(GL.glGetUniformLocation(pid, "jk_inv_vp"), 1, GL.GL_TRUE, inv_vp)
+        GL.glUniform2f(GL.glGetUniformLocation(pid, "jk_viewport"), float(w), float(h))
+        GL.glUniform3fv(GL.glGetUniformLocation(pid, "cam_pos"), 1,
+                        np.asarray(scene.get_pose(scene.main_camera_node)[:3, 3], np.float32))
+
     def _background_pass(self, scene, w, h):
         """The environment behind the blade: ``background.frag`` on the far plane wherever the G-buffer
         pass left depth at 1 (``GL_LEQUAL``), as the reference renderer shows it for missed rays."""
@@ -270,16 +279,11 @@ class SampleCountRenderer(Renderer):
         GL.glDepthFunc(GL.GL_LEQUAL)
         program._bind()
         pid = program._program_id
-        V, P = self._get_camera_matrices(scene)
-        inv_vp = np.linalg.inv(np.asarray(P, np.float64) @ np.asarray(V, np.float64)).astype(np.float32)
-        GL.glUniformMatrix4fv(GL.glGetUniformLocation(pid, "jk_inv_vp"), 1, GL.GL_TRUE, inv_vp)
-        GL.glUniform2f(GL.glGetUniformLocation(pid, "jk_viewport"), float(w), float(h))
+        self._set_camera_ray_uniforms(pid, scene, w, h)
         coef = np.zeros(4, np.float32)
         b = np.asarray(self._program_cache.state.baked.b, np.float64)
         coef[:len(b)] = b.sum(axis=1)  # the flat spectrum 1 on the orthonormal basis
         GL.glUniform4fv(GL.glGetUniformLocation(pid, "jk_bg_coef"), 1, coef)
-        GL.glUniform3fv(GL.glGetUniformLocation(pid, "cam_pos"), 1,
-                        np.asarray(scene.get_pose(scene.main_camera_node)[:3, 3], np.float32))
         GL.glBindVertexArray(program._vao_id)
         GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
         GL.glBindVertexArray(0)

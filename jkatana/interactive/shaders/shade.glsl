@@ -162,10 +162,9 @@ vec3 env_xyz(vec3 d, float lz, vec4 a)
     return xyz;
 }
 
-// display-encoded RGBA of a surface point: unit normal N, world position P, map coordinates uv
-vec4 jk_shade(vec3 N, vec3 P, vec2 uv)
+// display-encoded RGBA of a surface point: unit normal N, unit direction to the eye Vd, map coordinates uv
+vec4 jk_shade(vec3 N, vec3 Vd, vec2 uv)
 {
-    vec3 Vd = normalize(cam_pos - P);
     float cv = dot(N, Vd);
     vec3 xyz = vec3(0.0);
     if (cv > 0.0) {
