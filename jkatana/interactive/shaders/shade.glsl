@@ -77,14 +77,12 @@ float jk_cap_c(float c, int k)
     return x < 1e-3 ? c * (1.0 - 0.5 * x) : 4.0 * (1.0 - exp(-x)) / r2;
 }
 
-// the normalised kernel at cap k for a lobe centred on M with in-plane axis tp and across-plane axis ty
-// (unit, ⟂ M; zero vectors where cp = cy), constants cp ≤ cy; 0 where cp h² > 30 (a factor e⁻³⁰ below its peak), so that blocks of
-// pixels whose lobe cannot reach any cap skip the transcendental functions
-float jk_cap_gauss(vec3 M, vec3 tp, vec3 ty, float cp, float cy, int k)
+// the normalised kernel at cap k, e = C_k − M, s2 = |e|²/4, for a lobe centred on M with in-plane axis tp and
+// across-plane axis ty (unit, ⟂ M; zero vectors where cp = cy), constants cp ≤ cy (the disc folded in);
+// 0 where cp h² > 30, a factor e⁻³⁰ below its peak
+float jk_cap_gauss(vec3 e, float s2, vec3 tp, vec3 ty, float cp, float cy)
 {
-    vec3 e = jk_cap[k].xyz - M;
-    float s2 = min(0.25 * dot(e, e), 1.0);                 // sin²h ≤ h²
-    if (cp * s2 > 30.0)
+    if (cp * s2 > 30.0)                                    // sin²h ≤ h²
         return 0.0;
     float h = asin(sqrt(s2));
     float ep = dot(e, tp);
@@ -96,12 +94,17 @@ float jk_cap_gauss(vec3 M, vec3 tp, vec3 ty, float cp, float cy, int k)
 }
 
 // the caps' radiance for lobe coefficients a: centre M, axes tp, ty, kernel constants (c_par, c_perp) before
-// the disc
+// the disc. A cap that the lobe cannot reach (c'_par s2 > 30 for certain, since c' ≥ c/(1 + c r²/4)) is
+// skipped before any transcendental function, so blocks of pixels far from every cap cost a few products
 vec3 jk_caps_xyz(vec4 a, vec3 M, vec3 tp, vec3 ty, vec2 c)
 {
     vec3 xyz = vec3(0.0);
     for (int k = 0; k < JK_CAPS; ++k) {
-        float ks = jk_cap_gauss(M, tp, ty, jk_cap_c(c.x, k), jk_cap_c(c.y, k), k);
+        vec3 e = jk_cap[k].xyz - M;
+        float s2 = min(0.25 * dot(e, e), 1.0);
+        if (c.x * s2 > 30.0 * (1.0 + 0.25 * c.x * jk_cap[k].w))
+            continue;
+        float ks = jk_cap_gauss(e, s2, tp, ty, jk_cap_c(c.x, k), jk_cap_c(c.y, k));
         vec3 q = a.x * jk_cap_q[4 * k];
 #if JK_RANK > 1
         q += a.y * jk_cap_q[4 * k + 1];
