@@ -53,23 +53,8 @@ while the mouse is held; full resolution returns on release); ``viewer_drag_auto
 ``--drag-scale auto`` (the fraction that fits 60 Hz, chosen from the measured full-resolution draw;
 ``shaded_scale`` records it). Skipped (and said so) without Xvfb.
 
-What bounds the close-up (measured on this machine, closeup view, ~300k shaded pixels, CPU time per
-frame, shader variants A/B-timed in one process, load ~5 from other jobs, CPU time robust to it):
-full 42.5 ms; without the 9 trilinear environment fetches (3 taps × rank 3) 26–34 ms (≈ 5.5 ns
-CPU per fetch per pixel); without the equirectangular atan/acos (3 taps) 37.4 ms; analytic sRGB
-instead of the transfer table 40.4 ms (kept: ``JK_SRGB``); lobe-LUT fetches skipped where w is 0
-or 1 (branch) no gain (llvmpipe's branch costs what it saves), and all four LUT fetches replaced by
-constants saves only ~5 ms of 48, so packing the LUT layers cannot win more; the environment as
-2-D array textures with the μ-level blend done in the shader (two bilinear fetches instead of one
-trilinear; bit-identical frame) 39.4 vs 35.6 ms — the 3-D texture stays; sin/cos of the side taps by
-angle addition no gain; G-buffer pass and fixed cost alone 10 ms. In the close-up the forward pass
-costs the same CPU time as deferred (39.8 vs 40.1 ms A/B: its triangles are large, so llvmpipe's
-4×4-block overshading costs what the G-buffer round trip does); in the demo view deferred saves 31 %.
-Mesa's knobs (22.3.6 llvmpipe, LLVM 15, 256-bit): ``LP_NUM_THREADS`` 1 or 4, ``LP_NATIVE_VECTOR_WIDTH
-=128``, ``GALLIVM_PERF=brilinear,rho_approx`` or ``no_filter_hacks`` leave the close-up's CPU time
-per frame unchanged within noise (35–37 ms): no mipmaps and explicit LOD leave them nothing to cut. The shading is ~140 ns CPU per
-pixel; at 2 cores a full 800×600 close-up therefore needs ~21 ms wall: 60 fps needs ``--rank 2``
-(ΔE within 0.01 of rank 3 on iron) and/or ``--taps 1``; the rows below give each one's fps and ΔE.
+Where the close-up's time goes (A/B shader variants, Mesa's knobs, G-buffer layouts) is recorded in
+``benchmarks/reports/interactive-2026-12-02/NOTES.md`` and the reports before it.
 
 Error: ΔE2000 (mean, p95) over the blade's pixels of the GL frame against the reference renderer
 (:func:`validation.gl_agreement.reference_frame`: jkatana.render's reference mode, exact Fresnel,
