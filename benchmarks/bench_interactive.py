@@ -13,7 +13,8 @@ sun left in the prefiltered map.
 Cases (each on both views); all but ``forward`` and ``msaa4`` use deferred shading (a G-buffer pass,
 then the shader once per covered pixel, see :mod:`jkatana.interactive.glrender`):
 
-- ``full``: rank 3, roughness (prefiltered μ levels), blend map — the default;
+- ``full``: rank 3, roughness (prefiltered μ levels), blend map, three fitted taps;
+  ``rank2``: the same at rank 2 — the default of ``jkatana view`` and of ``ShadingState``;
 - ``forward``: ``full`` shaded in the forward pass (the shader on every fragment llvmpipe rasterises:
   the path before deferred shading);
 - ``rank1`` / ``rank2`` / ``rank4``: spectral basis rank;
@@ -24,7 +25,7 @@ then the shader once per covered pixel, see :mod:`jkatana.interactive.glrender`)
 - ``msaa4``: ``full`` with pyrender's 4× MSAA framebuffer (what pyrender does by default).
 
 Extra cases: ``env_f16`` / ``gbuffer_f16`` (``full`` with RGBA16F environment textures / G-buffer:
-the alternatives measured and not kept, see :data:`jkatana.interactive.glrender.ENV_FORMAT`), and
+the alternatives measured and not kept, see :data:`jkatana.interactive.glstate.ENV_FORMAT`), and
 ``viewer`` (the windowed Viewer under Xvfb, below).
 
 Two times per case, both honest, for two uses:
@@ -52,23 +53,8 @@ while the mouse is held; full resolution returns on release); ``viewer_drag_auto
 ``--drag-scale auto`` (the fraction that fits 60 Hz, chosen from the measured full-resolution draw;
 ``shaded_scale`` records it). Skipped (and said so) without Xvfb.
 
-What bounds the close-up (measured on this machine, closeup view, ~300k shaded pixels, CPU time per
-frame, shader variants A/B-timed in one process, load ~5 from other jobs, CPU time robust to it):
-full 42.5 ms; without the 9 trilinear environment fetches (3 taps × rank 3) 26–34 ms (≈ 5.5 ns
-CPU per fetch per pixel); without the equirectangular atan/acos (3 taps) 37.4 ms; analytic sRGB
-instead of the transfer table 40.4 ms (kept: ``JK_SRGB``); lobe-LUT fetches skipped where w is 0
-or 1 (branch) no gain (llvmpipe's branch costs what it saves), and all four LUT fetches replaced by
-constants saves only ~5 ms of 48, so packing the LUT layers cannot win more; the environment as
-2-D array textures with the μ-level blend done in the shader (two bilinear fetches instead of one
-trilinear; bit-identical frame) 39.4 vs 35.6 ms — the 3-D texture stays; sin/cos of the side taps by
-angle addition no gain; G-buffer pass and fixed cost alone 10 ms. In the close-up the forward pass
-costs the same CPU time as deferred (39.8 vs 40.1 ms A/B: its triangles are large, so llvmpipe's
-4×4-block overshading costs what the G-buffer round trip does); in the demo view deferred saves 31 %.
-Mesa's knobs (22.3.6 llvmpipe, LLVM 15, 256-bit): ``LP_NUM_THREADS`` 1 or 4, ``LP_NATIVE_VECTOR_WIDTH
-=128``, ``GALLIVM_PERF=brilinear,rho_approx`` or ``no_filter_hacks`` leave the close-up's CPU time
-per frame unchanged within noise (35–37 ms): no mipmaps and explicit LOD leave them nothing to cut. The shading is ~140 ns CPU per
-pixel; at 2 cores a full 800×600 close-up therefore needs ~21 ms wall: 60 fps needs ``--rank 2``
-(ΔE within 0.01 of rank 3 on iron) and/or ``--taps 1``; the rows below give each one's fps and ΔE.
+Where the close-up's time goes (A/B shader variants, Mesa's knobs, G-buffer layouts) is recorded in
+``benchmarks/reports/interactive-2026-12-02/NOTES.md`` and the reports before it.
 
 Error: ΔE2000 (mean, p95) over the blade's pixels of the GL frame against the reference renderer
 (:func:`validation.gl_agreement.reference_frame`: jkatana.render's reference mode, exact Fresnel,
@@ -106,7 +92,7 @@ CONFIGS = {
 #: Samples per pixel of the reference frame (its noise adds to the measured ΔE2000).
 REF_SAMPLES = 256
 #: cases skipped in quick mode (per view)
-QUICK_SKIP = {"demo": {"rank2", "msaa4", "env_f16", "gbuffer_f16", "forward"}, "closeup": {"msaa4", "gbuffer_f16"},
+QUICK_SKIP = {"demo": {"msaa4", "env_f16", "gbuffer_f16", "forward"}, "closeup": {"msaa4", "gbuffer_f16"},
               "glint_sunrise": set(CONFIGS) - {"full", "rank2", "one_tap", "five_tap"}}
 #: cases run on each view (the sun-glint view: the shading switches that matter for a cap, and the unsplit map)
 VIEW_CONFIGS = {"demo": CONFIGS, "closeup": CONFIGS,
@@ -211,27 +197,25 @@ def run(quick: bool = False) -> list[dict]:
             if quick and cname in QUICK_SKIP.get(vname, ()):
                 continue
             tables = baked_sun[cfg.get("split_sun", True)] if vname == "glint_sunrise" else baked
-            G.ENV_FORMAT = formats[cfg.get("env_format", "RGBA32F")]
-            G.GBUFFER_FORMAT = formats[cfg.get("gbuffer_format", "RGBA32F")]
-            try:
-                st = G.ShadingState(tables, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
-                                    two_tap=cfg["two_tap"], taps=cfg.get("taps", 3), exposure=exposure)
-                r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"],
-                                             deferred=cfg.get("deferred"))
-                scene = G.build_scene(sc.mesh, view)
-                ctx = ctx or describe_context()
-                drawn = timeit(lambda: r.draw(scene), repeats=reps, warmup=2)
-                readback = timeit(lambda: r.render(scene), repeats=max(reps // 2, 3), warmup=1)
-                cpu_s = _cpu_per_frame(lambda: r.draw(scene), 5)
-                stages = _stages(r, scene, reps) if cname == "full" else None
-                frame = r.render(scene)
-                covered = int(np.any(frame != frame[0, 0], -1).sum())
-                r.delete()
-                r2 = G.BakedOffscreenRenderer(st, *err_res, samples=cfg["samples"], deferred=cfg.get("deferred"))
-                img = r2.render(G.build_scene(sc.mesh, small))
-                r2.delete()
-            finally:
-                G.ENV_FORMAT = G.GBUFFER_FORMAT = GL.GL_RGBA32F
+            gbuffer_format = formats[cfg.get("gbuffer_format", "RGBA32F")]
+            st = G.ShadingState(tables, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
+                                two_tap=cfg["two_tap"], taps=cfg.get("taps", 3), exposure=exposure,
+                                env_format=formats[cfg.get("env_format", "RGBA32F")])
+            r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"],
+                                         deferred=cfg.get("deferred"), gbuffer_format=gbuffer_format)
+            scene = G.build_scene(sc.mesh, view)
+            ctx = ctx or describe_context()
+            drawn = timeit(lambda: r.draw(scene), repeats=reps, warmup=2)
+            readback = timeit(lambda: r.render(scene), repeats=max(reps // 2, 3), warmup=1)
+            cpu_s = _cpu_per_frame(lambda: r.draw(scene), 5)
+            stages = _stages(r, scene, reps) if cname == "full" else None
+            frame = r.render(scene)
+            covered = int(np.any(frame != frame[0, 0], -1).sum())
+            r.delete()
+            r2 = G.BakedOffscreenRenderer(st, *err_res, samples=cfg["samples"], deferred=cfg.get("deferred"),
+                                          gbuffer_format=gbuffer_format)
+            img = r2.render(G.build_scene(sc.mesh, small))
+            r2.delete()
             stats, _ = A.compare(img, ref, fr.mask & np.any(img != img[0, 0], -1))
             err = {"dE00_mean": stats["mean"], "dE00_p95": stats["p95"], "dE00_max": stats["max"]}
             fps = 1.0 / drawn["median"]

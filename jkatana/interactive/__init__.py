@@ -5,8 +5,13 @@
   transform), computed from :mod:`jkatana.models` and :mod:`jkatana.spectral`.
 - :mod:`~jkatana.interactive.gl`: OpenGL platform choice (EGL, OSMesa,
   window), the pyrender/PyOpenGL versions, the numpy-2 alias.
-- :mod:`~jkatana.interactive.glrender`: the pyrender program-cache subclass,
-  float textures, single-sample offscreen renderer (imports pyrender).
+- :mod:`~jkatana.interactive.glstate`: the baked tables as float GL textures and the
+  per-frame settings (:class:`~jkatana.interactive.glstate.ShadingState`).
+- :mod:`~jkatana.interactive.glprograms`: the shaders' sources and the pyrender
+  program-cache subclass that serves them.
+- :mod:`~jkatana.interactive.glrender`: the render passes (deferred G-buffer and
+  shading, forward), the single-sample offscreen renderer (imports pyrender).
+- :mod:`~jkatana.interactive.caprule`: the shader's cap rule in NumPy (for tests).
 - :mod:`~jkatana.interactive.scene`: blade, reflectance map, built-in
   environments and cameras.
 - :mod:`~jkatana.interactive.viewer`: the windowed Viewer (``jkatana view``).

@@ -24,9 +24,9 @@ def view_add_arguments(p: argparse.ArgumentParser) -> None:
                    help="start from a close-up in which the flat fills the frame (as appraisers look)")
     p.add_argument("--frames", type=int, default=8, help="offscreen: number of orbit frames (default 8)")
     p.add_argument("-o", "--output", default="out/view", help="folder for PNGs (default out/view)")
-    p.add_argument("--rank", type=int, default=3, choices=(1, 2, 3, 4),
+    p.add_argument("--rank", type=int, default=2, choices=(1, 2, 3, 4),
                    help="rank of the spectral basis of the Fresnel term: one 3-D environment fetch per rank and "
-                        "tap; 2 is within ~0.01 ΔE00 of 3 on iron, 1 adds ~0.7 ΔE00 (default 3)")
+                        "tap; 2 is within ~0.01 ΔE00 of 3 on iron, 1 adds ~0.7 ΔE00 (default 2)")
     p.add_argument("--taps", type=int, default=3, choices=(1, 3, 5),
                    help="environment taps per pixel for the rough lobe: 1 isotropic (fastest, ΔE00 1.5–2× larger), "
                         "3 taps along the plane of incidence with offsets, weights and filter width fitted to "

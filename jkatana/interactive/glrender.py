@@ -1,12 +1,13 @@
-"""The GL side: pyrender scene, a program cache that serves jkatana's shaders, float textures.
+"""The interactive path's render passes: a pyrender renderer that shades with jkatana's programs.
 
-Two ways to draw a frame, the same shading (``shaders/shade.glsl``):
+Two ways to draw a frame, the same shading (``shaders/shade.glsl``, programs from
+:mod:`jkatana.interactive.glprograms`, tables from :mod:`jkatana.interactive.glstate`):
 
 - **deferred** (headless default): pyrender's forward pass draws the mesh with
-  ``gbuffer.frag`` into two RGBA32F targets (unit normal + u, world position + v)
-  and a depth buffer; then one full-screen triangle on the far plane, depth test
-  ``GL_GREATER`` against that depth, runs ``deferred.frag`` once per covered
-  pixel. llvmpipe rasterises in 4×4 blocks and runs the fragment shader on every
+  ``gbuffer.frag`` into one G-buffer target (the unit normal in octahedral
+  coordinates, u, v) and a depth buffer; then one full-screen triangle on the far
+  plane, depth test ``GL_GREATER`` against that depth, runs ``deferred.frag`` once
+  per covered pixel, with the view direction from the camera ray through the pixel. llvmpipe rasterises in 4×4 blocks and runs the fragment shader on every
   block a triangle touches, so on the dense blade mesh (51k triangles, most a few
   pixels) a forward shader runs 2–4× per covered pixel; deferred, the expensive
   shader runs once per pixel and the G-buffer pass costs a few stores per block.
@@ -14,35 +15,12 @@ Two ways to draw a frame, the same shading (``shaders/shade.glsl``):
 
 A deferred frame is :meth:`SampleCountRenderer._forward_pass` (replacing pyrender's):
 G-buffer pass (only depth is cleared: the shading pass reads the G-buffer only
-where this frame wrote depth, so clearing two float targets, 1.3 ms at 800×600
-on llvmpipe, is wasted), shading pass into an RGBA8 renderbuffer, then either the
-read-back of colour only (offscreen; pyrender also blits, reads and linearises
-depth) or a colour blit to the window (the Viewer). :meth:`BakedOffscreenRenderer.draw`
-draws and waits without reading back, which is what a window pays.
-
-Where a frame's time goes (EGL llvmpipe, 2 cores, 800×600, rank 3, three taps; glFinish-timed
-stages and A/B shader variants, see :mod:`benchmarks.bench_interactive`): the fixed cost (vertex
-processing of the 51k-triangle blade, depth clear, colour clear; read-back of the RGBA8 frame
-< 0.1 ms) was 6.0 ms and is 2.3 ms since the G-buffer's colour is no longer cleared and depth no
-longer read back. The rest is the shading pass, ~100 ns CPU per covered pixel: ~45 in the nine
-trilinear environment fetches (3 taps × rank 3, ~5 ns each), ~17 in the equirectangular atan/acos
-of the three taps, ~15 in the four lobe-LUT fetches. RGBA16F environment textures or G-buffer are
-no faster (llvmpipe converts half floats per fetch; memory traffic is not the bound). A close-up
-(~300k shaded pixels) therefore costs ~20 ms on an idle 2-core machine; the user's switches that
-hold 60 fps there are ``--rank 2``, ``--taps 1`` and, while dragging, ``--drag-scale 0.5``.
-
-pyrender chooses shaders by file name through its renderer's
-``ShaderProgramCache`` and binds only its own uniforms and 8-bit textures.
-:class:`BakedProgramCache` (a subclass, installed on the renderer) serves
-``mesh.vert``/``mesh.frag`` from ``jkatana/interactive/shaders`` as
-:class:`BakedProgram` objects, whose ``_bind`` also binds jkatana's float
-textures (RGBA32F 3-D and 2-D-array textures, on units 8–15, above the ones pyrender
-allocates from 0) and sets jkatana's uniforms. Every other shader pyrender
-asks for is served from pyrender's own directory. jkatana's static switches
-(rank, roughness, blend) are added to the defines, so each combination is its
-own compiled program. Uniform names are checked once at link time
-(:meth:`BakedProgram.check_uniforms`): pyrender's ``set_uniform`` ignores
-misspelt names silently.
+where this frame wrote depth), shading pass into an RGBA8 renderbuffer, restricted
+to the meshes' projected bounding box, then either the read-back of colour only
+(offscreen; pyrender also blits, reads and linearises depth) or a colour blit to
+the window (the Viewer). :meth:`BakedOffscreenRenderer.draw` draws and waits
+without reading back, which is what a window pays. Where a frame's time goes is
+measured by :mod:`benchmarks.bench_interactive` (glFinish-timed passes, A/B shader variants).
 
 :class:`SampleCountRenderer` is pyrender's ``Renderer`` with the sample count
 of its offscreen framebuffer as a parameter (pyrender hard-codes 4× MSAA,
@@ -66,346 +44,14 @@ pyrender = import_pyrender()
 
 from OpenGL import GL  # noqa: E402
 from pyrender.renderer import Renderer  # noqa: E402
-from pyrender.shader_program import ShaderProgram, ShaderProgramCache  # noqa: E402
 
-from jkatana.interactive.bake import MAX_RANK, Baked  # noqa: E402
+from jkatana.interactive.glprograms import SHADER_DIR, BakedProgramCache  # noqa: E402
+from jkatana.interactive.glstate import ShadingState  # noqa: E402
 
-SHADER_DIR = Path(__file__).parent / "shaders"
-_PYRENDER_SHADERS = Path(pyrender.__file__).parent / "shaders"
-_OWN = {"mesh.vert", "mesh.frag", "gbuffer.frag", "deferred.vert", "deferred.frag", "background.frag"}
-_UNIT0 = 8
-
-#: Uniforms the fragment shader must expose (checked after linking).
-UNIFORMS = ("jk_lut", "jk_map", "jk_transfer", "jk_xyz_to_rgb", "jk_env_rot", "jk_exposure",
-            "jk_log_mu_first", "jk_log_mu_step", "jk_n_levels", "jk_n_cos", "jk_n_transfer", "cam_pos")
-
-
-def _tex_layered(target: int, data: np.ndarray, wraps: tuple[int, ...], internal: int | None = None) -> int:
-    """Upload ``(layers, H, W, 4)`` float32 to ``target`` as ``internal`` (default RGBA32F) (bilinear; s repeats,
-    ``wraps`` clamp)."""
-    data = np.ascontiguousarray(data, np.float32)
-    layers, h, w, _ = data.shape
-    tex = GL.glGenTextures(1)
-    GL.glBindTexture(target, tex)
-    GL.glTexImage3D(target, 0, GL.GL_RGBA32F if internal is None else internal, w, h, layers, 0, GL.GL_RGBA,
-                    GL.GL_FLOAT, data)
-    params = [(GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
-              (GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT)] + [(wrap, GL.GL_CLAMP_TO_EDGE) for wrap in wraps]
-    for p, v in params:
-        GL.glTexParameteri(target, p, v)
-    GL.glBindTexture(target, 0)
-    return int(tex)
-
-
-def _tex_array(data: np.ndarray) -> int:
-    """GL_TEXTURE_2D_ARRAY: bilinear within a layer, s repeat, t clamp."""
-    return _tex_layered(GL.GL_TEXTURE_2D_ARRAY, data, (GL.GL_TEXTURE_WRAP_T,))
-
-
-#: GL internal format of the prefiltered environment textures (the shading's most-read tables).
-#: RGBA16F was measured (bench_interactive ``env_f16``): no faster on llvmpipe, which converts
-#: half floats on every fetch; float32 stays.
-ENV_FORMAT = GL.GL_RGBA32F
-#: GL internal format of the two G-buffer targets. RGBA16F (half the bytes written and read) was
-#: measured (bench_interactive ``gbuffer_f16``): no faster on llvmpipe, where the shading's
-#: arithmetic and filtered fetches, not memory traffic, bound the frame; float32 keeps positions exact.
+#: Default GL internal format of the G-buffer target: float32 keeps the map coordinates exact; RGBA16F
+#: (half the bytes) is no faster on llvmpipe, where the shading's arithmetic and filtered fetches, not
+#: memory traffic, bound the frame (bench_interactive's ``gbuffer_f16`` case).
 GBUFFER_FORMAT = GL.GL_RGBA32F
-
-
-def _tex_3d(data: np.ndarray) -> int:
-    """GL_TEXTURE_3D: trilinear, s repeat, t and r clamp; stored as :data:`ENV_FORMAT`."""
-    return _tex_layered(GL.GL_TEXTURE_3D, data, (GL.GL_TEXTURE_WRAP_T, GL.GL_TEXTURE_WRAP_R), ENV_FORMAT)
-
-
-def _tex_2d(data: np.ndarray, wrap_s=GL.GL_CLAMP_TO_EDGE) -> int:
-    data = np.ascontiguousarray(data, np.float32)
-    h, w, _ = data.shape
-    tex = GL.glGenTextures(1)
-    GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
-    GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA32F, w, h, 0, GL.GL_RGBA, GL.GL_FLOAT, data)
-    for p, v in ((GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
-                 (GL.GL_TEXTURE_WRAP_S, wrap_s), (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE)):
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, p, v)
-    GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
-    return int(tex)
-
-
-def _rgba(x: np.ndarray) -> np.ndarray:
-    pad = np.zeros(x.shape[:-1] + (4 - x.shape[-1],), x.dtype)
-    return np.concatenate([x, pad], -1)
-
-
-class ShadingState:
-    """What the shaders read: baked tables, reflectance map, and per-frame settings.
-
-    - `baked`: :class:`jkatana.interactive.bake.Baked`; `refl_map`: ``(H, W, 3)`` w, μ0, μ1.
-    - per frame: `exposure`, `env_rotation` (radians about +Y, turns the light around the blade),
-      and the static switches `rank` (≤ baked rank), `rough`, `blend`, `two_tap` (anisotropic lobe:
-      three (or, with `taps=5`, five) binomial prefiltered taps along the plane of incidence; off: one tap),
-      `fit` (with three taps: their offsets, weights and filter width fitted to the lobe by
-      :func:`jkatana.interactive.bake.tap_fit` — the default; off: moment-matched binomial taps, which
-      miss the lobe's skew: ~10 % too dark on a sun inside the oblique hamon lobe; `taps=5` is always
-      moment-matched). The baked caps (compact sources split off the map, :func:`~jkatana.interactive.bake.sun_caps`)
-      are a static switch too (``JK_CAPS``, their number; 0: no cap code).
-    """
-
-    #: draw the environment behind the blade (deferred path; the `view` command turns it on); off: the
-    #: scene's flat background colour, which tests and benchmarks use to find the blade's pixels
-    background: bool = False
-
-    def __init__(self, baked: Baked, refl_map: np.ndarray, *, exposure: float = 1.0, rank: int | None = None,
-                 rough: bool = True, blend: bool = True, two_tap: bool = True, taps: int = 3, fit: bool = True):
-        self.baked = baked
-        self.refl_map = np.asarray(refl_map, np.float64)
-        self.exposure = float(exposure)
-        self.env_rotation = 0.0
-        self.rank = baked.rank if rank is None else int(rank)
-        if not 1 <= self.rank <= baked.rank:
-            raise ValueError(f"rank must be 1..{baked.rank} (baked), got {self.rank}")
-        self.rough = bool(rough)
-        self.blend = bool(blend)
-        self.two_tap = bool(two_tap)
-        if taps not in (3, 5):
-            raise ValueError(f"taps must be 3 or 5, got {taps}")
-        self.taps = int(taps)
-        self.fit = bool(fit)
-        self._textures: dict[object, tuple[int, ...]] = {}
-
-    def defines(self) -> dict:
-        return {"JK_RANK": self.rank, "JK_ROUGH": int(self.rough), "JK_BLEND": int(self.blend),
-                "JK_CAPS": self.baked.n_caps,
-                "JK_TWO_TAP": int(self.two_tap and self.rough), "JK_TAPS": self.taps,
-                "JK_TAP_FIT": int(self.fit and self.two_tap and self.rough and self.taps == 3)}
-
-    def env_rot_matrix(self) -> np.ndarray:
-        """World → environment-map rotation about +Y, as :func:`jkatana.render.renderer.rotation_y`
-        (a feature at compass azimuth a moves to a + env_rotation)."""
-        c, s = np.cos(self.env_rotation), np.sin(self.env_rotation)
-        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-    def textures(self) -> tuple[int, ...]:
-        """GL texture ids in the current context (uploaded on first use)."""
-        import OpenGL.contextdata
-
-        key = OpenGL.contextdata.getContext()
-        if key not in self._textures:
-            b = self.baked
-            n_mu, rank, H, W, _ = b.env.shape
-            lut = np.zeros((8,) + b.lut.shape[1:-1] + (MAX_RANK,))
-            lut[:2, ..., :rank] = b.lut
-            lut[2, ..., :3] = b.spread[0]                                # layer 2: hiraji lobe shape
-            lut[3, ..., :3] = b.spread[1]                                # layer 3: hamon lobe shape
-            T = (b.taps.shape[-1] - 1) // 2                              # fitted taps (bake.tap_fit):
-            lut[4:6, ..., :1 + T] = b.taps[:, ..., :1 + T]               # layers 4, 5: log(μ_e/μ), offsets
-            lut[6:8, ..., :T] = b.taps[:, ..., 1 + T:]                   # layers 6, 7: weights
-            self._textures[key] = (
-                _tex_array(lut),                                         # (2, n_mu, n_cos, 4)
-                _tex_2d(_rgba(self.refl_map)),
-                _tex_2d(_rgba(np.asarray(b.transfer, np.float64)[None, :, None])),
-                *(_tex_3d(_rgba(b.env[:, r])) for r in range(rank)),     # (n_mu, H, W, 4) each
-            )
-        return self._textures[key]
-
-    def forget_current_context(self):
-        """Delete this context's textures and forget them; call while the context is current, before it is
-        destroyed: a context made later may get the same handle and would be handed these stale ids."""
-        import OpenGL.contextdata
-
-        ids = self._textures.pop(OpenGL.contextdata.getContext(), None)
-        if ids is not None:
-            GL.glDeleteTextures(list(ids))
-
-    def delete_textures(self):
-        for ids in self._textures.values():
-            GL.glDeleteTextures(list(ids))
-        self._textures.clear()
-
-
-def is_srgb_table(table) -> bool:
-    """Whether a baked transfer table (:func:`jkatana.interactive.bake.transfer_table`) is the sRGB curve
-    (IEC 61966-2-1), which the shader then evaluates instead of fetching (``JK_SRGB``)."""
-    from jkatana.interactive.bake import transfer_table
-
-    table = np.asarray(table, np.float64)
-    return table.ndim == 1 and np.allclose(table, transfer_table("sRGB", len(table)), rtol=0.0, atol=1e-9)
-
-
-def shader_source(path, defines: dict) -> str:
-    """GLSL text of ``path`` with ``#include "name"`` lines expanded from :data:`SHADER_DIR` and
-    ``#define NAME VALUE`` lines inserted after ``#version``."""
-    import re
-
-    text = Path(path).read_text()
-    text = re.sub(r'^#include "([^"]+)"[ \t]*$', lambda m: (SHADER_DIR / m.group(1)).read_text(), text,
-                  flags=re.MULTILINE)
-    head, sep, rest = text.partition("\n")
-    if not head.startswith("#version"):
-        raise ValueError(f"{path}: the first line must be #version")
-    lines = "".join(f"#define {k} {v}\n" for k, v in (defines or {}).items())
-    return head + sep + lines + rest
-
-
-class SourceProgram(ShaderProgram):
-    """pyrender's ShaderProgram reading its source with :func:`shader_source` (the G-buffer pass)."""
-
-    def _load(self, shader_filename):
-        return shader_source(shader_filename, self.defines)
-
-
-class BakedProgram(ShaderProgram):
-    """pyrender's ShaderProgram whose ``_bind`` also binds jkatana's textures and uniforms."""
-
-    state: ShadingState = None
-    #: extra 2-D samplers (the G-buffer of the deferred pass): name → GL texture id, set before drawing
-    gbuffer: dict = None
-
-    def _load(self, shader_filename):
-        """The shader's text with ``#include "file"`` lines expanded (from :data:`SHADER_DIR`) and one
-        ``#define NAME VALUE`` line per define inserted after ``#version`` (pyrender's own ``_load``
-        text-replaces define names anywhere in the source instead)."""
-        return shader_source(shader_filename, self.defines)
-
-    def _samplers(self):
-        names = ["jk_lut", "jk_map", "jk_transfer"] + [f"jk_env{r}" for r in range(self.state.rank)]
-        targets = [GL.GL_TEXTURE_2D_ARRAY, GL.GL_TEXTURE_2D, GL.GL_TEXTURE_2D] + [GL.GL_TEXTURE_3D] * self.state.rank
-        if self.gbuffer is not None:
-            names += list(self.gbuffer)
-            targets += [GL.GL_TEXTURE_2D] * len(self.gbuffer)
-        return names, targets
-
-    def check_uniforms(self):
-        optional = set()
-        if not self.state.rough:
-            optional |= {"jk_log_mu_first", "jk_log_mu_step"}
-        if not (self.state.rough or self.state.blend):
-            optional.add("jk_map")
-        if self.defines.get("JK_SRGB"):
-            optional |= {"jk_transfer", "jk_n_transfer"}
-        caps = ("jk_cap", "jk_cap_q") if self.state.baked.n_caps else ()
-        need = dict.fromkeys(u for u in UNIFORMS + caps + tuple(self._samplers()[0]) if u not in optional)
-        missing = [u for u in need if GL.glGetUniformLocation(self._program_id, u) == -1]
-        if missing:
-            raise RuntimeError(f"shader {self.fragment_shader} lacks uniforms {missing} (misspelt or unused)")
-
-    def _add_to_context(self):
-        """Compile and link (as pyrender does), then point the samplers at their units before validating.
-
-        PyOpenGL's ``compileProgram`` validates right after linking, when every
-        sampler still refers to unit 0 — invalid for samplers of different
-        types — so we link with plain GL calls and validate afterwards.
-        """
-        from OpenGL.GL import shaders as gl_shader_utils
-
-        if self._program_id is not None:
-            raise ValueError("Shader program already in context")
-        ids = [gl_shader_utils.compileShader(self._load(self.vertex_shader), GL.GL_VERTEX_SHADER),
-               gl_shader_utils.compileShader(self._load(self.fragment_shader), GL.GL_FRAGMENT_SHADER)]
-        if self._vao_id is None:
-            self._vao_id = GL.glGenVertexArrays(1)
-        GL.glBindVertexArray(self._vao_id)
-        pid = GL.glCreateProgram()
-        for i in ids:
-            GL.glAttachShader(pid, i)
-        GL.glLinkProgram(pid)
-        if GL.glGetProgramiv(pid, GL.GL_LINK_STATUS) != GL.GL_TRUE:
-            raise RuntimeError(f"link failed: {GL.glGetProgramInfoLog(pid)!r}")
-        for i in ids:
-            GL.glDeleteShader(i)
-        GL.glUseProgram(pid)
-        for k, name in enumerate(self._samplers()[0]):
-            GL.glUniform1i(GL.glGetUniformLocation(pid, name), _UNIT0 + k)
-        GL.glUseProgram(0)
-        GL.glBindVertexArray(0)
-        self._program_id = pid
-        self.check_uniforms()
-
-    def _bind(self):
-        super()._bind()
-        st, b = self.state, self.state.baked
-        pid = self._program_id
-        names, targets = self._samplers()
-        textures = st.textures()[:3 + st.rank] + tuple((self.gbuffer or {}).values())
-        for i, (name, tex, target) in enumerate(zip(names, textures, targets)):
-            GL.glActiveTexture(GL.GL_TEXTURE0 + _UNIT0 + i)
-            GL.glBindTexture(target, tex)
-            GL.glUniform1i(GL.glGetUniformLocation(pid, name), _UNIT0 + i)
-        GL.glActiveTexture(GL.GL_TEXTURE0)
-        loc = GL.glGetUniformLocation
-        GL.glUniformMatrix3fv(loc(pid, "jk_xyz_to_rgb"), 1, GL.GL_TRUE, np.asarray(b.xyz_to_rgb, np.float32))
-        GL.glUniformMatrix3fv(loc(pid, "jk_env_rot"), 1, GL.GL_TRUE, st.env_rot_matrix().astype(np.float32))
-        GL.glUniform1f(loc(pid, "jk_exposure"), st.exposure)
-        GL.glUniform1f(loc(pid, "jk_log_mu_first"), float(np.log(b.mus[0])))
-        GL.glUniform1f(loc(pid, "jk_log_mu_step"), float(np.log(b.mus[1] / b.mus[0])))
-        GL.glUniform1f(loc(pid, "jk_n_levels"), float(len(b.mus)))
-        GL.glUniform1f(loc(pid, "jk_n_cos"), float(b.lut.shape[2]))
-        GL.glUniform1f(loc(pid, "jk_n_transfer"), float(len(b.transfer)))
-        n = b.n_caps
-        if n:                                  # the compact sources split off the map (bake.sun_caps)
-            cap = np.zeros((n, 4), np.float32)
-            cap[:, :3] = b.cap_dir
-            cap[:, 3] = np.asarray(b.cap_radius) ** 2
-            q = np.zeros((n, MAX_RANK, 3), np.float32)
-            q[:, :b.rank] = b.cap_q
-            GL.glUniform4fv(loc(pid, "jk_cap"), n, cap)
-            GL.glUniform3fv(loc(pid, "jk_cap_q"), n * MAX_RANK, q)
-
-
-class BackgroundProgram(BakedProgram):
-    """``background.frag``: the environment where no mesh was drawn. It reads the environment textures
-    and the display transform only, so the lobe table, map and roughness uniforms are optimised away."""
-
-    def check_uniforms(self):
-        need = ["jk_inv_vp", "jk_viewport", "jk_bg_coef", "jk_env_rot", "jk_exposure", "jk_xyz_to_rgb"]
-        missing = [u for u in need if GL.glGetUniformLocation(self._program_id, u) == -1]
-        if missing:
-            raise RuntimeError(f"shader {self.fragment_shader} lacks uniforms {missing} (misspelt or unused)")
-
-
-class BakedProgramCache(ShaderProgramCache):
-    """Serves jkatana's ``mesh.vert``/``mesh.frag`` (with the state's defines); pyrender's shaders otherwise."""
-
-    def __init__(self, state: ShadingState):
-        super().__init__(shader_dir=str(SHADER_DIR))
-        self.state = state
-        #: True while a deferred renderer draws: pyrender's request for the mesh shader gets the G-buffer one
-        self.deferred = False
-        self._srgb = None       # (baked, whether its transfer table is sRGB), checked once per bake
-        self._fallback = ShaderProgramCache(shader_dir=str(_PYRENDER_SHADERS))
-
-    def get_program(self, vertex_shader, fragment_shader, geometry_shader=None, defines=None):
-        if vertex_shader not in _OWN or fragment_shader not in _OWN or geometry_shader is not None:
-            return self._fallback.get_program(vertex_shader, fragment_shader, geometry_shader, defines)
-        import OpenGL.contextdata
-
-        if self.deferred and fragment_shader == "mesh.frag":
-            fragment_shader = "gbuffer.frag"
-        defines = dict(defines or {})
-        if fragment_shader != "gbuffer.frag":
-            defines.update(self.state.defines())
-            baked = self.state.baked
-            if self._srgb is None or self._srgb[0] is not baked:
-                self._srgb = (baked, int(is_srgb_table(baked.transfer)))
-            defines["JK_SRGB"] = self._srgb[1]
-        key = (OpenGL.contextdata.getContext(), vertex_shader, fragment_shader, *sorted(defines.items()))
-        if key not in self._program_cache:
-            if fragment_shader == "gbuffer.frag":
-                program = SourceProgram(str(SHADER_DIR / vertex_shader), str(SHADER_DIR / fragment_shader),
-                                        defines=defines)
-            else:
-                program = BakedProgram(str(SHADER_DIR / vertex_shader), str(SHADER_DIR / fragment_shader),
-                                       defines=defines)
-                if fragment_shader == "background.frag":
-                    program = BackgroundProgram(str(SHADER_DIR / vertex_shader),
-                                                str(SHADER_DIR / fragment_shader), defines=defines)
-                program.state = self.state
-                if fragment_shader == "deferred.frag":
-                    program.gbuffer = {"jk_g0": 0, "jk_g1": 0}
-            self._program_cache[key] = program
-        return self._program_cache[key]
-
-    def clear(self):
-        super().clear()
-        self._fallback.clear()
 
 
 class SampleCountRenderer(Renderer):
@@ -413,7 +59,7 @@ class SampleCountRenderer(Renderer):
     and, with ``deferred=True`` (needs ``samples=0``), deferred shading (see the module docstring).
 
     Deferred: :meth:`_forward_pass` draws the meshes into :attr:`_main_fb_ms`, which here is the
-    G-buffer framebuffer (two RGBA32F textures and a depth renderbuffer), then shades into
+    G-buffer framebuffer (one RGBA32F texture and a depth renderbuffer), then shades into
     :attr:`_main_fb` (an RGBA8 renderbuffer sharing that depth renderbuffer), which is read back
     (offscreen) or blitted to the window (on screen, pyrender's Viewer).
     After each frame :attr:`last_mask` holds the rasterised blade pixels (row 0 at the top) when
@@ -421,8 +67,9 @@ class SampleCountRenderer(Renderer):
     """
 
     def __init__(self, viewport_width, viewport_height, point_size=1.0, samples: int = 0,
-                 deferred: bool = False):
+                 deferred: bool = False, gbuffer_format: int = GBUFFER_FORMAT):
         super().__init__(viewport_width, viewport_height, point_size)
+        self.gbuffer_format = int(gbuffer_format)
         self.samples = int(samples)
         if deferred and self.samples:
             raise ValueError("deferred shading is single-sample (samples=0)")
@@ -463,11 +110,11 @@ class SampleCountRenderer(Renderer):
         if not self.deferred:
             self._main_fb_ms, self._main_cb_ms, self._main_db_ms = fbo(self.samples)
         else:
-            # G-buffer: two float textures + the output framebuffer's depth renderbuffer
-            self._gtex = [int(x) for x in np.atleast_1d(GL.glGenTextures(2))]
+            # G-buffer: one float texture (octahedral normal, u, v) + the output framebuffer's depth renderbuffer
+            self._gtex = [int(x) for x in np.atleast_1d(GL.glGenTextures(1))]
             for tex in self._gtex:
                 GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
-                GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GBUFFER_FORMAT, w, h, 0, GL.GL_RGBA, GL.GL_FLOAT, None)
+                GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, self.gbuffer_format, w, h, 0, GL.GL_RGBA, GL.GL_FLOAT, None)
                 for prm in (GL.GL_TEXTURE_MIN_FILTER, GL.GL_TEXTURE_MAG_FILTER):
                     GL.glTexParameteri(GL.GL_TEXTURE_2D, prm, GL.GL_NEAREST)
             GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
@@ -478,7 +125,7 @@ class SampleCountRenderer(Renderer):
                                           tex, 0)
             GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER,
                                          self._main_db)
-            GL.glDrawBuffers(2, [GL.GL_COLOR_ATTACHMENT0, GL.GL_COLOR_ATTACHMENT1])
+            GL.glDrawBuffers(1, [GL.GL_COLOR_ATTACHMENT0])
             status = GL.glCheckFramebufferStatus(GL.GL_DRAW_FRAMEBUFFER)
             if status != GL.GL_FRAMEBUFFER_COMPLETE:
                 raise RuntimeError(f"G-buffer framebuffer incomplete (status 0x{int(status):x})")
@@ -587,7 +234,7 @@ class SampleCountRenderer(Renderer):
         program = self._program_cache.get_program("deferred.vert", "deferred.frag")
         if not program._in_context():
             program._add_to_context()
-        program.gbuffer = {"jk_g0": self._gtex[0], "jk_g1": self._gtex[1]}
+        program.gbuffer = {"jk_g0": self._gtex[0]}
         GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
         GL.glViewport(0, 0, w, h)
         GL.glClearColor(*scene.bg_color)
@@ -602,8 +249,7 @@ class SampleCountRenderer(Renderer):
         GL.glDisable(GL.GL_BLEND)
         GL.glDisable(GL.GL_CULL_FACE)
         program._bind()
-        GL.glUniform3fv(GL.glGetUniformLocation(program._program_id, "cam_pos"), 1,
-                        np.asarray(scene.get_pose(scene.main_camera_node)[:3, 3], np.float32))
+        self._set_camera_ray_uniforms(program._program_id, scene, w, h)
         GL.glBindVertexArray(program._vao_id)
         GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
         GL.glBindVertexArray(0)
@@ -614,6 +260,16 @@ class SampleCountRenderer(Renderer):
         GL.glDepthFunc(GL.GL_LESS)
         GL.glDepthMask(GL.GL_TRUE)
 
+    def _set_camera_ray_uniforms(self, pid, scene, w, h):
+        """What a full-screen pass needs for the camera ray through each pixel: ``cam_pos``, ``jk_inv_vp``
+        ((P V)⁻¹) and ``jk_viewport`` (the pass's w × h)."""
+        V, P = self._get_camera_matrices(scene)
+        inv_vp = np.linalg.inv(np.asarray(P, np.float64) @ np.asarray(V, np.float64)).astype(np.float32)
+        GL.glUniformMatrix4fv(GL.glGetUniformLocation(pid, "jk_inv_vp"), 1, GL.GL_TRUE, inv_vp)
+        GL.glUniform2f(GL.glGetUniformLocation(pid, "jk_viewport"), float(w), float(h))
+        GL.glUniform3fv(GL.glGetUniformLocation(pid, "cam_pos"), 1,
+                        np.asarray(scene.get_pose(scene.main_camera_node)[:3, 3], np.float32))
+
     def _background_pass(self, scene, w, h):
         """The environment behind the blade: ``background.frag`` on the far plane wherever the G-buffer
         pass left depth at 1 (``GL_LEQUAL``), as the reference renderer shows it for missed rays."""
@@ -623,16 +279,11 @@ class SampleCountRenderer(Renderer):
         GL.glDepthFunc(GL.GL_LEQUAL)
         program._bind()
         pid = program._program_id
-        V, P = self._get_camera_matrices(scene)
-        inv_vp = np.linalg.inv(np.asarray(P, np.float64) @ np.asarray(V, np.float64)).astype(np.float32)
-        GL.glUniformMatrix4fv(GL.glGetUniformLocation(pid, "jk_inv_vp"), 1, GL.GL_TRUE, inv_vp)
-        GL.glUniform2f(GL.glGetUniformLocation(pid, "jk_viewport"), float(w), float(h))
+        self._set_camera_ray_uniforms(pid, scene, w, h)
         coef = np.zeros(4, np.float32)
         b = np.asarray(self._program_cache.state.baked.b, np.float64)
         coef[:len(b)] = b.sum(axis=1)  # the flat spectrum 1 on the orthonormal basis
         GL.glUniform4fv(GL.glGetUniformLocation(pid, "jk_bg_coef"), 1, coef)
-        GL.glUniform3fv(GL.glGetUniformLocation(pid, "cam_pos"), 1,
-                        np.asarray(scene.get_pose(scene.main_camera_node)[:3, 3], np.float32))
         GL.glBindVertexArray(program._vao_id)
         GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
         GL.glBindVertexArray(0)
@@ -716,12 +367,14 @@ class BakedOffscreenRenderer:
     """Headless renderer: pyrender's OffscreenRenderer with jkatana's program cache and no MSAA.
 
     **Arguments:** `state` (:class:`ShadingState`), `width`, `height`, `samples` (MSAA, default 0),
-    `deferred` (G-buffer pass then one shading pass per pixel; default: on unless ``samples``).
+    `deferred` (G-buffer pass then one shading pass per pixel; default: on unless ``samples``),
+    `gbuffer_format` (:data:`GBUFFER_FORMAT`), `shader_dir` (:class:`BakedProgramCache`).
     After :meth:`render`, :attr:`last_mask` is the ``(H, W)`` mask of blade pixels (deferred only).
     """
 
     def __init__(self, state: ShadingState, width: int, height: int, samples: int = 0,
-                 deferred: bool | None = None):
+                 deferred: bool | None = None, gbuffer_format: int = GBUFFER_FORMAT,
+                 shader_dir: str | Path = SHADER_DIR):
         self.state = state
         try:
             self._r = pyrender.OffscreenRenderer(width, height)
@@ -732,8 +385,8 @@ class BakedOffscreenRenderer:
             raise GLUnavailable(f"no OpenGL context on {plat} ({type(err).__name__}: {err}); {diagnose(plat)}") from err
         _share_egl_display(self._r._platform)
         deferred = samples == 0 if deferred is None else bool(deferred)
-        r = SampleCountRenderer(width, height, samples=samples, deferred=deferred)
-        r._program_cache = BakedProgramCache(state)
+        r = SampleCountRenderer(width, height, samples=samples, deferred=deferred, gbuffer_format=gbuffer_format)
+        r._program_cache = BakedProgramCache(state, shader_dir)
         r._program_cache.deferred = deferred
         self._r._renderer = r
 

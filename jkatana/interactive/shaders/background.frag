@@ -21,10 +21,7 @@ void main()
     vec3 xyz = env_xyz(de, 0.5 / jk_n_levels, jk_bg_coef);
 #if JK_CAPS > 0
     // the caps split off the map, through the same sharpest level's kernel
-    float ks[JK_CAPS];
-    float c0 = 0.69314718 * exp(-2.0 * jk_log_mu_first);
-    for (int k = 0; k < JK_CAPS; ++k) ks[k] = jk_cap_kernel(de, jk_cap_width(c0, k), k);
-    xyz += jk_caps_xyz(jk_bg_coef, ks);
+    xyz += jk_caps_xyz(jk_bg_coef, de, vec3(0.0), vec3(0.0), vec2(0.69314718 * exp(-2.0 * jk_log_mu_first)));
 #endif
     vec3 rgb = max(jk_xyz_to_rgb * (jk_exposure * xyz), 0.0);
     frag_color = vec4(encode1(rgb.r), encode1(rgb.g), encode1(rgb.b), 1.0);

@@ -12,5 +12,5 @@ out vec4 frag_color;
 
 void main()
 {
-    frag_color = jk_shade(normalize(frag_normal), frag_position, uv_0);
+    frag_color = jk_shade(normalize(frag_normal), normalize(cam_pos - frag_position), uv_0);
 }

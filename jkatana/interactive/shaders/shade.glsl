@@ -25,11 +25,10 @@
 // squares to the lobe's own kernel per (cos θv, μ) — filtered importance sampling (Křivánek & Colbert
 // 2008) with a baked pattern; jkatana.interactive.bake.tap_fit; LUT layers 4–7; entries whose
 // filter width the map does not resolve hold the moment pattern, bake.resolved_taps), JK_CAPS (0..4:
-// compact bright sources split off the map as spherical caps, bake.sun_caps: each tap that reads the
-// map at direction R_j, weight w_j and level width μ_j also integrates the same normalised kernel over
-// every cap's disc, in closed form (its NumPy twin bake.cap_kernel is tested against the kernel
-// integrated over the cap by jkatana.light.sun.cap_nodes' rule), weighted by the lobe table A and the
-// cap's projected radiance Q).
+// compact bright sources split off the map as spherical caps, bake.sun_caps: each cap's radiance Q, weighted
+// by the lobe table A, times the lobe's normalised kernel over the cap's disc, in closed form — one
+// anisotropic Gaussian with the lobe's moments, jk_caps_xyz; its NumPy twin
+// jkatana.interactive.caprule.cap_response is tested against jkatana.light.sun.cap_integral of the models).
 
 uniform vec3 cam_pos;
 uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
@@ -62,34 +61,50 @@ const float JK_PI = 3.14159265358979;
 uniform vec4 jk_cap[JK_CAPS];       // xyz: cap centre C (map frame), w: r² (r: the cap's angular radius)
 uniform vec3 jk_cap_q[4 * JK_CAPS]; // [4k + r]: Q_r of cap k, Ω_cap Σ_λ b_r(λ) W(λ) L_cap(λ) (XYZ)
 
-// bake.cap_kernel, in two parts. Per pixel and cap: the width c of the prefilter kernel D(α/2, μ)/cos(α/2)
-// (c0 = ln2/μ² of the tap's level) averaged over cap k's disc (keeping the exact value at its centre),
-// and the kernel's normalisation 1/N(c)
-vec2 jk_cap_width(float c0, int k)
+// The cap rule (NumPy twin: jkatana.interactive.caprule.cap_response, tested against
+// jkatana.light.sun.cap_integral of the models). The reflected lobe is one anisotropic Gaussian on the sphere
+// with the lobe's own first and second moments (bake.lobe_lut): centred on its mean direction, variance
+// var_par along the plane of incidence and var_perp across it, in the prefilter kernel's form
+// exp(−c h²)/cos h with h half the angle from the centre and c = 2/var per axis (the kernel of Walter et al.
+// 2007 that the map levels are filtered with). The cap's disc is folded in per axis by keeping the kernel's
+// exact value averaged over the disc at its centre, c' = 4 (1 − e^{−c r²/4})/r².
+
+// c' of an axis of kernel constant c for cap k
+float jk_cap_c(float c, int k)
 {
     float r2 = jk_cap[k].w;
-    float x = 0.25 * c0 * r2;
-    float c = x < 1e-3 ? c0 * (1.0 - 0.5 * x) : 4.0 * (1.0 - exp(-x)) / r2;
-    return vec2(c, c / (4.0 * JK_PI * (1.0 - 1.0 / (6.0 * c) + 1.0 / (60.0 * c * c))));
+    float x = 0.25 * c * r2;
+    return x < 1e-3 ? c * (1.0 - 0.5 * x) : 4.0 * (1.0 - exp(-x)) / r2;
 }
 
-// per tap: the kernel at the tap direction d (0 where c h² > 30, a factor e⁻³⁰ below its peak, so that
-// blocks of pixels far from every cap skip the transcendental functions)
-float jk_cap_kernel(vec3 d, vec2 cw, int k)
+// the normalised kernel at cap k, e = C_k − M, s2 = |e|²/4, for a lobe centred on M with in-plane axis tp and
+// across-plane axis ty (unit, ⟂ M; zero vectors where cp = cy), constants cp ≤ cy (the disc folded in);
+// 0 where cp h² > 30, a factor e⁻³⁰ below its peak
+float jk_cap_gauss(vec3 e, float s2, vec3 tp, vec3 ty, float cp, float cy)
 {
-    vec3 e = d - jk_cap[k].xyz;
-    float s2 = min(0.25 * dot(e, e), 1.0);                 // sin²(α/2) ≤ (α/2)²
-    if (cw.x * s2 > 30.0)
+    if (cp * s2 > 30.0)                                    // sin²h ≤ h²
         return 0.0;
     float h = asin(sqrt(s2));
-    return exp(-cw.x * h * h) * inversesqrt(max(1.0 - s2, 1e-6)) * cw.y;
+    float ep = dot(e, tp);
+    float ey = dot(e, ty);
+    float c = cp + (cy - cp) * ey * ey / max(ep * ep + ey * ey, 1e-30);  // cp where isotropic (tp = ty = 0)
+    float cb = 2.0 * cp * cy / (cp + cy);
+    float n = sqrt(cp * cy) / (4.0 * JK_PI * (1.0 - 1.0 / (6.0 * cb) + 1.0 / (60.0 * cb * cb)));
+    return exp(-c * h * h) * inversesqrt(max(1.0 - s2, 1e-6)) * n;
 }
 
-// the caps' radiance for lobe coefficients a and per-cap kernel sums ks
-vec3 jk_caps_xyz(vec4 a, float ks[JK_CAPS])
+// the caps' radiance for lobe coefficients a: centre M, axes tp, ty, kernel constants (c_par, c_perp) before
+// the disc. A cap that the lobe cannot reach (c'_par s2 > 30 for certain, since c' ≥ c/(1 + c r²/4)) is
+// skipped before any transcendental function, so blocks of pixels far from every cap cost a few products
+vec3 jk_caps_xyz(vec4 a, vec3 M, vec3 tp, vec3 ty, vec2 c)
 {
     vec3 xyz = vec3(0.0);
     for (int k = 0; k < JK_CAPS; ++k) {
+        vec3 e = jk_cap[k].xyz - M;
+        float s2 = min(0.25 * dot(e, e), 1.0);
+        if (c.x * s2 > 30.0 * (1.0 + 0.25 * c.x * jk_cap[k].w))
+            continue;
+        float ks = jk_cap_gauss(e, s2, tp, ty, jk_cap_c(c.x, k), jk_cap_c(c.y, k));
         vec3 q = a.x * jk_cap_q[4 * k];
 #if JK_RANK > 1
         q += a.y * jk_cap_q[4 * k + 1];
@@ -100,13 +115,10 @@ vec3 jk_caps_xyz(vec4 a, float ks[JK_CAPS])
 #if JK_RANK > 3
         q += a.w * jk_cap_q[4 * k + 3];
 #endif
-        xyz += ks[k] * q;
+        xyz += ks * q;
     }
     return xyz;
 }
-#define JK_CAP_TAP(d, wt) for (int k = 0; k < JK_CAPS; ++k) ks[k] += (wt) * jk_cap_kernel(d, cw[k], k);
-#else
-#define JK_CAP_TAP(d, wt)
 #endif
 
 // Every table is sampled with textureLod(…, 0.0): none has mipmaps and minification and magnification
@@ -153,10 +165,9 @@ vec3 env_xyz(vec3 d, float lz, vec4 a)
     return xyz;
 }
 
-// display-encoded RGBA of a surface point: unit normal N, world position P, map coordinates uv
-vec4 jk_shade(vec3 N, vec3 P, vec2 uv)
+// display-encoded RGBA of a surface point: unit normal N, unit direction to the eye Vd, map coordinates uv
+vec4 jk_shade(vec3 N, vec3 Vd, vec2 uv)
 {
-    vec3 Vd = normalize(cam_pos - P);
     float cv = dot(N, Vd);
     vec3 xyz = vec3(0.0);
     if (cv > 0.0) {
@@ -189,50 +200,19 @@ vec4 jk_shade(vec3 N, vec3 P, vec2 uv)
         float le = 0.0;
 #endif
         float lz = (le + 0.5) / jk_n_levels;
-#if JK_CAPS > 0
-        float ks[JK_CAPS];
-        for (int k = 0; k < JK_CAPS; ++k) ks[k] = 0.0;
-        vec2 cw[JK_CAPS];
-#if JK_ROUGH && JK_TAP_FIT
-        float c0;                      // set below, at the moment-matched pattern's level
-#else
-#if JK_ROUGH
-        float c0 = 0.69314718 * exp(-2.0 * (jk_log_mu_first + le * jk_log_mu_step));
-#else
-        float c0 = 0.69314718 * exp(-2.0 * jk_log_mu_first);
-#endif
-        for (int k = 0; k < JK_CAPS; ++k) cw[k] = jk_cap_width(c0, k);
-#endif
+#if JK_ROUGH && (JK_TWO_TAP || JK_CAPS > 0)
+        vec3 tn = N - dot(N, R0) * R0;                      // in the plane of incidence, ⟂ R, towards N
+        tn = jk_env_rot * (tn / max(length(tn), 1e-6));
 #endif
 #if JK_TWO_TAP && JK_TAP_FIT
         // three taps fitted to the lobe (offsets, weights, filter width): the lobe's skew too
-        vec3 tn = N - dot(N, R0) * R0;
-        tn = jk_env_rot * (tn / max(length(tn), 1e-6));
         vec3 d0 = cos(tp.y) * R + sin(tp.y) * tn;
         vec3 d1 = cos(tp.z) * R + sin(tp.z) * tn;
         vec3 d2 = cos(tp.w) * R + sin(tp.w) * tn;
         xyz = tw.x * env_xyz(d0, lz, a) + tw.y * env_xyz(d1, lz, a) + tw.z * env_xyz(d2, lz, a);
-#if JK_CAPS > 0
-        // the caps through the moment-matched pattern instead (bake.lobe_lut's moments: ¼, ½, ¼ at mean,
-        // mean ± √2·spread, the across-plane width): the fitted taps match the lobe in L1 over the map,
-        // not point by point, and a cap's small disc samples the kernel at one point
-        vec3 shape = w * lobe(2.0, cv, lf).rgb + (1.0 - w) * lobe(3.0, cv, lt).rgb;
-        float lm = clamp(mix(lt, lf, w) + shape.r / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
-        c0 = 0.69314718 * exp(-2.0 * (jk_log_mu_first + lm * jk_log_mu_step));
-        for (int k = 0; k < JK_CAPS; ++k) cw[k] = jk_cap_width(c0, k);
-        float off = 1.41421356 * shape.g;
-        JK_CAP_TAP(cos(shape.b) * R + sin(shape.b) * tn, 0.5)
-        JK_CAP_TAP(cos(shape.b + off) * R + sin(shape.b + off) * tn, 0.25)
-        JK_CAP_TAP(cos(shape.b - off) * R + sin(shape.b - off) * tn, 0.25)
-#endif
-#elif JK_TWO_TAP
-        // three binomial taps (1/4, 1/2, 1/4) along the plane of incidence at mean, mean ± √2·spread:
-        // the in-plane variance of the sum is var_perp + spread² = var_par (the lobe's)
-        vec3 tn = N - dot(N, R0) * R0;
-        tn = jk_env_rot * (tn / max(length(tn), 1e-6));
-#if JK_TAPS == 5
-        // or five binomial taps (1, 4, 6, 4, 1)/16 at mean, mean ± spread, mean ± 2·spread: same mean and
-        // variance, a kernel closer to the lobe's own shape (a small bright source sees fewer steps)
+#elif JK_TWO_TAP && JK_TAPS == 5
+        // five binomial taps (1, 4, 6, 4, 1)/16 at mean, mean ± spread, mean ± 2·spread: the lobe's mean and
+        // variance, a kernel closer to the lobe's own shape than three taps
         float off = shape.g;
         vec3 Rc = cos(shape.b) * R + sin(shape.b) * tn;
         vec3 Ra = cos(shape.b + off) * R + sin(shape.b + off) * tn;
@@ -241,38 +221,33 @@ vec4 jk_shade(vec3 N, vec3 P, vec2 uv)
         vec3 Re = cos(shape.b - 2.0 * off) * R + sin(shape.b - 2.0 * off) * tn;
         xyz = 0.375 * env_xyz(Rc, lz, a) + 0.25 * (env_xyz(Ra, lz, a) + env_xyz(Rb, lz, a))
             + 0.0625 * (env_xyz(Rd, lz, a) + env_xyz(Re, lz, a));
-        JK_CAP_TAP(Rc, 0.375)
-        JK_CAP_TAP(Ra, 0.25)
-        JK_CAP_TAP(Rb, 0.25)
-        JK_CAP_TAP(Rd, 0.0625)
-        JK_CAP_TAP(Re, 0.0625)
-#else
+#elif JK_TWO_TAP
+        // three binomial taps (1/4, 1/2, 1/4) along the plane of incidence at mean, mean ± √2·spread:
+        // the in-plane variance of the sum is var_perp + spread² = var_par (the lobe's)
         float off = 1.41421356 * shape.g;
         vec3 Rc = cos(shape.b) * R + sin(shape.b) * tn;
         vec3 Ra = cos(shape.b + off) * R + sin(shape.b + off) * tn;
         vec3 Rb = cos(shape.b - off) * R + sin(shape.b - off) * tn;
         xyz = 0.5 * env_xyz(Rc, lz, a) + 0.25 * (env_xyz(Ra, lz, a) + env_xyz(Rb, lz, a));
-        JK_CAP_TAP(Rc, 0.5)
-        JK_CAP_TAP(Ra, 0.25)
-        JK_CAP_TAP(Rb, 0.25)
-#endif
 #else
         xyz = env_xyz(R, lz, a);
-#if JK_ROUGH && JK_CAPS > 0
-        // one isotropic tap reads the map; the caps, which it would miss by the lobe's in-plane spread and
-        // offset, go through the moment-matched pattern (its level is this tap's)
-        vec3 tn = N - dot(N, R0) * R0;
-        tn = jk_env_rot * (tn / max(length(tn), 1e-6));
-        float off = 1.41421356 * shape.g;
-        JK_CAP_TAP(cos(shape.b) * R + sin(shape.b) * tn, 0.5)
-        JK_CAP_TAP(cos(shape.b + off) * R + sin(shape.b + off) * tn, 0.25)
-        JK_CAP_TAP(cos(shape.b - off) * R + sin(shape.b - off) * tn, 0.25)
+#endif
+#if JK_CAPS > 0 && JK_ROUGH
+        // the caps through the lobe's moments (jk_caps_xyz): centre at the mean offset, across-plane
+        // variance 2 μ_e²/ln2 of the moment pattern's level (c = 2/var = ln2/μ_e²), in-plane var + spread²
+#if JK_TAP_FIT
+        vec3 shape = w * lobe(2.0, cv, lf).rgb + (1.0 - w) * lobe(3.0, cv, lt).rgb;
+        float lm = clamp(mix(lt, lf, w) + shape.r / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
 #else
-        JK_CAP_TAP(R, 1.0)
+        float lm = le;
 #endif
-#endif
-#if JK_CAPS > 0
-        xyz += jk_caps_xyz(a, ks);
+        float c_perp = 0.69314718 * exp(-2.0 * (jk_log_mu_first + lm * jk_log_mu_step));
+        float c_par = c_perp / (1.0 + 0.5 * c_perp * shape.g * shape.g);
+        vec3 M = cos(shape.b) * R + sin(shape.b) * tn;
+        xyz += jk_caps_xyz(a, M, cos(shape.b) * tn - sin(shape.b) * R, cross(R, tn), vec2(c_par, c_perp));
+#elif JK_CAPS > 0
+        // mirror-like: isotropic, the narrowest level's width about R
+        xyz += jk_caps_xyz(a, R, vec3(0.0), vec3(0.0), vec2(0.69314718 * exp(-2.0 * jk_log_mu_first)));
 #endif
     }
     vec3 rgb = jk_xyz_to_rgb * (xyz * jk_exposure);
