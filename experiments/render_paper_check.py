@@ -4,7 +4,7 @@ Mochizuki et al. fitted, on one blade at their goniometer, hiraji χ = 79000,
 μ0 = 0.05 rad and hamon β = 43000, μ1 = 0.05 rad (§6.1). This script renders the
 built-in blade with *those* values, uniform over each region (no hada grain),
 the built-in notare/gunome hamon line deciding where each region is, under the
-demo's Hosek–Wilkie sky and camera (:data:`jkatana.render.scene.DEMO_SCENE`), in
+demo's Hosek–Wilkie sky and camera (:data:`jkatana.render.scenefile.DEMO_SCENE`), in
 two conventions:
 
 - **normalised** (no ``calibration``): each lobe integrates to the Fresnel

@@ -176,7 +176,7 @@ def _fallback(args, out: Path) -> int:
     """No GL: render the same orbit with the JAX reference renderer (jkatana.render), if present."""
     try:
         from jkatana.render.renderer import prepare, render_view, write_outputs
-        from jkatana.render.scene import DEMO_SCENE, load_scene, scene_from_dict
+        from jkatana.render.scenefile import DEMO_SCENE, load_scene, scene_from_dict
     except ImportError:
         print("jkatana view: no GL and the reference renderer (jkatana.render) is not installed", file=sys.stderr)
         return 1

@@ -222,7 +222,7 @@ class InteractiveScene:
 
 
 def demo_view(width: int = 800, height: int = 600) -> View:
-    """The demo camera of :data:`jkatana.render.scene.DEMO_SCENE` (without its roll): looking up at the
+    """The demo camera of :data:`jkatana.render.scenefile.DEMO_SCENE` (without its roll): looking up at the
     omote flat near the hamon from 0.28 m (target (0.45, −0.022, 0), azimuth 20°, elevation −40°, fov 30°)."""
     target = np.array([0.45, -0.022, 0.0])
     az, el = np.deg2rad(20.0), np.deg2rad(-40.0)
@@ -241,7 +241,7 @@ def default_scene(env: str = "sky", width: int = 800, height: int = 600) -> Inte
 def from_render_scene(path) -> InteractiveScene:
     """Load a :mod:`jkatana.render` scene TOML (geometry, map, environment, camera, film, spectral grid)."""
     from jkatana.render.renderer import camera_for, check_lobe_mode, load_environment, load_geometry, load_material
-    from jkatana.render.scene import load_scene
+    from jkatana.render.scenefile import load_scene
 
     sc = load_scene(path)
     grid = sc.spectral.grid
