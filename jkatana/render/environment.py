@@ -237,22 +237,53 @@ def lookup_prefiltered(env: Environment, mu, R_world):
     """Prefiltered channels toward ``R_world`` for per-pixel ``mu``: bilinear in each level, linear
     in log μ between levels, clamped to the tabulated range (as
     :meth:`jkatana.light.prefilter.PrefilteredEnv.lookup`, in the environment's channel space)."""
+    return lookup_prefiltered_many(env, (mu,), R_world)[0]
+
+
+def lookup_prefiltered_many(env: Environment, mus, R_world) -> list:
+    """:func:`lookup_prefiltered` toward one direction per pixel for several per-pixel widths ``mus``
+    (the hiraji and hamon lobes share the mirror direction): the map coordinates are computed once and,
+    where the levels share a resolution, one bilinear lookup of the levels side by side serves every level
+    and width (the same arithmetic per channel as a lookup per level)."""
     d = R_world @ env.rotation.T
-    vals = jnp.stack([bilinear_equirect(lvl, d) for lvl in env.prefiltered])  # (M, P, J)
-    M = vals.shape[0]
+    M = len(env.prefiltered)
+    if all(lvl.shape == env.prefiltered[0].shape for lvl in env.prefiltered):
+        u, v = direction_to_uv(d)
+        C = env.prefiltered[0].shape[-1]
+        stacked = jnp.concatenate(env.prefiltered, axis=-1)  # (H, W, M·C)
+        vals = jnp.moveaxis(bilinear_equirect_uv(stacked, u, v).reshape(-1, M, C), 1, 0)  # (M, P, C)
+    else:
+        vals = jnp.stack([bilinear_equirect(lvl, d) for lvl in env.prefiltered])  # (M, P, C)
     if M == 1:
-        return vals[0]
+        return [vals[0] for _ in mus]
     logm = jnp.log(env.prefilter_mus)
-    x = jnp.clip(jnp.log(jnp.maximum(mu, 1e-12)), logm[0], logm[-1])
-    k0 = jnp.clip(jnp.searchsorted(logm, x, side="right") - 1, 0, M - 2)
-    t = ((x - logm[k0]) / (logm[k0 + 1] - logm[k0]))[:, None]
     P = R_world.shape[0]
-    return vals[k0, jnp.arange(P)] * (1 - t) + vals[k0 + 1, jnp.arange(P)] * t
+    out = []
+    for mu in mus:
+        x = jnp.clip(jnp.log(jnp.maximum(mu, 1e-12)), logm[0], logm[-1])
+        k0 = jnp.clip(jnp.searchsorted(logm, x, side="right") - 1, 0, M - 2)
+        t = ((x - logm[k0]) / (logm[k0 + 1] - logm[k0]))[:, None]
+        out.append(vals[k0, jnp.arange(P)] * (1 - t) + vals[k0 + 1, jnp.arange(P)] * t)
+    return out
 
 
 def unbasis(env: Environment):
     """Pseudo-inverse map from spectra to the accumulator's channels (identity in full mode)."""
     return env.basis.T
+
+
+def xyz_environment(env: Environment, cmf) -> Environment:
+    """``env`` with its channels and caps folded to CIE XYZ (``basis`` the 3 × 3 identity), for the background.
+
+    A bilinear lookup commutes with a per-texel linear map, so looking up the
+    folded map gives the XYZ of the spectral lookup up to float rounding, with 3
+    channels instead of J per camera ray. The sampler and prefiltered levels are
+    left as they are (the background does not read them).
+    """
+    M = env.basis @ cmf.astype(env.basis.dtype)  # (J, 3)
+    caps = None if env.caps is None else Caps(env.caps.direction, env.caps.radius, env.caps.channels @ M)
+    return Environment(env.channels @ M, jnp.eye(3, dtype=env.basis.dtype), env.rotation, env.sampler,
+                       env.prefiltered, env.prefilter_mus, caps)
 
 
 def background(env: Environment, directions, cmf, spectral: bool = False):

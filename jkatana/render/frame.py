@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import time
+import weakref
 
 import equinox as eqx
 import jax
@@ -22,6 +24,7 @@ import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec as PS
 
 from jkatana.render.camera import Camera
+from jkatana.render.environment import xyz_environment
 from jkatana.render.gbuffer import GBuffer, gbuffer_mesh, gbuffer_sphere
 from jkatana.render.shading import (Environment, Light, Material, PixelIds, Pixels, Plan, Visibility, background,
                                     cap_rule_for, fold_fresnel, fresnel_rank_for, ray_directions, shade)
@@ -137,6 +140,63 @@ def _compiled_fold(rank: int):
     return jax.jit(lambda mat, env, cmf, basis: fold_with_caps(rank, mat, env, cmf, basis))
 
 
+#: Maps derived from an environment (and material) once and reused by every frame that renders it:
+#: ``key → (weak references to the source arrays, value)``; an entry leaves when a source array does.
+_DERIVED: dict = {}
+
+
+def derived(kind: str, sources: tuple, extra, build):
+    """``build()``, computed once per identity of the ``sources`` arrays (and the hashable ``extra``).
+
+    JAX arrays are immutable, so an array alive under the same identity holds the
+    same values: what is derived from it (the environment folded to XYZ for the
+    background, the Fresnel fold) need not be recomputed per frame. The cache holds
+    weak references only; an entry is dropped when any source array is collected.
+    """
+    key = (kind, tuple(id(a) for a in sources), extra)
+    hit = _DERIVED.get(key)
+    if hit is not None and all(r() is a for r, a in zip(hit[0], sources)):
+        return hit[1]
+    value = build()
+
+    def drop(_, k=key):
+        _DERIVED.pop(k, None)
+
+    _DERIVED[key] = (tuple(weakref.ref(a, drop) for a in sources), value)
+    return value
+
+
+def _digest(a) -> str:
+    b = np.ascontiguousarray(np.asarray(a))
+    return hashlib.blake2b(b.tobytes(), digest_size=16).hexdigest() + str(b.shape) + str(b.dtype)
+
+
+def _env_sources(env: Environment) -> tuple:
+    return (env.channels, env.basis, *env.prefiltered) + (() if env.caps is None else (env.caps.channels,))
+
+
+def folded(rank: int, mat: Material, env: Environment, cmf, basis) -> tuple[Material, Environment]:
+    """:func:`fold_with_caps` of ``(mat, env)``, computed once per (environment, material, CMFs, rank):
+    only the environment's rotation and the material's scales are taken from the arguments each call."""
+    def build():
+        m2, e2 = _compiled_fold(rank)(mat, env, cmf, basis)
+        return m2.ftable, e2.channels, e2.prefiltered, None if e2.caps is None else e2.caps.channels
+
+    a, ch, pre, capch = derived("fresnel-fold", (mat.ftable, *_env_sources(env)), (rank, _digest(cmf)), build)
+    env2 = eqx.tree_at(lambda e: (e.channels, e.prefiltered), env, (ch, pre))
+    if capch is not None:
+        env2 = eqx.tree_at(lambda e: e.caps.channels, env2, capch)
+    return Material(a, mat.chi, mat.beta), env2
+
+
+def background_environment(env: Environment, cmf) -> Environment:
+    """:func:`~jkatana.render.environment.xyz_environment` of ``env``, computed once per (environment, CMFs);
+    the rotation is ``env``'s."""
+    sources = (env.channels, env.basis) + (() if env.caps is None else (env.caps.channels,))
+    xyz = derived("background-xyz", sources, _digest(cmf), lambda: xyz_environment(env, jnp.asarray(cmf)))
+    return eqx.tree_at(lambda e: e.rotation, xyz, env.rotation)
+
+
 def resolve_plan(plan: Plan, mat: Material) -> Plan:
     """``plan`` with ``fresnel_rank=None`` decided on the host: the smallest rank of the material's
     Fresnel table within :data:`~jkatana.render.shading.FRESNEL_RANK_TOL` where the plan allows folding
@@ -174,8 +234,8 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
         plan = dataclasses.replace(plan, cap_rule=cap_rule_for(plan, env, px))
     if plan.fresnel_rank and not plan.factored:  # once per frame: F·E·CMF folded into a 3R-channel map
         _, vt = fresnel_rank_for(mat.ftable, _basis_too=True)  # cached host SVD
-        mat, env = _compiled_fold(plan.fresnel_rank)(mat, env, jnp.asarray(cmf, px.normal.dtype),
-                                                     jnp.asarray(vt[:plan.fresnel_rank], px.normal.dtype))
+        mat, env = folded(plan.fresnel_rank, mat, env, jnp.asarray(cmf, px.normal.dtype),
+                          jnp.asarray(vt[:plan.fresnel_rank], px.normal.dtype))
     n_dev = n_devices or len(jax.local_devices())
     P = px.normal.shape[0]
     # call shapes from a fixed ladder (1024 · 4^k, capped at `chunk`), so that views with
@@ -276,26 +336,27 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
     if H % ss or W % ss:
         raise ValueError(f"supersample {ss}: the camera's {W}×{H} image is not a whole number of pixels")
     m = gb.mask.reshape(-1)
+    keep = np.ones(len(gb.index), bool)  # the G-buffer's hits that are shaded
     blocked = np.zeros(H * W, bool)
     if plan.visibility and occluders is not None:
         # primary visibility: an occluder in front of the object (or of the sky) hides it
         origin, _ = camera.rays()
         d_occ = occluders.first_hit(np.broadcast_to(origin, (H * W, 3)), gb.ray.reshape(-1, 3))
-        d_obj = np.where(m, np.linalg.norm(gb.position.reshape(-1, 3) - origin, axis=-1), np.inf)
+        d_obj = np.full(H * W, np.inf)
+        d_obj[gb.index] = np.linalg.norm(gb.hit_position - origin, axis=-1)
         blocked = d_occ < d_obj
         m = m & ~blocked
+        keep = ~blocked[gb.index]
     t1 = time.perf_counter()
-    sel = np.nonzero(m)[0]
+    sel = gb.index[keep]
     xyz = np.zeros((H * W, 3), np.float32)
     spectra = np.zeros((H * W, env.basis.shape[-1]), np.float32) if plan.spectral and not plan.factored else None
     key = jax.random.PRNGKey(seed)
     if len(sel):
-        uv = jnp.asarray(gb.uv.reshape(-1, 2)[sel], dtype)
+        uv = jnp.asarray(gb.hit_uv[keep], dtype)
         mp = sample_map(jnp.asarray(maps, dtype), uv)
-        px = Pixels(jnp.asarray(gb.position.reshape(-1, 3)[sel], dtype),
-                    jnp.asarray(gb.normal.reshape(-1, 3)[sel], dtype),
-                    jnp.asarray(gb.view.reshape(-1, 3)[sel], dtype),
-                    mp[:, 0], mp[:, 1], mp[:, 2])
+        px = Pixels(jnp.asarray(gb.hit_position[keep], dtype), jnp.asarray(gb.hit_normal[keep], dtype),
+                    jnp.asarray(gb.hit_view[keep], dtype), mp[:, 0], mp[:, 1], mp[:, 2])
         ids = None
         if ss > 1:
             row, col = np.divmod(sel, W)
@@ -307,13 +368,16 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
         if spectra is not None and s is not None:
             spectra[sel] = s
     t2 = time.perf_counter()
-    bg = np.nonzero(~m & ~blocked)[0]
+    bg = np.flatnonzero(~m & ~blocked)
     if len(bg):
-        bx, bs = _compiled_background(spectra is not None)(env, jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype),
-                                                           jnp.asarray(cmf, dtype))
-        xyz[bg] = np.asarray(bx)
-        if spectra is not None:
+        d_bg = jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype)
+        if spectra is None:  # XYZ only: the environment folded to 3 channels once, looked up per ray
+            bx, _ = _compiled_background(False)(background_environment(env, np.asarray(cmf, dtype)), d_bg,
+                                                jnp.eye(3, dtype=dtype))
+        else:
+            bx, bs = _compiled_background(True)(env, d_bg, jnp.asarray(cmf, dtype))
             spectra[bg] = np.asarray(bs)
+        xyz[bg] = np.asarray(bx)
     t3 = time.perf_counter()
     timing = {"gbuffer_s": t1 - t0, "shade_s": t2 - t1, "background_s": t3 - t2, "total_s": t3 - t0}
     if occluders is not None:

@@ -97,6 +97,7 @@ from jkatana.models.microfacet import gaussian_facet
 # the shader's inputs and helpers live by job in their own modules; re-exported here as the render API
 from jkatana.render.environment import (Caps, Environment, background, bilinear_equirect, bilinear_equirect_uv,  # noqa: F401
                                         build_environment, env_basis, env_lookup, env_uv, lookup_prefiltered,
+                                        lookup_prefiltered_many,
                                         unbasis)
 from jkatana.render.fresnel_fold import (FRESNEL_RANK_TOL, FRESNEL_TABLE, Material, fold_fresnel,  # noqa: F401
                                          fresnel_rank_for, fresnel_table, is_folded, table_lookup)
@@ -336,9 +337,10 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         # split sum: F(cos θv) × prefiltered env at the mirror direction, per lobe
         _, Rw = _mirror_ray(Vl, fr)
         cos = jnp.clip(Vl[:, 2], 0.0, 1.0)
-        for on, weight, mu in ((plan.hiraji and not plan.mirror, px.w, px.mu0), (plan.hamon, 1.0 - px.w, px.mu1)):
-            if on:
-                acc = add_mirror_like(acc, weight, lookup_prefiltered(env, mu, Rw), cos)
+        lobes_on = [(weight, mu) for on, weight, mu in ((plan.hiraji and not plan.mirror, px.w, px.mu0),
+                                                        (plan.hamon, 1.0 - px.w, px.mu1)) if on]
+        for (weight, _), E in zip(lobes_on, lookup_prefiltered_many(env, [mu for _, mu in lobes_on], Rw)):
+            acc = add_mirror_like(acc, weight, E, cos)
         if caps is not None:
             acc = add_cap_rule(acc)
     elif plan.mode in ("paper", "paper-published") and _has_lobe(plan):
