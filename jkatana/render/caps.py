@@ -30,6 +30,19 @@ def _caps(env: Environment) -> Caps | None:
     return env.caps if env.caps is not None and env.caps.count else None
 
 
+def _parts(lobes):
+    """``[(lobe, weight, gain), ...]`` with every :class:`~jkatana.models.lobes.Mixture` split into its two parts
+    (weights ``w·weight``, ``(1 − w)·weight``): the cap rule places its nodes by one width per lobe
+    (:func:`~jkatana.light.sun.lobe_width`), and a mixture's terms are its parts' terms so weighted."""
+    out = []
+    for lobe, weight, gain in lobes:
+        if hasattr(lobe, "first") and hasattr(lobe, "second"):
+            out += _parts([(lobe.first, weight * lobe.weight, gain), (lobe.second, weight * (1.0 - lobe.weight), gain)])
+        else:
+            out.append((lobe, weight, gain))
+    return out
+
+
 def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
     """``[(weight · ∫_cap a dω, Fresnel cosine at the cap centre), ...]`` per lobe term, ``(P,)`` each.
 
@@ -45,6 +58,7 @@ def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
     """
     Cl = to_local(Cw, *fr)
     out = []
+    lobes = _parts(lobes)
     if rule == "stroud":
         Lw, q = sun.cap_disc_nodes(Cw, radius)  # (4, 3), (4,): the same for every pixel
         Ll = to_local(Lw[:, None, :], *fr)  # (4, P, 3)
@@ -104,7 +118,7 @@ def cap_rule_for(plan: Plan, env: Environment, px: Pixels) -> str:
     if caps is None:
         return "nodes"
     widths = [np.asarray(jnp.where(weight > 0, sun.lobe_width(lobe), jnp.inf)).min(initial=np.inf)
-              for lobe, weight, _ in _lobes(plan, px, (1.0, 1.0))]
+              for lobe, weight, _ in _parts(_lobes(plan, px, (1.0, 1.0)))]
     if not widths:
         return "nodes"
     r_max = float(np.asarray(caps.radius).max())

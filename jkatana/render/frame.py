@@ -130,7 +130,7 @@ def fold_with_caps(rank: int, mat: Material, env: Environment, cmf, basis=None) 
     mat2, env2 = fold_fresnel(rank, mat, env, cmf, basis)
     if env.caps is None:
         return mat2, env2
-    row = dataclasses.replace(env, channels=env.caps.channels[None], prefiltered=(), caps=None)
+    row = dataclasses.replace(env, channels=env.caps.channels[None], prefiltered=(), caps=None, lobe_prefiltered=())
     _, folded = fold_fresnel(rank, mat, row, cmf, basis)
     return mat2, eqx.tree_at(lambda e: e.caps.channels, env2, folded.channels[0])
 
@@ -172,7 +172,8 @@ def _digest(a) -> str:
 
 
 def _env_sources(env: Environment) -> tuple:
-    return (env.channels, env.basis, *env.prefiltered) + (() if env.caps is None else (env.caps.channels,))
+    return ((env.channels, env.basis, *env.prefiltered, *(lvl for lv in env.lobe_prefiltered for lvl in lv))
+            + (() if env.caps is None else (env.caps.channels,)))
 
 
 def folded(rank: int, mat: Material, env: Environment, cmf, basis) -> tuple[Material, Environment]:
@@ -180,10 +181,13 @@ def folded(rank: int, mat: Material, env: Environment, cmf, basis) -> tuple[Mate
     only the environment's rotation and the material's scales are taken from the arguments each call."""
     def build():
         m2, e2 = _compiled_fold(rank)(mat, env, cmf, basis)
-        return m2.ftable, e2.channels, e2.prefiltered, None if e2.caps is None else e2.caps.channels
+        return (m2.ftable, e2.channels, e2.prefiltered, e2.lobe_prefiltered,
+                None if e2.caps is None else e2.caps.channels)
 
-    a, ch, pre, capch = derived("fresnel-fold", (mat.ftable, *_env_sources(env)), (rank, _digest(cmf)), build)
+    a, ch, pre, lpre, capch = derived("fresnel-fold", (mat.ftable, *_env_sources(env)), (rank, _digest(cmf)), build)
     env2 = eqx.tree_at(lambda e: (e.channels, e.prefiltered), env, (ch, pre))
+    if lpre:
+        env2 = eqx.tree_at(lambda e: e.lobe_prefiltered, env2, lpre)
     if capch is not None:
         env2 = eqx.tree_at(lambda e: e.caps.channels, env2, capch)
     return Material(a, mat.chi, mat.beta), env2
@@ -210,6 +214,31 @@ def resolve_plan(plan: Plan, mat: Material) -> Plan:
 @functools.lru_cache(maxsize=8)
 def _compiled_background(spectral: bool):
     return jax.jit(lambda env, d, cmf: background(env, d, cmf, spectral))
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled_background_xyz(n_dev: int):
+    mesh = jax.make_mesh((n_dev,), ("d",), devices=jax.local_devices()[:n_dev])
+    f = jax.shard_map(lambda env, d: background(env, d, jnp.eye(3, dtype=d.dtype))[0], mesh=mesh,
+                      in_specs=(PS(), PS("d")), out_specs=PS("d"), check_vma=False)
+    return jax.jit(f), mesh
+
+
+def background_all(env: Environment, rays: np.ndarray, cmf, dtype, n_devices: int | None = None) -> jax.Array:
+    """XYZ of the environment along camera ``rays (n, 3)`` (caps included), split across the local devices
+    and dispatched asynchronously: a ``(n', 3)`` device array, ``n' ≥ n`` (padded to the devices).
+
+    Looks up :func:`background_environment` (3 channels) instead of the spectral map.
+    """
+    n_dev = n_devices or len(jax.local_devices())
+    f, mesh = _compiled_background_xyz(n_dev)
+    n = rays.shape[0]
+    pad = -n % n_dev
+    d = np.asarray(rays, dtype)
+    if pad:
+        d = np.concatenate([d, np.tile(np.asarray([[0.0, 0.0, 1.0]], dtype), (pad, 1))])
+    env3 = jax.device_put(background_environment(env, np.asarray(cmf, dtype)), NamedSharding(mesh, PS()))
+    return f(env3, jax.device_put(d, NamedSharding(mesh, PS("d"))))
 
 
 def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels,
@@ -330,7 +359,16 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
     if ss < 1:
         raise ValueError(f"supersample must be ≥ 1, got {supersample}")
     plan = dataclasses.replace(plan, subpixels=ss * ss)
-    gb = gb if gb is not None else gbuffer(geometry, camera)
+    spectral_out = plan.spectral and not plan.factored
+    bg_all = None
+    if not spectral_out:
+        # every pixel's background, dispatched first: the devices look it up while the host casts the G-buffer
+        rays = gb.ray if gb is not None else camera.rays()[1]
+        bg_all = background_all(env, rays.reshape(-1, 3), cmf, dtype, n_devices)
+    if gb is None:
+        gb = gbuffer(geometry, camera)
+        if isinstance(gb, GBuffer) and gb.rays is None:
+            gb.rays = rays
     rays0, cast0 = (occluders.rays_cast, occluders.cast_s) if occluders is not None else (0, 0.0)
     H, W = gb.mask.shape
     if H % ss or W % ss:
@@ -350,7 +388,7 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
     t1 = time.perf_counter()
     sel = gb.index[keep]
     xyz = np.zeros((H * W, 3), np.float32)
-    spectra = np.zeros((H * W, env.basis.shape[-1]), np.float32) if plan.spectral and not plan.factored else None
+    spectra = np.zeros((H * W, env.basis.shape[-1]), np.float32) if spectral_out else None
     key = jax.random.PRNGKey(seed)
     if len(sel):
         uv = jnp.asarray(gb.hit_uv[keep], dtype)
@@ -368,15 +406,12 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
         if spectra is not None and s is not None:
             spectra[sel] = s
     t2 = time.perf_counter()
-    bg = np.flatnonzero(~m & ~blocked)
-    if len(bg):
-        d_bg = jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype)
-        if spectra is None:  # XYZ only: the environment folded to 3 channels once, looked up per ray
-            bx, _ = _compiled_background(False)(background_environment(env, np.asarray(cmf, dtype)), d_bg,
-                                                jnp.eye(3, dtype=dtype))
-        else:
-            bx, bs = _compiled_background(True)(env, d_bg, jnp.asarray(cmf, dtype))
-            spectra[bg] = np.asarray(bs)
+    bg = ~m & ~blocked
+    if bg_all is not None:
+        xyz[bg] = np.asarray(bg_all)[:H * W][bg]
+    elif bg.any():
+        bx, bs = _compiled_background(True)(env, jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype), jnp.asarray(cmf, dtype))
+        spectra[bg] = np.asarray(bs)
         xyz[bg] = np.asarray(bx)
     t3 = time.perf_counter()
     timing = {"gbuffer_s": t1 - t0, "shade_s": t2 - t1, "background_s": t3 - t2, "total_s": t3 - t0}

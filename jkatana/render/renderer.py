@@ -161,10 +161,12 @@ def _file_lobe(p, path, region) -> tuple[float, tuple]:
 def check_lobe_mode(lobes: dict, scene: Scene, mode: str) -> None:
     """One :class:`InputError` line when a region's lobe (not the paper's) cannot be rendered in ``mode``.
 
-    Only the sampling modes (:data:`~jkatana.render.plan.LOBE_MODES`) draw a
-    lobe's own samples; the prefiltered mode convolves the environment with the
-    paper's Gaussian, the paper's mode jitters rays in a Gaussian disk and the
-    interactive viewer's taps are fitted to the paper's lobe.
+    The sampling modes draw a lobe's own samples and the prefiltered mode convolves
+    the environment with each region's own lobe (:data:`~jkatana.render.plan.LOBE_MODES`).
+    The paper's modes stay the paper's estimator: Gaussian-weighted rays in a disk
+    of 2.5 μ about the mirror direction, which would cut off the tails of a
+    microfacet lobe (GGX's, GTR's, a haze's) and weight its core by the wrong
+    shape, so they refuse another lobe.
     """
     from jkatana.render.plan import LOBE_MODES
 
@@ -173,7 +175,8 @@ def check_lobe_mode(lobes: dict, scene: Scene, mode: str) -> None:
     for region, key in lobes.items():
         if key is not None:
             raise InputError(f"holds a {key[0]!r} lobe, which renders in modes {', '.join(LOBE_MODES)} only "
-                             f"(mode {mode!r} uses the paper's Gaussian lobe): set [render] mode or --mode",
+                             f"(mode {mode!r} is the paper's estimator: Gaussian-weighted rays within 2.5 μ of the "
+                             f"mirror direction, which would cut off this lobe's tails): set [render] mode or --mode",
                              path=getattr(scene.material, region), field=f"material.{region}")
 
 
@@ -285,17 +288,29 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     # environment and its tables built once per content (jkatana.light.cache); rotation set afterwards
     from jkatana.light.cache import environment_key, radiance_key
 
+    # a region with its own lobe gets prefiltered levels of that lobe, as the shader evaluates it
+    # (the normalised form without a calibration, jkatana.render.regions)
+    pre_lobes = (None, None)
+    if mus:
+        from jkatana.render.regions import shader_lobe_key
+
+        pre_lobes = tuple(None if lobes[r] is None else shader_lobe_key(lobes[r], scene.material.calibration)
+                          for r in ("hiraji", "hamon"))
     split = (mode in SPLIT_MODES) if split_sun is None else bool(split_sun)
     if mode == "paper-published" and split:
         raise InputError("the paper-published mode shades the whole map: no sun split", field="mode")
     rad_key = radiance_key(scene.environment, grid) if env_radiance is None else None
     env_key = None if rad_key is None else environment_key(rad_key, rank=env_rank, prefilter_mus=mus,
                                                            prefilter_resolution=128, dtype=dtype, split_sun=split)
+    if env_key is not None and pre_lobes != (None, None):
+        import hashlib
+
+        env_key += "-" + hashlib.sha256(repr(pre_lobes).encode()).hexdigest()[:16]
 
     def build():
         radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
         return build_environment(radiance, rank=env_rank, prefilter_mus=mus, prefilter_resolution=128,
-                                 dtype=dtype, grid=grid, split_sun=split)
+                                 dtype=dtype, grid=grid, split_sun=split, prefilter_lobes=pre_lobes)
 
     env, factored, resid = cached_tree(env_key, build)
     env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rotation_y(scene.environment.rotation_deg), dtype))

@@ -337,10 +337,18 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         # split sum: F(cos θv) × prefiltered env at the mirror direction, per lobe
         _, Rw = _mirror_ray(Vl, fr)
         cos = jnp.clip(Vl[:, 2], 0.0, 1.0)
-        lobes_on = [(weight, mu) for on, weight, mu in ((plan.hiraji and not plan.mirror, px.w, px.mu0),
-                                                        (plan.hamon, 1.0 - px.w, px.mu1)) if on]
-        for (weight, _), E in zip(lobes_on, lookup_prefiltered_many(env, [mu for _, mu in lobes_on], Rw)):
-            acc = add_mirror_like(acc, weight, E, cos)
+        # each region's levels: the paper's lobe's, or its own lobe's (albedo included) times its gain
+        regions = [(weight, mu, region) for on, weight, mu, region in
+                   ((plan.hiraji and not plan.mirror, px.w, px.mu0, 0), (plan.hamon, 1.0 - px.w, px.mu1, 1)) if on]
+        keys = (plan.hiraji_lobe, plan.hamon_lobe)
+        if any(keys[r] is not None for _, _, r in regions) and len(env.lobe_prefiltered) != 2:
+            raise ValueError("a region with its own lobe needs its levels: build the environment with "
+                             "prefilter_lobes")
+        sets = [env.prefiltered if keys[r] is None else env.lobe_prefiltered[r] for _, _, r in regions]
+        gains = [None if (keys[r] is None or plan.calibration is None) else norms[r] for _, _, r in regions]
+        found = lookup_prefiltered_many(env, [mu for _, mu, _ in regions], Rw, sets)
+        for (weight, _, _), gain, E in zip(regions, gains, found):
+            acc = add_mirror_like(acc, weight if gain is None else weight * gain, E, cos)
         if caps is not None:
             acc = add_cap_rule(acc)
     elif plan.mode in ("paper", "paper-published") and _has_lobe(plan):
