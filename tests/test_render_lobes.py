@@ -148,6 +148,7 @@ def test_interactive_view_refuses_a_non_paper_lobe(tmp_path):
     with pytest.raises(InputError) as e:
         from_render_scene(tmp_path / "scene.toml")
     assert "\n" not in str(e.value) and "'gtr'" in str(e.value) and "interactive" in str(e.value)
+    assert "taps fitted to the paper's lobe" in str(e.value)
 
 
 def test_cli_prints_one_line_and_exits_2(tmp_path):

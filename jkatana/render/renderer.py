@@ -166,17 +166,19 @@ def check_lobe_mode(lobes: dict, scene: Scene, mode: str) -> None:
     The paper's modes stay the paper's estimator: Gaussian-weighted rays in a disk
     of 2.5 μ about the mirror direction, which would cut off the tails of a
     microfacet lobe (GGX's, GTR's, a haze's) and weight its core by the wrong
-    shape, so they refuse another lobe.
+    shape, so they refuse another lobe; so does the interactive viewer, whose taps are fitted to the
+    paper's lobe.
     """
     from jkatana.render.plan import LOBE_MODES
 
     if mode in LOBE_MODES:
         return
+    why = ("is the paper's estimator: Gaussian-weighted rays within 2.5 μ of the mirror direction, which would "
+           "cut off this lobe's tails" if mode.startswith("paper") else "uses taps fitted to the paper's lobe")
     for region, key in lobes.items():
         if key is not None:
             raise InputError(f"holds a {key[0]!r} lobe, which renders in modes {', '.join(LOBE_MODES)} only "
-                             f"(mode {mode!r} is the paper's estimator: Gaussian-weighted rays within 2.5 μ of the "
-                             f"mirror direction, which would cut off this lobe's tails): set [render] mode or --mode",
+                             f"(mode {mode!r} {why}): set [render] mode or --mode",
                              path=getattr(scene.material, region), field=f"material.{region}")
 
 
