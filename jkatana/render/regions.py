@@ -58,6 +58,11 @@ def shader_lobe_key(key: tuple, calibration: float | None) -> tuple:
     return key
 
 
+def region_lobe_keys(lobes: dict, calibration: float | None) -> tuple:
+    """``(hiraji, hamon)``: :func:`shader_lobe_key` of each region's lobe key in ``lobes``, ``None`` for the paper's."""
+    return tuple(None if lobes[r] is None else shader_lobe_key(lobes[r], calibration) for r in ("hiraji", "hamon"))
+
+
 def _lobes(plan: Plan, px: Pixels, norms):
     """The sampled lobes of the pixels with their blend weights and gains: ``[(lobe, weight, gain), ...]``.
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import json
 import math
 import platform
@@ -28,6 +29,7 @@ from jkatana.render.film import display, scene_exposure, film_weights, write_png
 from jkatana.render.frame import Frame, pixel_blocks, render_frame
 from jkatana.render.scene import LIMITS, RENDER_MODES, Scene
 from jkatana.render.environment import SPLIT_MODES
+from jkatana.render.regions import region_lobe_keys
 from jkatana.render.shading import MIRROR_MU, Environment, Light, Material, Plan, build_environment, fresnel_table
 from jkatana.spectral.grid import WavelengthGrid
 
@@ -161,13 +163,9 @@ def _file_lobe(p, path, region) -> tuple[float, tuple]:
 def check_lobe_mode(lobes: dict, scene: Scene, mode: str) -> None:
     """One :class:`InputError` line when a region's lobe (not the paper's) cannot be rendered in ``mode``.
 
-    The sampling modes draw a lobe's own samples and the prefiltered mode convolves
-    the environment with each region's own lobe (:data:`~jkatana.render.plan.LOBE_MODES`).
-    The paper's modes stay the paper's estimator: Gaussian-weighted rays in a disk
-    of 2.5 μ about the mirror direction, which would cut off the tails of a
-    microfacet lobe (GGX's, GTR's, a haze's) and weight its core by the wrong
-    shape, so they refuse another lobe; so does the interactive viewer, whose taps are fitted to the
-    paper's lobe.
+    :data:`~jkatana.render.plan.LOBE_MODES` render any lobe. The paper's modes keep the paper's estimator
+    (Gaussian-weighted rays within 2.5 μ of the mirror direction: a microfacet lobe's tails would be cut
+    off), and the interactive viewer's taps are fitted to the paper's lobe.
     """
     from jkatana.render.plan import LOBE_MODES
 
@@ -290,14 +288,7 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     # environment and its tables built once per content (jkatana.light.cache); rotation set afterwards
     from jkatana.light.cache import environment_key, radiance_key
 
-    # a region with its own lobe gets prefiltered levels of that lobe, as the shader evaluates it
-    # (the normalised form without a calibration, jkatana.render.regions)
-    pre_lobes = (None, None)
-    if mus:
-        from jkatana.render.regions import shader_lobe_key
-
-        pre_lobes = tuple(None if lobes[r] is None else shader_lobe_key(lobes[r], scene.material.calibration)
-                          for r in ("hiraji", "hamon"))
+    pre_lobes = region_lobe_keys(lobes, scene.material.calibration) if mus else (None, None)
     split = (mode in SPLIT_MODES) if split_sun is None else bool(split_sun)
     if mode == "paper-published" and split:
         raise InputError("the paper-published mode shades the whole map: no sun split", field="mode")
@@ -305,8 +296,6 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     env_key = None if rad_key is None else environment_key(rad_key, rank=env_rank, prefilter_mus=mus,
                                                            prefilter_resolution=128, dtype=dtype, split_sun=split)
     if env_key is not None and pre_lobes != (None, None):
-        import hashlib
-
         env_key += "-" + hashlib.sha256(repr(pre_lobes).encode()).hexdigest()[:16]
 
     def build():

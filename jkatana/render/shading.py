@@ -96,8 +96,7 @@ from jkatana.models.lobes import reflect
 from jkatana.models.microfacet import gaussian_facet
 # the shader's inputs and helpers live by job in their own modules; re-exported here as the render API
 from jkatana.render.environment import (Caps, Environment, background, bilinear_equirect, bilinear_equirect_uv,  # noqa: F401
-                                        build_environment, env_basis, env_lookup, env_uv, lookup_prefiltered,
-                                        lookup_prefiltered_many,
+                                        build_environment, env_basis, env_lookup, env_uv, lookup_prefiltered_many,
                                         unbasis)
 from jkatana.render.fresnel_fold import (FRESNEL_RANK_TOL, FRESNEL_TABLE, Material, fold_fresnel,  # noqa: F401
                                          fresnel_rank_for, fresnel_table, is_folded, table_lookup)
