@@ -42,7 +42,10 @@ Studies (records follow the convention in :mod:`benchmarks`):
 - ``render cold start``: ``jkatana demo`` in a fresh process (import + scene +
   JIT + frame + files).
 
-Times exclude compilation (``timeit`` warm-up) except the cold start.
+Times exclude compilation (``timeit`` warm-up) except the cold start. Convergence records also carry
+``frame_s`` (the frame's own stages: G-buffer, shading, background) and ``frame_cpu_s`` (the process's CPU
+seconds for one frame, every thread: less sensitive to a shared machine's load than wall time; on an idle
+machine with ``n`` cores the frame's wall time is at least ``frame_cpu_s / n``).
 """
 
 from __future__ import annotations
@@ -191,11 +194,14 @@ def _convergence(quick: bool, budget: float, left, scenes: dict | None = None,
                 holder = {}
 
                 def go():
+                    c0 = time.process_time()
                     holder["f"] = render_view(prep, seed=1)
+                    holder.setdefault("cpu", []).append(time.process_time() - c0)
                     return holder["f"].xyz
 
                 t = timeit(go, repeats=3, warmup=1)
                 f = holder["f"]
+                cpu_s = float(np.median(holder["cpu"][1:] or holder["cpu"]))  # after the warm-up call
                 err = _de(ref, f, mask)
                 label = _label(mode, split, spp, scene)
                 caps = prep.env_info.get("caps", 0)
@@ -203,11 +209,12 @@ def _convergence(quick: bool, budget: float, left, scenes: dict | None = None,
                                    study=study, variant=label, time_s=t, error=err, error_metric="dE2000_mean",
                                    reference=f"reference mode {ref_spp} spp, whole map, other seed", tolerance=1.0,
                                    items=int(mask.sum()), shade_s=f.timing["shade_s"],
-                                   frame_s={k: round(v, 4) for k, v in f.timing.items()},
+                                   frame_s={k: round(v, 4) for k, v in f.timing.items()}, frame_cpu_s=round(cpu_s, 4),
                                    series=mode.replace("paper-published", "paper"), split_sun=split, caps=caps,
                                    devices=len(jax.local_devices()), env=prep.env_info,
                                    load_avg_1min=os.getloadavg()[0]))
-                _log(f"[render] {scene_name} {label}: {t['median']:.3f} s (shading {f.timing['shade_s']:.3f} s) "
+                _log(f"[render] {scene_name} {label}: {t['median']:.3f} s, CPU {cpu_s:.3f} s "
+                     f"(G-buffer {f.timing['gbuffer_s']:.3f} s, shading {f.timing['shade_s']:.3f} s) "
                      f"ΔE mean {err['dE2000_mean']:.3f} p99 {err['dE2000_p99']:.2f}  caps {caps}  "
                      f"load {os.getloadavg()[0]:.2f}")
     return rows

@@ -1,5 +1,5 @@
 """The interactive shader's cap rule (:mod:`jkatana.interactive.caprule`, the NumPy twin of ``shade.glsl``'s
-``jk_caps_xyz``) against the library's cap quadrature :func:`jkatana.light.sun.cap_integral` of the paper's
+``jk_caps_xyz``) against the library's cap quadrature :func:`jkatana.light.capquad.cap_integral` of the paper's
 lobes (:meth:`Hiraji.brdf_cos`, :meth:`Hamon.brdf_cos`, iron, summed over λ)."""
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ import pytest
 
 from jkatana.interactive import bake as B
 from jkatana.interactive import caprule as C
-from jkatana.light.sun import cap_integral, gaussian_lobe_sigma
+from jkatana.light.capquad import cap_integral
+from jkatana.models.lobes import Gaussian
 from jkatana.models import Conductor, Hamon, Hiraji
 
 #: sunrise.exr's sun: a 0.31° cap
@@ -62,7 +63,7 @@ def _errors(cls, level: int, row: int, isotropic: bool = False) -> float:
     caps = caps[caps[:, 2] > 0.02]                              # above the horizon
     truth = np.asarray(cap_integral(functools.partial(model.brdf_cos, conductor=iron),
                                     jnp.asarray(np.broadcast_to(V, caps.shape), dt), jnp.asarray(caps, dt),
-                                    RADIUS, float(gaussian_lobe_sigma(mu)), n_radial=8, n_azimuth=32)).sum(-1)
+                                    RADIUS, float(Gaussian(mu=jnp.asarray(mu, dt)).reflected_width()), n_radial=8, n_azimuth=32)).sum(-1)
     energy = float(np.sum(np.asarray(B.lobe_integral(model, iron, jnp.asarray(V, dt)))))
     omega = 4 * np.pi * np.sin(RADIUS / 2) ** 2
     rule = energy * omega * C.cap_response(R, t, sp, mu_e, caps, RADIUS)

@@ -36,3 +36,47 @@ def test_chunked_fallback_matches_embree(monkeypatch):
     both = ref.mask & alt.mask
     np.testing.assert_allclose(alt.position[both], ref.position[both], atol=1e-5)
     np.testing.assert_allclose(alt.uv[both], ref.uv[both], atol=1e-5)
+
+
+def _full_frame(monkeypatch, mesh, cam):
+    """The G-buffer of a cast of every pixel's ray (no culling)."""
+    with monkeypatch.context() as m:
+        m.setattr(gb, "candidate_pixels", lambda mesh, camera: None)
+        return gb.gbuffer_mesh(mesh, cam)
+
+
+@pytest.mark.parametrize("position, look_at, fov", [
+    ((0.0, 0.3, 2.0), (0.0, 0.0, 0.0), 40.0),    # the whole sphere in view
+    ((0.0, 0.1, 0.8), (0.6, 0.0, 0.0), 60.0),    # cut by the frame's edge
+    ((0.0, 0.0, 0.3), (0.0, 0.0, 0.0), 90.0),    # a vertex behind the camera: no culling, same frame
+])
+def test_culled_cast_equals_full_frame(monkeypatch, position, look_at, fov):
+    pytest.importorskip("embreex")
+    mesh = _uv_sphere()
+    cam = Camera(position=position, look_at=look_at, fov_deg=fov, width=64, height=48)
+    full = _full_frame(monkeypatch, mesh, cam)
+    got = gb.gbuffer_mesh(mesh, cam)
+    assert full.mask.sum() > 50
+    for name in ("mask", "index", "hit_position", "hit_normal", "hit_tangent", "hit_uv", "hit_view",
+                 "position", "normal", "view", "uv", "ray"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(full, name), err_msg=name)
+
+
+def test_candidates_cover_every_hit_and_cull():
+    """Every pixel whose ray hits lies in a marked tile, and most of an off-centre frame is culled."""
+    mesh = _uv_sphere()
+    cam = Camera(position=(0.0, 0.3, 3.0), look_at=(0.4, 0.0, 0.0), fov_deg=40.0, width=80, height=60)
+    cand = gb.candidate_pixels(mesh, cam)
+    assert cand is not None and len(cand) < 0.6 * 80 * 60
+    hit = np.flatnonzero(gb.gbuffer_mesh(mesh, cam).mask)
+    assert np.isin(hit, cand).all()
+    # the camera's rays of a subset are the full frame's, bit for bit
+    np.testing.assert_array_equal(cam.rays(cand)[1], cam.rays()[1].reshape(-1, 3)[cand])
+
+
+def test_dense_views_zero_outside_mask():
+    mesh = _uv_sphere()
+    g = gb.gbuffer_mesh(mesh, Camera(position=(0.0, 0.3, 2.0), fov_deg=40.0, width=32, height=24))
+    assert g.position.shape == (24, 32, 3) and g.uv.shape == (24, 32, 2)
+    assert not g.normal[~g.mask].any() and np.allclose(np.linalg.norm(g.normal[g.mask], axis=-1), 1.0)
+    np.testing.assert_array_equal(g.view[g.mask], -g.ray[g.mask])

@@ -64,7 +64,7 @@ from :mod:`jkatana.models` and :mod:`jkatana.spectral`:
    x = c r²/4, so c → c' = 4 (1 − e^{−x})/r² (→ c (1 − x/2), the moment-matched
    1/c + r²/8, for a small cap; a peak of 1, a mirror's, for a large one)
    (:func:`cap_kernel`; tested against the kernel integrated over the cap by
-   :func:`jkatana.light.sun.cap_nodes`' rule). Without a compact source
+   :func:`jkatana.light.capquad.cap_nodes`' rule). Without a compact source
    nothing is split and the shader has no cap code (``JK_CAPS`` 0).
 
 Plus the display transform: the XYZ → linear RGB matrix of

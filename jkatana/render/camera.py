@@ -75,14 +75,20 @@ class Camera:
         pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, up, -fwd, self.position
         return pose
 
-    def rays(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(origin (3,), directions (height, width, 3))`` unit world directions through pixel centres."""
+    def rays(self, index: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(origin (3,), directions (height, width, 3))`` unit world directions through pixel centres;
+        with ``index`` (flat pixel indices, row-major) only those pixels' directions ``(n, 3)``, the same
+        values as the full frame's."""
         right, up, fwd = self.frame()
         tan_half = math.tan(math.radians(self.fov_deg) / 2)
         aspect = self.width / self.height
         x = ((np.arange(self.width) + 0.5) / self.width * 2 - 1) * tan_half * aspect
         y = (1 - (np.arange(self.height) + 0.5) / self.height * 2) * tan_half
-        d = fwd + x[None, :, None] * right + y[:, None, None] * up
+        if index is None:
+            d = fwd + x[None, :, None] * right + y[:, None, None] * up
+        else:
+            row, col = np.divmod(np.asarray(index, np.int64), self.width)
+            d = fwd + x[col, None] * right + y[row, None] * up
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         return np.asarray(self.position, np.float64), d
 

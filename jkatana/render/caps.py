@@ -17,6 +17,7 @@ import numpy as np
 
 from jkatana.light import capquad
 from jkatana.models.geometry import tangent_frame, to_local
+from jkatana.models.lobes import Mixture
 from jkatana.models.microfacet import gaussian_normalisation
 from jkatana.render.environment import Caps, Environment
 from jkatana.render.fresnel_fold import Material
@@ -28,6 +29,19 @@ from jkatana.render.regions import _lobes, _norms
 def _caps(env: Environment) -> Caps | None:
     """The environment's caps, or None: then no cap code is traced."""
     return env.caps if env.caps is not None and env.caps.count else None
+
+
+def _parts(lobes):
+    """``[(lobe, weight, gain), ...]`` with every :class:`~jkatana.models.lobes.Mixture` split into its two parts
+    (weights ``w·weight``, ``(1 − w)·weight``): the cap rule places its nodes by one width per lobe
+    (:meth:`~jkatana.models.lobes.Lobe.reflected_width`), and a mixture's terms are its parts' terms so weighted."""
+    out = []
+    for lobe, weight, gain in lobes:
+        if isinstance(lobe, Mixture):
+            out += _parts([(lobe.first, weight * lobe.weight, gain), (lobe.second, weight * (1.0 - lobe.weight), gain)])
+        else:
+            out.append((lobe, weight, gain))
+    return out
 
 
 def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
@@ -45,6 +59,7 @@ def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
     """
     Cl = to_local(Cw, *fr)
     out = []
+    lobes = _parts(lobes)
     if rule == "stroud":
         Lw, q = capquad.cap_disc_nodes(Cw, radius)  # (4, 3), (4,): the same for every pixel
         Ll = to_local(Lw[:, None, :], *fr)  # (4, P, 3)
@@ -104,7 +119,7 @@ def cap_rule_for(plan: Plan, env: Environment, px: Pixels) -> str:
     if caps is None:
         return "nodes"
     widths = [np.asarray(jnp.where(weight > 0, lobe.reflected_width(), jnp.inf)).min(initial=np.inf)
-              for lobe, weight, _ in _lobes(plan, px, (1.0, 1.0))]
+              for lobe, weight, _ in _parts(_lobes(plan, px, (1.0, 1.0)))]
     if not widths:
         return "nodes"
     r_max = float(np.asarray(caps.radius).max())

@@ -107,6 +107,11 @@ class Environment(eqx.Module):
     - `caps`: compact sources split off the map (:class:`Caps`), or None: nothing
       split, and the shader traces no cap code. With caps, every other field
       describes the *remainder* of the map.
+    - `lobe_prefiltered`: per region (hiraji, hamon) ``()`` — the region renders the
+      paper's lobe and reads `prefiltered` — or the ``M`` levels of the region's own
+      lobe at ``prefilter_mus`` (:func:`build_environment`'s ``prefilter_lobes``),
+      each scaled by the lobe's albedo at normal incidence; ``()`` when no region
+      holds another lobe.
     """
 
     channels: Float[Array, "H W J"]
@@ -116,6 +121,7 @@ class Environment(eqx.Module):
     prefiltered: tuple
     prefilter_mus: Float[Array, "M"]
     caps: Caps | None = None
+    lobe_prefiltered: tuple = ()
 
 
 def bilinear_equirect(image: Float[Array, "H W C"], d: Float[Array, "*b 3"]) -> Float[Array, "*b C"]:
@@ -160,7 +166,7 @@ def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5
 
 def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation=None,
                       prefilter_mus=(), prefilter_resolution: int = 128, dtype=jnp.float32, grid=None,
-                      env_density="max", split_sun: bool | SunSplit = False):
+                      env_density="max", split_sun: bool | SunSplit = False, prefilter_lobes=(None, None)):
     """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
 
     Environment sampling is :class:`jkatana.light.sampling.EnvSampler` (the light
@@ -182,6 +188,17 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     spectrum included), so a low-rank basis represents the caps as well as the
     sky. Where no compact source exists nothing changes: the environment is the
     one ``split_sun=False`` builds, array for array.
+
+    ``prefilter_lobes``: per region (hiraji, hamon) ``None`` (the paper's lobe: the
+    levels of `Environment.prefiltered`) or a :func:`~jkatana.models.lobes.lobe_shape`
+    key, the lobe the shader renders that region with (the normalised form in the
+    normalised convention); such a region gets levels of its own
+    (`Environment.lobe_prefiltered`): the map convolved with that lobe's kernel at
+    each μ of ``prefilter_mus`` as its primary width (:func:`jkatana.light.prefilter.prefilter`,
+    any lobe), times the lobe's albedo at normal incidence
+    (:func:`~jkatana.light.prefilter.kernel_table`'s ``4π ∫ k dx``), so that the
+    split sum carries the lobe's energy (Karis 2013) as the normalised paper's lobe
+    carries 1.
 
     **Returns:** ``(environment, factored, rel_residual)``.
     """
@@ -206,7 +223,7 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=env_density)
     rot = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
     mus = tuple(sorted(float(m) for m in prefilter_mus))
-    pre = ()
+    pre, lobe_pre = (), ()
     if mus:
         # the light stage's exact convolution with the lobe kernel, on the source box-downsampled to
         # at most `prefilter_resolution` columns, then projected on the environment's spectral basis
@@ -215,12 +232,49 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
         src = EnvMap(jnp.asarray(radiance, jnp.float32), grid)
         while src.width > prefilter_resolution and src.height % 2 == 0 and src.width % 2 == 0:
             src = src.downsample(2)
-        levels = light_prefilter(src, mus).levels
-        pre = tuple(jnp.asarray(np.asarray(lvl.radiance, np.float64) @ basis.T.astype(np.float64), dtype)
-                    for lvl in levels)
+
+        def project(levels, scales=None):
+            scales = scales or [1.0] * len(levels)
+            return tuple(jnp.asarray(k * (np.asarray(lvl.radiance, np.float64) @ basis.T.astype(np.float64)), dtype)
+                         for lvl, k in zip(levels, scales))
+
+        pre = project(light_prefilter(src, mus).levels)
+        if any(key is not None for key in prefilter_lobes):
+            lobe_pre = tuple(() if key is None else project(light_prefilter(src, mus, lobe=_LobeFamily(key)).levels,
+                                                            [lobe_albedo(key, m) for m in mus])
+                             for key in prefilter_lobes)
     env = Environment(jnp.asarray(coeffs, dtype), jnp.asarray(basis, dtype), jnp.asarray(rot, dtype), sampler,
-                      pre, jnp.asarray(np.asarray(mus, np.float64), dtype), caps)
+                      pre, jnp.asarray(np.asarray(mus, np.float64), dtype), caps, lobe_pre)
     return env, factored, resid
+
+
+class _LobeFamily:
+    """μ ↦ the lobe of a :func:`~jkatana.models.lobes.lobe_shape` key at primary width μ
+    (a :data:`jkatana.light.prefilter.LobeFamily`; hashable by its key, so one compilation per key)."""
+
+    def __init__(self, key):
+        self.key = key
+
+    def __call__(self, mu):
+        from jkatana.models.lobes import lobe_with_width
+
+        return lobe_with_width(self.key, mu, jnp.asarray(mu).dtype)
+
+    def __hash__(self):
+        return hash(self.key)
+
+    def __eq__(self, other):
+        return isinstance(other, _LobeFamily) and other.key == self.key
+
+
+def lobe_albedo(key, mu: float) -> float:
+    """``∫ f_r cos θi dω`` at normal incidence of the lobe of ``key`` at primary width ``mu``: ``4π ∫ k dx`` over
+    :func:`jkatana.light.prefilter.kernel_table` (the prefilter's own tabulated kernel, x = sin²(ψ/2), trapezoid
+    on its nodes, which resolve the peak)."""
+    from jkatana.light.prefilter import kernel_table, lobe_of_width
+
+    x, k = kernel_table(lobe_of_width(_LobeFamily(key), mu))
+    return float(4.0 * np.pi * np.trapezoid(k, x))
 
 
 def env_lookup(env: Environment, d_world):
@@ -237,22 +291,63 @@ def lookup_prefiltered(env: Environment, mu, R_world):
     """Prefiltered channels toward ``R_world`` for per-pixel ``mu``: bilinear in each level, linear
     in log μ between levels, clamped to the tabulated range (as
     :meth:`jkatana.light.prefilter.PrefilteredEnv.lookup`, in the environment's channel space)."""
+    return lookup_prefiltered_many(env, (mu,), R_world)[0]
+
+
+def lookup_prefiltered_many(env: Environment, mus, R_world, level_sets=None) -> list:
+    """:func:`lookup_prefiltered` toward one direction per pixel for several per-pixel widths ``mus``
+    (the hiraji and hamon lobes share the mirror direction), width ``i`` in the levels ``level_sets[i]``
+    (default `Environment.prefiltered` for every width). The map coordinates are computed once and,
+    where every level shares a resolution, one bilinear lookup of the distinct levels side by side
+    serves every level and width (the same arithmetic per channel as a lookup per level)."""
+    sets = [env.prefiltered] * len(mus) if level_sets is None else list(level_sets)
+    distinct = []
+    for lv in sets:
+        if not any(lv is d for d in distinct):
+            distinct.append(lv)
+    where = [next(i for i, d in enumerate(distinct) if lv is d) for lv in sets]
     d = R_world @ env.rotation.T
-    vals = jnp.stack([bilinear_equirect(lvl, d) for lvl in env.prefiltered])  # (M, P, J)
-    M = vals.shape[0]
-    if M == 1:
-        return vals[0]
-    logm = jnp.log(env.prefilter_mus)
-    x = jnp.clip(jnp.log(jnp.maximum(mu, 1e-12)), logm[0], logm[-1])
-    k0 = jnp.clip(jnp.searchsorted(logm, x, side="right") - 1, 0, M - 2)
-    t = ((x - logm[k0]) / (logm[k0 + 1] - logm[k0]))[:, None]
+    M = len(env.prefiltered)
+    flat = [lvl for lv in distinct for lvl in lv]
+    if all(lvl.shape == flat[0].shape for lvl in flat):
+        u, v = direction_to_uv(d)
+        C = flat[0].shape[-1]
+        stacked = jnp.concatenate(flat, axis=-1)  # (H, W, S·M·C)
+        allv = jnp.moveaxis(bilinear_equirect_uv(stacked, u, v).reshape(-1, len(flat), C), 1, 0)  # (S·M, P, C)
+    else:
+        allv = jnp.stack([bilinear_equirect(lvl, d) for lvl in flat])
     P = R_world.shape[0]
-    return vals[k0, jnp.arange(P)] * (1 - t) + vals[k0 + 1, jnp.arange(P)] * t
+    out = []
+    for mu, j in zip(mus, where):
+        vals = allv[j * M:(j + 1) * M]  # (M, P, C)
+        if M == 1:
+            out.append(vals[0])
+            continue
+        logm = jnp.log(env.prefilter_mus)
+        x = jnp.clip(jnp.log(jnp.maximum(mu, 1e-12)), logm[0], logm[-1])
+        k0 = jnp.clip(jnp.searchsorted(logm, x, side="right") - 1, 0, M - 2)
+        t = ((x - logm[k0]) / (logm[k0 + 1] - logm[k0]))[:, None]
+        out.append(vals[k0, jnp.arange(P)] * (1 - t) + vals[k0 + 1, jnp.arange(P)] * t)
+    return out
 
 
 def unbasis(env: Environment):
     """Pseudo-inverse map from spectra to the accumulator's channels (identity in full mode)."""
     return env.basis.T
+
+
+def xyz_environment(env: Environment, cmf) -> Environment:
+    """``env`` with its channels and caps folded to CIE XYZ (``basis`` the 3 × 3 identity), for the background.
+
+    A bilinear lookup commutes with a per-texel linear map, so looking up the
+    folded map gives the XYZ of the spectral lookup up to float rounding, with 3
+    channels instead of J per camera ray. The sampler and prefiltered levels are
+    left as they are (the background does not read them).
+    """
+    M = env.basis @ cmf.astype(env.basis.dtype)  # (J, 3)
+    caps = None if env.caps is None else Caps(env.caps.direction, env.caps.radius, env.caps.channels @ M)
+    return Environment(env.channels @ M, jnp.eye(3, dtype=env.basis.dtype), env.rotation, env.sampler,
+                       env.prefiltered, env.prefilter_mus, caps, env.lobe_prefiltered)
 
 
 def background(env: Environment, directions, cmf, spectral: bool = False):

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import time
+import weakref
 
 import equinox as eqx
 import jax
@@ -22,6 +24,7 @@ import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec as PS
 
 from jkatana.render.camera import Camera
+from jkatana.render.environment import xyz_environment
 from jkatana.render.gbuffer import GBuffer, gbuffer_mesh, gbuffer_sphere
 from jkatana.render.shading import (Environment, Light, Material, PixelIds, Pixels, Plan, Visibility, background,
                                     cap_rule_for, fold_fresnel, fresnel_rank_for, ray_directions, shade)
@@ -127,7 +130,7 @@ def fold_with_caps(rank: int, mat: Material, env: Environment, cmf, basis=None) 
     mat2, env2 = fold_fresnel(rank, mat, env, cmf, basis)
     if env.caps is None:
         return mat2, env2
-    row = dataclasses.replace(env, channels=env.caps.channels[None], prefiltered=(), caps=None)
+    row = dataclasses.replace(env, channels=env.caps.channels[None], prefiltered=(), caps=None, lobe_prefiltered=())
     _, folded = fold_fresnel(rank, mat, row, cmf, basis)
     return mat2, eqx.tree_at(lambda e: e.caps.channels, env2, folded.channels[0])
 
@@ -135,6 +138,67 @@ def fold_with_caps(rank: int, mat: Material, env: Environment, cmf, basis=None) 
 @functools.lru_cache(maxsize=8)
 def _compiled_fold(rank: int):
     return jax.jit(lambda mat, env, cmf, basis: fold_with_caps(rank, mat, env, cmf, basis))
+
+
+#: Maps derived from an environment (and material) once and reused by every frame that renders it:
+#: ``key → (weak references to the source arrays, value)``; an entry leaves when a source array does.
+_DERIVED: dict = {}
+
+
+def derived(kind: str, sources: tuple, extra, build):
+    """``build()``, computed once per identity of the ``sources`` arrays (and the hashable ``extra``).
+
+    JAX arrays are immutable, so an array alive under the same identity holds the
+    same values: what is derived from it (the environment folded to XYZ for the
+    background, the Fresnel fold) need not be recomputed per frame. The cache holds
+    weak references only; an entry is dropped when any source array is collected.
+    """
+    key = (kind, tuple(id(a) for a in sources), extra)
+    hit = _DERIVED.get(key)
+    if hit is not None and all(r() is a for r, a in zip(hit[0], sources)):
+        return hit[1]
+    value = build()
+
+    def drop(_, k=key):
+        _DERIVED.pop(k, None)
+
+    _DERIVED[key] = (tuple(weakref.ref(a, drop) for a in sources), value)
+    return value
+
+
+def _digest(a) -> str:
+    b = np.ascontiguousarray(np.asarray(a))
+    return hashlib.blake2b(b.tobytes(), digest_size=16).hexdigest() + str(b.shape) + str(b.dtype)
+
+
+def _env_sources(env: Environment) -> tuple:
+    return ((env.channels, env.basis, *env.prefiltered, *(lvl for lv in env.lobe_prefiltered for lvl in lv))
+            + (() if env.caps is None else (env.caps.channels,)))
+
+
+def folded(rank: int, mat: Material, env: Environment, cmf, basis) -> tuple[Material, Environment]:
+    """:func:`fold_with_caps` of ``(mat, env)``, computed once per (environment, material, CMFs, rank):
+    only the environment's rotation and the material's scales are taken from the arguments each call."""
+    def build():
+        m2, e2 = _compiled_fold(rank)(mat, env, cmf, basis)
+        return (m2.ftable, e2.channels, e2.prefiltered, e2.lobe_prefiltered,
+                None if e2.caps is None else e2.caps.channels)
+
+    a, ch, pre, lpre, capch = derived("fresnel-fold", (mat.ftable, *_env_sources(env)), (rank, _digest(cmf)), build)
+    env2 = eqx.tree_at(lambda e: (e.channels, e.prefiltered), env, (ch, pre))
+    if lpre:
+        env2 = eqx.tree_at(lambda e: e.lobe_prefiltered, env2, lpre)
+    if capch is not None:
+        env2 = eqx.tree_at(lambda e: e.caps.channels, env2, capch)
+    return Material(a, mat.chi, mat.beta), env2
+
+
+def background_environment(env: Environment, cmf) -> Environment:
+    """:func:`~jkatana.render.environment.xyz_environment` of ``env``, computed once per (environment, CMFs);
+    the rotation is ``env``'s."""
+    sources = (env.channels, env.basis) + (() if env.caps is None else (env.caps.channels,))
+    xyz = derived("background-xyz", sources, _digest(cmf), lambda: xyz_environment(env, jnp.asarray(cmf)))
+    return eqx.tree_at(lambda e: e.rotation, xyz, env.rotation)
 
 
 def resolve_plan(plan: Plan, mat: Material) -> Plan:
@@ -150,6 +214,31 @@ def resolve_plan(plan: Plan, mat: Material) -> Plan:
 @functools.lru_cache(maxsize=8)
 def _compiled_background(spectral: bool):
     return jax.jit(lambda env, d, cmf: background(env, d, cmf, spectral))
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled_background_xyz(n_dev: int):
+    mesh = jax.make_mesh((n_dev,), ("d",), devices=jax.local_devices()[:n_dev])
+    f = jax.shard_map(lambda env, d: background(env, d, jnp.eye(3, dtype=d.dtype))[0], mesh=mesh,
+                      in_specs=(PS(), PS("d")), out_specs=PS("d"), check_vma=False)
+    return jax.jit(f), mesh
+
+
+def background_all(env: Environment, rays: np.ndarray, cmf, dtype, n_devices: int | None = None) -> jax.Array:
+    """XYZ of the environment along camera ``rays (n, 3)`` (caps included), split across the local devices
+    and dispatched asynchronously: a ``(n', 3)`` device array, ``n' ≥ n`` (padded to the devices).
+
+    Looks up :func:`background_environment` (3 channels) instead of the spectral map.
+    """
+    n_dev = n_devices or len(jax.local_devices())
+    f, mesh = _compiled_background_xyz(n_dev)
+    n = rays.shape[0]
+    pad = -n % n_dev
+    d = np.asarray(rays, dtype)
+    if pad:
+        d = np.concatenate([d, np.tile(np.asarray([[0.0, 0.0, 1.0]], dtype), (pad, 1))])
+    env3 = jax.device_put(background_environment(env, np.asarray(cmf, dtype)), NamedSharding(mesh, PS()))
+    return f(env3, jax.device_put(d, NamedSharding(mesh, PS("d"))))
 
 
 def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels,
@@ -174,8 +263,8 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
         plan = dataclasses.replace(plan, cap_rule=cap_rule_for(plan, env, px))
     if plan.fresnel_rank and not plan.factored:  # once per frame: F·E·CMF folded into a 3R-channel map
         _, vt = fresnel_rank_for(mat.ftable, _basis_too=True)  # cached host SVD
-        mat, env = _compiled_fold(plan.fresnel_rank)(mat, env, jnp.asarray(cmf, px.normal.dtype),
-                                                     jnp.asarray(vt[:plan.fresnel_rank], px.normal.dtype))
+        mat, env = folded(plan.fresnel_rank, mat, env, jnp.asarray(cmf, px.normal.dtype),
+                          jnp.asarray(vt[:plan.fresnel_rank], px.normal.dtype))
     n_dev = n_devices or len(jax.local_devices())
     P = px.normal.shape[0]
     # call shapes from a fixed ladder (1024 · 4^k, capped at `chunk`), so that views with
@@ -270,32 +359,42 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
     if ss < 1:
         raise ValueError(f"supersample must be ≥ 1, got {supersample}")
     plan = dataclasses.replace(plan, subpixels=ss * ss)
-    gb = gb if gb is not None else gbuffer(geometry, camera)
+    spectral_out = plan.spectral and not plan.factored
+    bg_all = None
+    if not spectral_out:
+        # every pixel's background, dispatched first: the devices look it up while the host casts the G-buffer
+        rays = gb.ray if gb is not None else camera.rays()[1]
+        bg_all = background_all(env, rays.reshape(-1, 3), cmf, dtype, n_devices)
+    if gb is None:
+        gb = gbuffer(geometry, camera)
+        if isinstance(gb, GBuffer) and gb.rays is None:
+            gb.rays = rays
     rays0, cast0 = (occluders.rays_cast, occluders.cast_s) if occluders is not None else (0, 0.0)
     H, W = gb.mask.shape
     if H % ss or W % ss:
         raise ValueError(f"supersample {ss}: the camera's {W}×{H} image is not a whole number of pixels")
     m = gb.mask.reshape(-1)
+    keep = np.ones(len(gb.index), bool)  # the G-buffer's hits that are shaded
     blocked = np.zeros(H * W, bool)
     if plan.visibility and occluders is not None:
         # primary visibility: an occluder in front of the object (or of the sky) hides it
         origin, _ = camera.rays()
         d_occ = occluders.first_hit(np.broadcast_to(origin, (H * W, 3)), gb.ray.reshape(-1, 3))
-        d_obj = np.where(m, np.linalg.norm(gb.position.reshape(-1, 3) - origin, axis=-1), np.inf)
+        d_obj = np.full(H * W, np.inf)
+        d_obj[gb.index] = np.linalg.norm(gb.hit_position - origin, axis=-1)
         blocked = d_occ < d_obj
         m = m & ~blocked
+        keep = ~blocked[gb.index]
     t1 = time.perf_counter()
-    sel = np.nonzero(m)[0]
+    sel = gb.index[keep]
     xyz = np.zeros((H * W, 3), np.float32)
-    spectra = np.zeros((H * W, env.basis.shape[-1]), np.float32) if plan.spectral and not plan.factored else None
+    spectra = np.zeros((H * W, env.basis.shape[-1]), np.float32) if spectral_out else None
     key = jax.random.PRNGKey(seed)
     if len(sel):
-        uv = jnp.asarray(gb.uv.reshape(-1, 2)[sel], dtype)
+        uv = jnp.asarray(gb.hit_uv[keep], dtype)
         mp = sample_map(jnp.asarray(maps, dtype), uv)
-        px = Pixels(jnp.asarray(gb.position.reshape(-1, 3)[sel], dtype),
-                    jnp.asarray(gb.normal.reshape(-1, 3)[sel], dtype),
-                    jnp.asarray(gb.view.reshape(-1, 3)[sel], dtype),
-                    mp[:, 0], mp[:, 1], mp[:, 2])
+        px = Pixels(jnp.asarray(gb.hit_position[keep], dtype), jnp.asarray(gb.hit_normal[keep], dtype),
+                    jnp.asarray(gb.hit_view[keep], dtype), mp[:, 0], mp[:, 1], mp[:, 2])
         ids = None
         if ss > 1:
             row, col = np.divmod(sel, W)
@@ -307,13 +406,13 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
         if spectra is not None and s is not None:
             spectra[sel] = s
     t2 = time.perf_counter()
-    bg = np.nonzero(~m & ~blocked)[0]
-    if len(bg):
-        bx, bs = _compiled_background(spectra is not None)(env, jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype),
-                                                           jnp.asarray(cmf, dtype))
+    bg = ~m & ~blocked
+    if bg_all is not None:
+        xyz[bg] = np.asarray(bg_all)[:H * W][bg]
+    elif bg.any():
+        bx, bs = _compiled_background(True)(env, jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype), jnp.asarray(cmf, dtype))
+        spectra[bg] = np.asarray(bs)
         xyz[bg] = np.asarray(bx)
-        if spectra is not None:
-            spectra[bg] = np.asarray(bs)
     t3 = time.perf_counter()
     timing = {"gbuffer_s": t1 - t0, "shade_s": t2 - t1, "background_s": t3 - t2, "total_s": t3 - t0}
     if occluders is not None:

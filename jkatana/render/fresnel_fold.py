@@ -91,7 +91,7 @@ def fold_fresnel(rank: int, mat: Material, env: Environment, cmf, basis=None) ->
     ``3R``-channel map. Bilinear lookups commute with this per-texel linear map,
     so the only approximation is the Fresnel rank. Per sample a ``3R``-channel
     lookup (9 channels for R = 3) replaces a ``wl``-band one. **Returns:** ``(material with ftable (T, R), environment with
-    channels (H, W, 3R) and folded prefiltered levels)``; pass both to
+    channels (H, W, 3R) and folded prefiltered levels, the regions' own included)``; pass both to
     :func:`shade` with ``Plan(fresnel_rank=R)``. ``basis``: the ``(R, wl)`` spectra
     if already known (the frame passes the host SVD of :func:`fresnel_rank_for`),
     else the SVD runs here.
@@ -109,6 +109,9 @@ def fold_fresnel(rank: int, mat: Material, env: Environment, cmf, basis=None) ->
 
     env2 = eqx.tree_at(lambda e: (e.channels, e.prefiltered), env,
                        (fold(env.channels), tuple(fold(lvl) for lvl in env.prefiltered)))
+    if env.lobe_prefiltered:  # (tree_at: the folded channels no longer match the spectral basis' size)
+        env2 = eqx.tree_at(lambda e: e.lobe_prefiltered, env2,
+                           tuple(tuple(fold(lvl) for lvl in lv) for lv in env.lobe_prefiltered))
     return Material(a, mat.chi, mat.beta), env2
 
 

@@ -22,15 +22,67 @@ from jkatana.render.scene import Occluder
 
 @dataclasses.dataclass
 class GBuffer:
-    """Per-pixel geometry; arrays are ``(H, W, ...)``; values outside ``mask`` are 0."""
+    """Per-pixel geometry of the pixels whose primary ray hits the object, and the frame's camera rays.
 
-    mask: np.ndarray        # (H, W) bool
-    position: np.ndarray    # (H, W, 3)
-    normal: np.ndarray      # (H, W, 3) shading normal, facing the camera
-    tangent: np.ndarray     # (H, W, 3) along +u
-    uv: np.ndarray          # (H, W, 2)
-    view: np.ndarray        # (H, W, 3) unit direction from the surface to the camera
-    ray: np.ndarray         # (H, W, 3) primary ray directions (for the background)
+    The hit pixels' attributes are held compactly (one row per hit, in
+    ascending flat pixel order, ``index``); the ``(H, W, ...)`` views
+    (``position``, ``normal``, ``tangent``, ``uv``, ``view``; 0 outside ``mask``)
+    are built on request, as are the primary ray directions ``ray`` (from the
+    camera unless given), so a frame pays only for the pixels it shades.
+    """
+
+    mask: np.ndarray            # (H, W) bool
+    index: np.ndarray           # (n,) flat indices of the hit pixels, ascending
+    hit_position: np.ndarray    # (n, 3)
+    hit_normal: np.ndarray      # (n, 3) shading normal, facing the camera
+    hit_tangent: np.ndarray     # (n, 3) along +u
+    hit_uv: np.ndarray          # (n, 2)
+    hit_view: np.ndarray        # (n, 3) unit direction from the surface to the camera
+    camera: Camera | None = None
+    rays: np.ndarray | None = None  # (H, W, 3) primary ray directions, or None: from `camera` on request
+
+    @classmethod
+    def from_dense(cls, mask, position, normal, tangent, uv, view, ray) -> "GBuffer":
+        """A G-buffer from ``(H, W, ...)`` arrays."""
+        idx = np.flatnonzero(mask)
+
+        def rows(a):
+            return a.reshape(-1, a.shape[-1])[idx]
+
+        return cls(mask, idx, rows(position), rows(normal), rows(tangent), rows(uv), rows(view), None, ray)
+
+    def _dense(self, rows: np.ndarray) -> np.ndarray:
+        H, W = self.mask.shape
+        out = np.zeros((H * W, rows.shape[-1]), rows.dtype)
+        out[self.index] = rows
+        return out.reshape(H, W, -1)
+
+    @property
+    def position(self) -> np.ndarray:
+        return self._dense(self.hit_position)
+
+    @property
+    def normal(self) -> np.ndarray:
+        return self._dense(self.hit_normal)
+
+    @property
+    def tangent(self) -> np.ndarray:
+        return self._dense(self.hit_tangent)
+
+    @property
+    def uv(self) -> np.ndarray:
+        return self._dense(self.hit_uv)
+
+    @property
+    def view(self) -> np.ndarray:
+        return self._dense(self.hit_view)
+
+    @property
+    def ray(self) -> np.ndarray:
+        """``(H, W, 3)`` primary ray directions (for the background)."""
+        if self.rays is None:
+            self.rays = self.camera.rays()[1]
+        return self.rays
 
     @property
     def coverage(self) -> float:
@@ -38,14 +90,17 @@ class GBuffer:
 
 
 def _intersector(mesh: trimesh.Trimesh):
+    """``(intersector, engine)`` of ``mesh``: its own Embree intersector (``mesh.ray``, whose
+    acceleration structure trimesh builds once and rebuilds only when the mesh changes) when embreex is
+    installed, else trimesh's rtree-based one."""
     try:
         from trimesh.ray.ray_pyembree import RayMeshIntersector
-
-        return RayMeshIntersector(mesh), "embree"
     except Exception:  # embreex missing: trimesh's rtree-based intersector
         from trimesh.ray.ray_triangle import RayMeshIntersector
 
         return RayMeshIntersector(mesh), "triangle"
+    ray = getattr(mesh, "ray", None)
+    return (ray if isinstance(ray, RayMeshIntersector) else RayMeshIntersector(mesh)), "embree"
 
 
 #: Rays per intersector call. trimesh's pure-Python fallback (no embreex) holds
@@ -74,42 +129,100 @@ def _any_hits(isect, o: np.ndarray, d: np.ndarray, chunk: int = RAY_CHUNK) -> np
                            for s in range(0, len(d), chunk)] or [np.zeros(0, bool)])
 
 
+#: Side (pixels) of the screen tiles :func:`candidate_pixels` marks.
+TILE = 8
+
+
+def candidate_pixels(mesh: trimesh.Trimesh, camera: Camera, tile: int = TILE) -> np.ndarray | None:
+    """Flat indices of the pixels whose centre ray can hit ``mesh``, or ``None`` (every pixel).
+
+    Primary rays share the camera's centre, so a ray can hit a triangle lying in
+    front of the camera only if its pixel centre falls inside the triangle's
+    perspective projection, which lies inside the projected vertices' bounding
+    box (a convex polygon is the hull of its projected vertices). Each triangle
+    marks the ``tile × tile`` screen tiles its box (grown by two pixels, far
+    above rounding) overlaps; the pixels of marked tiles are returned. Culling
+    only drops rays that miss every triangle, so the hits are those of a
+    full-frame cast. ``None`` when a vertex lies on or behind the camera's plane
+    (no finite projection) or when most of the screen is marked anyway.
+    """
+    right, up, fwd = camera.frame()
+    rel = np.asarray(mesh.vertices, np.float64) - np.asarray(camera.position, np.float64)
+    z = rel @ fwd
+    if not len(z) or z.min() <= 1e-9 * max(float(np.abs(rel).max()), 1e-30):
+        return None
+    W, H = int(camera.width), int(camera.height)
+    tan_half = np.tan(np.radians(camera.fov_deg) / 2)
+    # pixel coordinates in the convention of Camera.rays: column c's centre ray has x = ((c + ½)/W·2 − 1)·t·a
+    col = ((rel @ right) / (z * tan_half * (W / H)) + 1.0) * 0.5 * W - 0.5
+    row = (1.0 - (rel @ up) / (z * tan_half)) * 0.5 * H - 0.5
+    tri = np.asarray(mesh.faces)
+    c, r = col[tri], row[tri]
+    ntx, nty = -(-W // tile), -(-H // tile)
+    c0, c1 = np.floor((c.min(1) - 2.0) / tile), np.floor((c.max(1) + 2.0) / tile)
+    r0, r1 = np.floor((r.min(1) - 2.0) / tile), np.floor((r.max(1) + 2.0) / tile)
+    on = (c1 >= 0) & (c0 < ntx) & (r1 >= 0) & (r0 < nty)
+    c0, c1 = np.clip(c0[on], 0, ntx - 1).astype(np.int64), np.clip(c1[on], 0, ntx - 1).astype(np.int64)
+    r0, r1 = np.clip(r0[on], 0, nty - 1).astype(np.int64), np.clip(r1[on], 0, nty - 1).astype(np.int64)
+    marked = np.zeros((nty, ntx), bool)
+    sx, sy = c1 - c0, r1 - r0
+    reach = int(min(max(sx.max(initial=0), sy.max(initial=0)), 7))
+    for dy in range(reach + 1):  # every tile of every box up to 8 × 8 tiles, one offset at a time
+        for dx in range(reach + 1):
+            hit = (sx >= dx) & (sy >= dy)
+            marked[r0[hit] + dy, c0[hit] + dx] = True
+    big = np.nonzero((sx > 7) | (sy > 7))[0]
+    if len(big) > 4096:
+        return None
+    for i in big:
+        marked[r0[i]:r1[i] + 1, c0[i]:c1[i] + 1] = True
+    if marked.mean() > 0.75:
+        return None
+    full = np.repeat(np.repeat(marked, tile, 0), tile, 1)[:H, :W]
+    return np.flatnonzero(full)
+
+
 def gbuffer_mesh(mesh: trimesh.Trimesh, camera: Camera) -> GBuffer:
     """Ray-cast ``mesh`` from ``camera`` (first hit per pixel).
 
     Requires per-vertex UVs (``mesh.visual.uv``); the tangent comes from the
-    triangle's UV derivatives.
+    triangle's UV derivatives. Only the rays of :func:`candidate_pixels` are cast
+    (the others provably miss).
     """
     uv_v = getattr(mesh.visual, "uv", None)
     if uv_v is None or len(uv_v) != len(mesh.vertices):
         raise InputError("mesh has no per-vertex UVs (needed for the reflectance map)", field="mesh")
-    origin, dirs = camera.rays()
-    H, W, _ = dirs.shape
-    d = dirs.reshape(-1, 3)
-    o = np.broadcast_to(origin, d.shape)
+    H, W = int(camera.height), int(camera.width)
+    cand = candidate_pixels(mesh, camera)
+    cand = np.arange(H * W) if cand is None else cand
+    origin, dc = camera.rays(cand)
     isect, _ = _intersector(mesh)
-    loc, idx_ray, idx_tri = _first_hits(isect, o, d)
-    n = H * W
-    mask = np.zeros(n, bool)
-    pos = np.zeros((n, 3))
-    nrm = np.zeros((n, 3))
-    tan = np.zeros((n, 3))
-    uv = np.zeros((n, 2))
-    if len(idx_ray):
-        tri = mesh.faces[idx_tri]
-        bary = trimesh.triangles.points_to_barycentric(mesh.vertices[tri], loc)
-        vn = mesh.vertex_normals[tri]
+    loc, idx_ray, idx_tri = _first_hits(isect, np.broadcast_to(origin, dc.shape), dc)
+    order = np.argsort(idx_ray, kind="stable")  # ascending pixel order
+    loc, idx_ray, idx_tri = loc[order], idx_ray[order], idx_tri[order]
+    mask = np.zeros(H * W, bool)
+    mask[cand[idx_ray]] = True
+    n = len(idx_ray)
+    ns, T, uvp = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 2))
+    if n:
+        d = dc[idx_ray]
+        # plain arrays: trimesh's tracked arrays re-hash on every access
+        verts = np.asarray(mesh.vertices).view(np.ndarray)
+        tri = np.asarray(mesh.faces).view(np.ndarray)[idx_tri]
+        corners = verts[tri]
+        bary = trimesh.triangles.points_to_barycentric(corners, loc)
+        vn = np.asarray(mesh.vertex_normals).view(np.ndarray)[tri]
         ns = np.einsum("pk,pkc->pc", bary, vn)
-        ng = mesh.face_normals[idx_tri]
+        ng = np.asarray(mesh.face_normals).view(np.ndarray)[idx_tri]
         ns = np.where(np.linalg.norm(ns, axis=-1, keepdims=True) > 1e-12, ns, ng)
         ns /= np.linalg.norm(ns, axis=-1, keepdims=True)
         # face the camera (two-sided shading: the blade is seen from both flats)
-        flip = np.sum(ns * d[idx_ray], -1) > 0
+        flip = np.sum(ns * d, -1) > 0
         ns[flip] *= -1
-        t_uv = uv_v[tri]
+        t_uv = np.asarray(uv_v)[tri]
         uvp = np.einsum("pk,pkc->pc", bary, t_uv)
         # tangent from UV derivatives: dP = T du + B dv
-        p0, p1, p2 = (mesh.vertices[tri[:, i]] for i in range(3))
+        p0, p1, p2 = corners[:, 0], corners[:, 1], corners[:, 2]
         e1, e2 = p1 - p0, p2 - p0
         du1, dv1 = t_uv[:, 1, 0] - t_uv[:, 0, 0], t_uv[:, 1, 1] - t_uv[:, 0, 1]
         du2, dv2 = t_uv[:, 2, 0] - t_uv[:, 0, 0], t_uv[:, 2, 1] - t_uv[:, 0, 1]
@@ -119,11 +232,10 @@ def gbuffer_mesh(mesh: trimesh.Trimesh, camera: Camera) -> GBuffer:
         tl = np.linalg.norm(T, axis=-1, keepdims=True)
         fallback = np.cross(ns, [0.0, 0.0, 1.0]) + 1e-9
         T = np.where(tl > 1e-12, T / np.maximum(tl, 1e-30), fallback / np.linalg.norm(fallback, axis=-1, keepdims=True))
-        mask[idx_ray] = True
-        pos[idx_ray], nrm[idx_ray], tan[idx_ray], uv[idx_ray] = loc, ns, T, uvp
-    view = np.where(mask[:, None], -d, 0.0)
-    return GBuffer(mask.reshape(H, W), pos.reshape(H, W, 3), nrm.reshape(H, W, 3), tan.reshape(H, W, 3),
-                   uv.reshape(H, W, 2), view.reshape(H, W, 3), dirs)
+    else:
+        d = np.zeros((0, 3))
+    return GBuffer(mask.reshape(H, W), cand[idx_ray], np.asarray(loc, np.float64).reshape(n, 3), ns, T, uvp, -d,
+                   camera)
 
 
 def gbuffer_sphere(camera: Camera, center=(0.0, 0.0, 0.0), radius: float = 1.0) -> GBuffer:
@@ -145,8 +257,7 @@ def gbuffer_sphere(camera: Camera, center=(0.0, 0.0, 0.0), radius: float = 1.0) 
     tan = np.stack([n[..., 2], np.zeros_like(u), -n[..., 0]], -1)
     tl = np.linalg.norm(tan, axis=-1, keepdims=True)
     tan = np.where(tl > 1e-9, tan / np.maximum(tl, 1e-30), [1.0, 0.0, 0.0])
-    z = lambda a: np.where(mask[..., None] if a.ndim == 3 else mask, a, 0.0)  # noqa: E731
-    return GBuffer(mask, z(pos), z(n), z(tan), z(np.stack([u, v], -1)), z(-dirs), dirs)
+    return GBuffer.from_dense(mask, pos, n, tan, np.stack([u, v], -1), -dirs, dirs)
 
 
 class Occluders:

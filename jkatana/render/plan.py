@@ -17,8 +17,9 @@ from jaxtyping import Array, Float
 #: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
 MIRROR_MU = 1e-4
 MODES = ("reference", "paper", "prefiltered", "lowrank", "paper-published")
-#: The modes that render a lobe other than the paper's: they sample through the lobe's own ``sample``/``pdf``.
-LOBE_MODES = ("reference", "lowrank")
+#: The modes that render a lobe other than the paper's: the sampling modes (through the lobe's own
+#: ``sample``/``pdf``) and the prefiltered mode (levels convolved with the region's own lobe).
+LOBE_MODES = ("reference", "lowrank", "prefiltered")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,8 +53,9 @@ class Plan:
       :class:`~jkatana.models.lobes.GaussianVCavity`). A key of
       :class:`~jkatana.models.lobes.Beckmann` in the hamon slot is Mitsuba 3's
       ``roughconductor`` (Beckmann D, α = μ1, Walter et al.'s 2007 rational
-      Smith G1), for validation against it. Rendered by the sampling modes
-      (``"reference"``, ``"lowrank"``) only.
+      Smith G1), for validation against it. Rendered by the modes of
+      :data:`LOBE_MODES` (the sampling modes, and the prefiltered mode from the
+      region's own levels, :attr:`~jkatana.render.environment.Environment.lobe_prefiltered`).
     - `spectral`: also return spectra (full mode only).
     - `visibility`: the scene has occluders: every traced light direction is
       weighted by a host-computed visibility (:class:`Visibility`). ``False``

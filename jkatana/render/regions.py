@@ -46,9 +46,21 @@ def _region_lobe(plan: Plan, key, width, norm, paper):
         return paper(width, norm, normalised=normalised), None
     if plan.mode not in LOBE_MODES:
         raise ValueError(f"lobe {key[0]!r} renders in modes {list(LOBE_MODES)} only, not {plan.mode!r}")
-    if normalised:
-        key = lobe_key(normalised_params(key_params(key)))
-    return lobe_with_width(key, width, width.dtype), (None if normalised else norm)
+    return lobe_with_width(shader_lobe_key(key, plan.calibration), width, width.dtype), (None if normalised else norm)
+
+
+def shader_lobe_key(key: tuple, calibration: float | None) -> tuple:
+    """The :func:`~jkatana.models.lobes.lobe_shape` key of the lobe a region with ``key`` is rendered with: its
+    energy-normalised form (:func:`~jkatana.models.lobes.normalised_params`) in the normalised convention
+    (``calibration`` None), else the lobe as fitted (its gain s/K applied by the shader)."""
+    if calibration is None:
+        return lobe_key(normalised_params(key_params(key)))
+    return key
+
+
+def region_lobe_keys(lobes: dict, calibration: float | None) -> tuple:
+    """``(hiraji, hamon)``: :func:`shader_lobe_key` of each region's lobe key in ``lobes``, ``None`` for the paper's."""
+    return tuple(None if lobes[r] is None else shader_lobe_key(lobes[r], calibration) for r in ("hiraji", "hamon"))
 
 
 def _lobes(plan: Plan, px: Pixels, norms):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import json
 import math
 import platform
@@ -29,6 +30,7 @@ from jkatana.render.frame import Frame, pixel_blocks, render_frame
 from jkatana.render.scene import LIMITS, RENDER_MODES, Scene
 from jkatana.render.scenefile import scene_to_toml
 from jkatana.render.environment import SPLIT_MODES
+from jkatana.render.regions import region_lobe_keys
 from jkatana.render.shading import MIRROR_MU, Environment, Light, Material, Plan, build_environment, fresnel_table
 from jkatana.spectral.grid import WavelengthGrid
 
@@ -162,19 +164,20 @@ def _file_lobe(p, path, region) -> tuple[float, tuple]:
 def check_lobe_mode(lobes: dict, scene: Scene, mode: str) -> None:
     """One :class:`InputError` line when a region's lobe (not the paper's) cannot be rendered in ``mode``.
 
-    Only the sampling modes (:data:`~jkatana.render.plan.LOBE_MODES`) draw a
-    lobe's own samples; the prefiltered mode convolves the environment with the
-    paper's Gaussian, the paper's mode jitters rays in a Gaussian disk and the
-    interactive viewer's taps are fitted to the paper's lobe.
+    :data:`~jkatana.render.plan.LOBE_MODES` render any lobe. The paper's modes keep the paper's estimator
+    (Gaussian-weighted rays within 2.5 μ of the mirror direction: a microfacet lobe's tails would be cut
+    off), and the interactive viewer's taps are fitted to the paper's lobe.
     """
     from jkatana.render.plan import LOBE_MODES
 
     if mode in LOBE_MODES:
         return
+    why = ("is the paper's estimator: Gaussian-weighted rays within 2.5 μ of the mirror direction, which would "
+           "cut off this lobe's tails" if mode.startswith("paper") else "uses taps fitted to the paper's lobe")
     for region, key in lobes.items():
         if key is not None:
             raise InputError(f"holds a {key[0]!r} lobe, which renders in modes {', '.join(LOBE_MODES)} only "
-                             f"(mode {mode!r} uses the paper's Gaussian lobe): set [render] mode or --mode",
+                             f"(mode {mode!r} {why}): set [render] mode or --mode",
                              path=getattr(scene.material, region), field=f"material.{region}")
 
 
@@ -286,17 +289,20 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     # environment and its tables built once per content (jkatana.light.cache); rotation set afterwards
     from jkatana.light.cache import environment_key, radiance_key
 
+    pre_lobes = region_lobe_keys(lobes, scene.material.calibration) if mus else (None, None)
     split = (mode in SPLIT_MODES) if split_sun is None else bool(split_sun)
     if mode == "paper-published" and split:
         raise InputError("the paper-published mode shades the whole map: no sun split", field="mode")
     rad_key = radiance_key(scene.environment, grid) if env_radiance is None else None
     env_key = None if rad_key is None else environment_key(rad_key, rank=env_rank, prefilter_mus=mus,
                                                            prefilter_resolution=128, dtype=dtype, split_sun=split)
+    if env_key is not None and pre_lobes != (None, None):
+        env_key += "-" + hashlib.sha256(repr(pre_lobes).encode()).hexdigest()[:16]
 
     def build():
         radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
         return build_environment(radiance, rank=env_rank, prefilter_mus=mus, prefilter_resolution=128,
-                                 dtype=dtype, grid=grid, split_sun=split)
+                                 dtype=dtype, grid=grid, split_sun=split, prefilter_lobes=pre_lobes)
 
     env, factored, resid = cached_tree(env_key, build)
     env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rotation_y(scene.environment.rotation_deg), dtype))

@@ -96,7 +96,7 @@ from jkatana.models.lobes import reflect
 from jkatana.models.microfacet import gaussian_facet
 # the shader's inputs and helpers live by job in their own modules; re-exported here as the render API
 from jkatana.render.environment import (Caps, Environment, background, bilinear_equirect, bilinear_equirect_uv,  # noqa: F401
-                                        build_environment, env_basis, env_lookup, env_uv, lookup_prefiltered,
+                                        build_environment, env_basis, env_lookup, env_uv, lookup_prefiltered_many,
                                         unbasis)
 from jkatana.render.fresnel_fold import (FRESNEL_RANK_TOL, FRESNEL_TABLE, Material, fold_fresnel,  # noqa: F401
                                          fresnel_rank_for, fresnel_table, is_folded, table_lookup)
@@ -336,9 +336,18 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         # split sum: F(cos θv) × prefiltered env at the mirror direction, per lobe
         _, Rw = _mirror_ray(Vl, fr)
         cos = jnp.clip(Vl[:, 2], 0.0, 1.0)
-        for on, weight, mu in ((plan.hiraji and not plan.mirror, px.w, px.mu0), (plan.hamon, 1.0 - px.w, px.mu1)):
-            if on:
-                acc = add_mirror_like(acc, weight, lookup_prefiltered(env, mu, Rw), cos)
+        # each region's levels: the paper's lobe's, or its own lobe's (albedo included) times its gain
+        regions = [(weight, mu, region) for on, weight, mu, region in
+                   ((plan.hiraji and not plan.mirror, px.w, px.mu0, 0), (plan.hamon, 1.0 - px.w, px.mu1, 1)) if on]
+        keys = (plan.hiraji_lobe, plan.hamon_lobe)
+        if any(keys[r] is not None for _, _, r in regions) and len(env.lobe_prefiltered) != 2:
+            raise ValueError("a region with its own lobe needs its levels: build the environment with "
+                             "prefilter_lobes")
+        sets = [env.prefiltered if keys[r] is None else env.lobe_prefiltered[r] for _, _, r in regions]
+        gains = [None if (keys[r] is None or plan.calibration is None) else norms[r] for _, _, r in regions]
+        found = lookup_prefiltered_many(env, [mu for _, mu, _ in regions], Rw, sets)
+        for (weight, _, _), gain, E in zip(regions, gains, found):
+            acc = add_mirror_like(acc, weight if gain is None else weight * gain, E, cos)
         if caps is not None:
             acc = add_cap_rule(acc)
     elif plan.mode in ("paper", "paper-published") and _has_lobe(plan):

@@ -28,7 +28,7 @@
 // compact bright sources split off the map as spherical caps, bake.sun_caps: each cap's radiance Q, weighted
 // by the lobe table A, times the lobe's normalised kernel over the cap's disc, in closed form — one
 // anisotropic Gaussian with the lobe's moments, jk_caps_xyz; its NumPy twin
-// jkatana.interactive.caprule.cap_response is tested against jkatana.light.sun.cap_integral of the models).
+// jkatana.interactive.caprule.cap_response is tested against jkatana.light.capquad.cap_integral of the models).
 
 uniform vec3 cam_pos;
 uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
@@ -62,7 +62,7 @@ uniform vec4 jk_cap[JK_CAPS];       // xyz: cap centre C (map frame), w: r² (r:
 uniform vec3 jk_cap_q[4 * JK_CAPS]; // [4k + r]: Q_r of cap k, Ω_cap Σ_λ b_r(λ) W(λ) L_cap(λ) (XYZ)
 
 // The cap rule (NumPy twin: jkatana.interactive.caprule.cap_response, tested against
-// jkatana.light.sun.cap_integral of the models). The reflected lobe is one anisotropic Gaussian on the sphere
+// jkatana.light.capquad.cap_integral of the models). The reflected lobe is one anisotropic Gaussian on the sphere
 // with the lobe's own first and second moments (bake.lobe_lut): centred on its mean direction, variance
 // var_par along the plane of incidence and var_perp across it, in the prefilter kernel's form
 // exp(−c h²)/cos h with h half the angle from the centre and c = 2/var per axis (the kernel of Walter et al.
