@@ -323,6 +323,57 @@ def test_sun_glint_under_a_real_hdr_agrees_only_with_the_sun_split(glr):
                 assert np.all(np.isfinite(frame))
 
 
+def _params_file(path, model: str, region: str, values: dict) -> str:
+    """A parameter file as ``jkatana fit`` writes it for ``model`` (its ``lobe`` from the fit model's ``build``)."""
+    import json
+
+    from jkatana.fit._model import FIT_MODELS
+
+    fm = FIT_MODELS[model]
+    lobe = fm.build(jnp.asarray(fm.shape_from_natural(values))).to_params()
+    path.write_text(json.dumps({"format": "jkatana-params/1", "region": region, "model": model, "lobe": lobe,
+                                "values": values, "optical_constants": "Fe-Johnson", "converged": True}))
+    return str(path)
+
+
+@pytest.mark.gl
+@pytest.mark.slow          # ~5–10 min on 2 loaded cores: tap fits for two new lobe families, a 256-spp reference
+def test_gl_frame_renders_the_lobes_of_parameter_files(glr, tmp_path):
+    """Parameter files holding a GGX (hiraji) and a Beckmann (hamon) lobe: the bake fits its lobe table and
+    taps to those lobes (:func:`lobe_tables.region_lobes`), and the GL frame agrees with jkatana.render
+    (reference mode, the same files) within the paper's lobe's bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5) on the
+    studio demo view; the paper's tables on the same maps do not."""
+    from jkatana.interactive.lobe_tables import region_lobes
+    from jkatana.render.film import auto_exposure
+    from jkatana.render.renderer import prepare, render_view
+    from jkatana.render.scene import scene_from_dict
+
+    view = S.demo_view(120, 90)
+    rad = S.environment("studio")
+    d = A.render_scene(view, samples=256)
+    d["material"]["hiraji"] = _params_file(tmp_path / "hiraji.json", "ggx", "hiraji",
+                                           {"scale": 2000.0, "alpha": 0.05})
+    d["material"]["hamon"] = _params_file(tmp_path / "hamon.json", "beckmann", "hamon",
+                                          {"scale": 2000.0, "alpha": 0.12})
+    prep = prepare(scene_from_dict(d), env_radiance=np.asarray(rad, np.float32))
+    keys = {"hiraji": prep.plan.hiraji_lobe, "hamon": prep.plan.hamon_lobe}
+    assert keys["hiraji"][0] == "ggx" and keys["hamon"][0] == "beckmann"
+    fr = render_view(prep)
+    exposure = auto_exposure(fr.xyz, fr.mask, key=0.6, percentile=75.0)
+    ref = A.display255(fr.xyz, exposure)
+    maps = np.asarray(prep.maps, np.float64)
+    mus = LV.MU_LEVELS[2:9]                    # 0.025–0.2 rad: the maps' widths, fewer levels to fit
+    stats = {}
+    for name, lobes, levels in (("files", region_lobes(keys), mus), ("paper", region_lobes(), LV.MU_LEVELS)):
+        baked = B.cached_bake(rad, rank=3, mus=levels, lobes=lobes)   # the user cache: fitted once per family
+        st = glr.ShadingState(baked, maps, exposure=exposure)
+        img, gl_mask = A.gl_frame(st, view, S.blade(), return_mask=True)
+        stats[name] = A.compare(img, ref, fr.mask & gl_mask)[0]
+    assert stats["files"]["pixels"] > 500
+    assert stats["files"]["mean"] <= 1.0 and stats["files"]["p95"] <= 2.5, stats
+    assert stats["paper"]["mean"] > 1.5 * stats["files"]["mean"], stats
+
+
 @pytest.mark.gl
 def test_env_rotation_and_exposure_change_the_frame(glr, sky_scene):
     sc = sky_scene                      # the sky is symmetric about +Y but for the sun: use the studio

@@ -46,6 +46,7 @@ import numpy as np
 
 from jkatana.interactive.caps import MAX_CAPS as MAX_CAPS, sun_caps
 from jkatana.interactive.levels import MU_LEVELS, prefilter_level, upsample
+from jkatana.interactive.lobe_tables import PAPER_LOBES, family_names
 from jkatana.interactive.tables import MAX_RANK as MAX_RANK, cache_folder, load_entry, save_entry
 from jkatana.interactive.tables import cached_material_tables, cached_tap_fit
 from jkatana.interactive.taps import resolved_taps
@@ -109,7 +110,7 @@ def transfer_table(transfer="sRGB", n: int = 2048) -> np.ndarray:
 
 def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, rank: int = 3, mus=MU_LEVELS,
                 colourspace: str = "sRGB", transfer=None, source: str = "Fe-Johnson", cache_dir=None,
-                progress: bool = False, split_sun: bool = True) -> Baked:
+                progress: bool = False, split_sun: bool = True, lobes: tuple = PAPER_LOBES) -> Baked:
     """:func:`bake` with an on-disk cache (``$JKATANA_CACHE`` or ``~/.cache/jkatana``/interactive).
 
     The key hashes every input (radiance bytes, grid, rank, μ levels, display
@@ -118,7 +119,7 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
     at its own resolution (:func:`~jkatana.light.prefilter.level_shape`) in float16 scaled by the
     level's largest magnitude (relative precision 2⁻¹¹), resampled to the
     source's size on load: tens of MB for a 1k map instead of hundreds.
-    `progress` shows a progress bar over the μ levels while baking; `split_sun` as :func:`bake`.
+    `progress` shows a progress bar over the μ levels while baking; `split_sun` and `lobes` as :func:`bake`.
     """
     import hashlib
     import importlib
@@ -127,7 +128,7 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
     h = hashlib.sha256()
     for part in (np.ascontiguousarray(radiance, np.float64).tobytes(), repr((grid.start, grid.stop, grid.step,
                  rank, list(np.round(mus, 12)), colourspace, transfer, source, radiance.shape,
-                 bool(split_sun))).encode(),
+                 bool(split_sun), family_names(lobes))).encode(),
                  *(inspect.getsource(importlib.import_module(m)).encode() for m in BAKE_MODULES)):
         h.update(part)
     path = cache_folder(cache_dir) / f"baked-{h.hexdigest()[:24]}.npz"
@@ -147,7 +148,7 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
     baked, levels = _bake(np.asarray(radiance, np.float64), grid,
                           conductor=Conductor.from_table(source, grid, dtype=dt), rank=rank, mus=mus,
                           colourspace=colourspace, transfer=transfer, cache_dir=cache_dir, progress=progress,
-                          split_sun=split_sun)
+                          split_sun=split_sun, lobes=lobes)
     scale = np.array([max(float(np.abs(lv).max()), 1e-30) / 60000.0 for lv in levels])
     small = {f"level{k}": (lv / scale[k]).astype(np.float16) for k, lv in enumerate(levels)}
     save_entry(path, cache_dir, level_scale=scale, **small,
@@ -157,7 +158,7 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
 
 def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor: Conductor | None = None,
          rank: int = 3, mus=MU_LEVELS, colourspace: str = "sRGB", transfer=None, cache_dir=None,
-         split_sun: bool = True) -> Baked:
+         split_sun: bool = True, lobes: tuple = PAPER_LOBES) -> Baked:
     """Bake all shader tables for an environment ``radiance (H, W, wl)`` on ``grid``.
 
     **Arguments:**
@@ -169,6 +170,9 @@ def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor
     - `cache_dir`: where the environment-independent tables (:mod:`jkatana.interactive.tables`) are cached.
     - `split_sun`: split compact bright sources off as caps (:func:`~jkatana.interactive.caps.sun_caps`;
       default); False: prefilter the whole map.
+    - `lobes`: the regions' lobes (hiraji, hamon) as families width ↦ lobe: the paper's (default) or those
+      of parameter files (:func:`jkatana.interactive.lobe_tables.region_lobes`); the lobe table and the taps
+      are computed for them (and cached per family), the environment levels are the same.
 
     **Returns:** a :class:`Baked`.
     """
@@ -179,16 +183,16 @@ def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor
         conductor = Conductor.from_table("Fe-Johnson", grid, dtype=jnp.float64 if jax.config.jax_enable_x64
                                          else jnp.float32)
     baked, _ = _bake(radiance, grid, conductor=conductor, rank=rank, mus=mus, colourspace=colourspace,
-                     transfer=transfer, cache_dir=cache_dir, split_sun=split_sun)
+                     transfer=transfer, cache_dir=cache_dir, split_sun=split_sun, lobes=lobes)
     return baked
 
 
 def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_dir, progress: bool = False,
-          split_sun: bool = True):
+          split_sun: bool = True, lobes: tuple = PAPER_LOBES):
     """:func:`bake`, also returning the prefiltered levels at their own resolutions (what the cache keeps)."""
     from tqdm import tqdm
 
-    b, err, lut, spread = cached_material_tables(conductor, rank, mus, cache_dir)
+    b, err, lut, spread = cached_material_tables(conductor, rank, mus, cache_dir, lobes)
     W = film_weights(grid)            # (wl, 3); k = 1/∫ȳ dλ as jkatana.render: flat radiance 1 → Y = 1
     H, Wd = radiance.shape[:2]
     if split_sun:
@@ -201,7 +205,7 @@ def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_
     levels = [prefilter_level(proj, float(mu)) for mu in bar]
     env = np.stack([upsample(lv.astype(np.float32), H, Wd) for lv in levels])        # (n_mu, H, W, r*3)
     env = env.reshape(len(mus), H, Wd, rank, 3).transpose(0, 3, 1, 2, 4)
-    taps, tap_l1, tap_ok = cached_tap_fit(conductor, mus, lut.shape[2], cache_dir)
+    taps, tap_l1, tap_ok = cached_tap_fit(conductor, mus, lut.shape[2], cache_dir, lobes)
     taps = resolved_taps(taps, spread, mus, radiance.shape[0])
     return Baked(env=env, lut=lut, spread=spread, taps=taps, tap_l1=tap_l1, tap_ok=tap_ok,
                  mus=np.asarray(mus, np.float64), b=b, fresnel_err=err,

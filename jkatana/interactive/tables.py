@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.interactive.levels import MU_LEVELS
-from jkatana.interactive.lobe_tables import LUT_SOURCES, lobe_lut
+from jkatana.interactive.lobe_tables import LUT_SOURCES, PAPER_LOBES, family_names, lobe_lut
 from jkatana.interactive.taps import FIT_SOURCES, N_TAPS, tap_fit
 from jkatana.light.fresnel_basis import basis_of_table, fresnel_basis
 from jkatana.models import Conductor
@@ -97,9 +97,10 @@ def _save_npz(path: Path, **arrays) -> None:
 SHIPPED_TAPS = Path(__file__).resolve().parent.parent / "data" / "interactive"
 
 
-def tap_fit_key(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64) -> str:
+def tap_fit_key(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64, lobes: tuple = PAPER_LOBES) -> str:
     """Cache key of :func:`tap_fit`: n, k (rounded to float32, so float32 and float64 runs share it), μ
-    levels, n_cos, the tap count and the source of the fitting code (a code change invalidates it)."""
+    levels, n_cos, the tap count, the regions' lobe families (:func:`~jkatana.interactive.lobe_tables.family_names`)
+    and the source of the fitting code (a code change invalidates it)."""
     import hashlib
     import inspect
 
@@ -107,38 +108,41 @@ def tap_fit_key(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64) -> str:
     for part in (np.asarray(conductor.n, np.float32).astype(np.float64).tobytes(),
                  np.asarray(conductor.k, np.float32).astype(np.float64).tobytes(),
                  np.asarray(mus, np.float64).round(12).tobytes(), repr((n_cos, N_TAPS)).encode(),
+                 repr(family_names(lobes)).encode(),
                  *(inspect.getsource(f).encode() for f in FIT_SOURCES)):
         h.update(part)
     return h.hexdigest()[:24]
 
 
-def cached_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None):
+def cached_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None, lobes: tuple = PAPER_LOBES):
     """:func:`tap_fit` (≈ 1–5 min on 2 CPU cores) cached: it depends on the conductor and the μ levels,
     not on the environment. Looked up first among the tables shipped in ``jkatana/data/interactive``
     (iron, Johnson & Christy 1974, at the default levels: computed by this code with
     :func:`write_shipped_tap_table`; a test checks the shipped key is current), then in the user cache
-    beside :func:`jkatana.interactive.bake.cached_bake`'s tables; else fitted and cached. Key: :func:`tap_fit_key`."""
-    key = tap_fit_key(conductor, mus, n_cos)
+    beside :func:`jkatana.interactive.bake.cached_bake`'s tables; else fitted and cached, once per conductor,
+    levels and pair of lobe families (``lobes``). Key: :func:`tap_fit_key`."""
+    key = tap_fit_key(conductor, mus, n_cos, lobes)
     for path in (SHIPPED_TAPS / f"taps-{key}.npz", cache_folder(cache_dir) / f"taps-{key}.npz"):
         if path.exists():
             found = load_entry(path, lambda z: (z["taps"], z["l1"], z["ok"]))
             if found is not None:
                 return found
-    _, taps, l1, ok = tap_fit(conductor, mus, n_cos=n_cos)
+    _, taps, l1, ok = tap_fit(conductor, mus, n_cos=n_cos, lobes=lobes)
     save_entry(path, cache_dir, taps=taps, l1=l1, ok=ok)
     return taps, l1, ok
 
 
-def cached_material_tables(conductor: Conductor, rank: int, mus, cache_dir=None):
+def cached_material_tables(conductor: Conductor, rank: int, mus, cache_dir=None, lobes: tuple = PAPER_LOBES):
     """``(b, fresnel_err, lut, spread)``: :func:`material_basis` and :func:`lobe_lut`, which depend on the
     conductor, the rank and the μ levels but not on the environment, cached beside the tap fit (seconds of
     JAX compilation that a new environment need not pay again). Looked up first among the tables shipped
     with the package (iron at the default grid, rank 3 and levels: :func:`write_shipped_tap_table`), then in
-    the user cache. Key: :func:`tap_fit_key`'s inputs, the rank and the source of the two functions."""
+    the user cache; ``lobes`` as :func:`cached_tap_fit`. Key: :func:`tap_fit_key`'s inputs, the rank and the
+    source of the two functions."""
     import hashlib
     import inspect
 
-    h = hashlib.sha256(tap_fit_key(conductor, mus, 64).encode() + repr(rank).encode())
+    h = hashlib.sha256(tap_fit_key(conductor, mus, 64, lobes).encode() + repr(rank).encode())
     for f in (material_basis, fresnel_basis, basis_of_table, *LUT_SOURCES):
         h.update(inspect.getsource(f).encode())
     name = f"material-{h.hexdigest()[:24]}.npz"
@@ -148,7 +152,7 @@ def cached_material_tables(conductor: Conductor, rank: int, mus, cache_dir=None)
             if found is not None:
                 return found
     b, err = material_basis(conductor, rank)
-    _, lut, spread = lobe_lut(conductor, b, mus)
+    _, lut, spread = lobe_lut(conductor, b, mus, lobes=lobes)
     save_entry(path, cache_dir, b=b, err=np.float64(err), lut=lut, spread=spread)
     return b, err, lut, spread
 

@@ -20,10 +20,10 @@ import numpy as np
 from jaxtyping import ArrayLike, Float
 
 from jkatana.interactive.levels import MU_LEVELS
-from jkatana.interactive.lobe_tables import lobe_lut, moment_taps
+from jkatana.interactive.lobe_tables import PAPER_LOBES, lobe_lut, moment_taps
 from jkatana.light.fresnel_basis import fresnel_basis
 from jkatana.light.prefilter import LobeFamily, reflected_lobe
-from jkatana.models import Conductor, Hamon, Hiraji
+from jkatana.models import Conductor
 from jkatana.models.lobes import Gaussian
 
 #: Taps of the fitted lobe kernel (:func:`tap_fit`), read by the shader when ``JK_TAP_FIT`` is set.
@@ -46,19 +46,20 @@ def prefilter_kernel(sin2_half, mu_e, family: LobeFamily = Gaussian, n_quad: int
     return reflected_lobe(lobe, jnp.asarray(sin2_half, mu_e.dtype)) / norm
 
 
-def lobe_kernel(model, conductor: Conductor, cos_v, n: int = 64):
+def lobe_kernel(model, conductor: Conductor, cos_v, n: int = 64, width=None):
     """The reflected lobe of ``model`` as a normalised kernel around the mirror direction R, on a grid.
 
     Angles from R: ``a_par`` along the plane of incidence (positive towards N) and ``a_perp`` across
     it, L = cos a_perp (cos a_par R + sin a_par t) + sin a_perp y, dω = cos a_perp da_par da_perp.
-    The kernel is f_r cos θi (summed over λ) from :meth:`Hiraji.brdf_cos` / :meth:`Hamon.brdf_cos`
-    at V = (sin θv, 0, cos θv), normalised so that Σ K dω = 1. The grid spans ±min(14 μ, π) along the
-    plane and ±min(14 μ max(cos θv, 0.15), π/2) across (the lobe narrows across the plane by ≈ cos θv).
+    The kernel is the lobe's own f_r cos θi (``model.brdf_cos``, summed over λ) at V = (sin θv, 0, cos θv),
+    normalised so that Σ K dω = 1. With μ = ``width`` (default ``model.mu``) the grid spans ±min(14 μ, π)
+    along the plane and ±min(14 μ max(cos θv, 0.15), π/2) across (the lobe narrows across the plane by
+    ≈ cos θv).
 
     **Returns** ``(K (n, n), a_par (n, n), a_perp (n, n), dω (n, n))``.
     """
     dt = conductor.n.dtype
-    mu = jnp.asarray(model.mu, dt)
+    mu = jnp.asarray(model.mu if width is None else width, dt)
     cv = jnp.asarray(cos_v, dt)
     sv = jnp.sqrt(jnp.maximum(1.0 - cv ** 2, 0.0))
     V = jnp.stack([sv, jnp.zeros_like(sv), cv])
@@ -92,10 +93,10 @@ def tap_kernel(params, mu, ap, aq, mu_min: Float[ArrayLike, ""] = 0.0):
     return jnp.einsum("j,jab->ab", w, prefilter_kernel(x, mu_e))
 
 
-@functools.partial(jax.jit, static_argnames=("cls", "n"))
-def _lobe_kernels(cls, mu, conductor, cos_v, n: int):
-    model = cls(jnp.ones((), mu.dtype), mu)
-    return jax.vmap(lambda cv: lobe_kernel(model, conductor, cv, n))(cos_v)
+@functools.partial(jax.jit, static_argnames=("family", "n"))
+def _lobe_kernels(family, mu, conductor, cos_v, n: int):
+    model = family(mu)
+    return jax.vmap(lambda cv: lobe_kernel(model, conductor, cv, n, width=mu))(cos_v)
 
 
 @jax.jit
@@ -138,8 +139,9 @@ def _fit_scan(K, ap, aq, dw, moments, mu, mu_min):
     return ps, errs, ok                                                      # (C, B, ...)
 
 
-def tap_fit(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64, n: int = 32):
-    """Filtered importance sampling pattern of the lobe, fitted per (cos θv, μ) for hiraji and hamon.
+def tap_fit(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64, n: int = 32, lobes: tuple = PAPER_LOBES):
+    """Filtered importance sampling pattern of the lobe, fitted per (cos θv, μ) for hiraji and hamon, whose
+    lobes are ``lobes`` (families width ↦ lobe, :func:`jkatana.interactive.lobe_tables.region_lobes`).
 
     The shader approximates ∫ K(ω) L_env(ω) dω, K the reflected lobe normalised (:func:`lobe_kernel`),
     by Σ_j w_j L̃_{μ_e}(ω_j): T = :data:`N_TAPS` reads of the environment prefiltered at width μ_e,
@@ -161,13 +163,13 @@ def tap_fit(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64, n: int = 32):
     cos_c = np.maximum(cos, 1e-3)[::-1]                     # fit from normal incidence towards grazing
     dt = conductor.n.dtype
     mu_min = float(np.min(mus))
-    kern = [_lobe_kernels(cls, jnp.asarray(mu, dt), conductor, jnp.asarray(cos_c, dt), n)
-            for cls in (Hiraji, Hamon) for mu in mus]
+    kern = [_lobe_kernels(family, jnp.asarray(mu, dt), conductor, jnp.asarray(cos_c, dt), n)
+            for family in lobes for mu in mus]
     K, ap, aq, dw = (jnp.stack([k[i] for k in kern]) for i in range(4))     # (2·n_mu, n_cos, n, n)
     mu_b = jnp.asarray(np.tile(np.asarray(mus, np.float64), 2), dt)
     # the moment-matched binomial pattern (1/4, 1/2, 1/4 at mean, mean ± √2 spread; lobe_lut) as logits
     b = np.asarray(fresnel_basis(conductor, 1).basis)                      # the moments do not depend on it
-    _, _, shape = lobe_lut(conductor, b, mus, n_cos=n_cos)                  # (2, n_mu, n_cos, 3)
+    _, _, shape = lobe_lut(conductor, b, mus, n_cos=n_cos, lobes=lobes)     # (2, n_mu, n_cos, 3)
     moments = moment_taps(shape[:, :, ::-1].reshape(2 * len(mus), n_cos, 3))
     moments[..., 1 + N_TAPS:] = np.log(moments[..., 1 + N_TAPS:])                # weights as logits
     ps, errs, good = _fit_scan(K, ap, aq, dw, jnp.asarray(moments, dt), mu_b, jnp.asarray(mu_min, dt))
