@@ -6,7 +6,7 @@ same bake), headless EGL — Mesa llvmpipe when there is no GPU. Three views at
 800×600: the demo camera (the blade covers a few % of the frame), a
 close-up in which the flat fills the frame (as appraisers look), and
 ``glint_sunrise``: the sun of the shared ``sunrise.exr`` (a compact source: split off as a shader cap,
-:func:`jkatana.interactive.bake.sun_caps`) glinting on the flat
+:func:`jkatana.interactive.caps.sun_caps`) glinting on the flat
 (:func:`validation.gl_agreement.sun_glint_view`), where ``full_no_split`` is the same frame with the
 sun left in the prefiltered map.
 

@@ -5,8 +5,7 @@ checked at run time, hypothesis profiles.
   float64, ints with floats), so a precision mix-up in the library is an error here, not a silent
   float64 computation (JAX's type-promotion documentation, "strict" mode).
 - jaxtyping's import hook with beartype (Kidger 2022; jaxtyping's "runtime type checking" guide)
-  decorates every function and dataclass of ``jkatana`` (one module excepted, see
-  :func:`_checked_modules`) imported after it, so shapes and dtypes
+  decorates every function and dataclass of ``jkatana`` imported after it, so shapes and dtypes
   in the annotations are checked on every call the tests make. It must be installed before
   anything imports ``jkatana``.
 """
@@ -21,13 +20,10 @@ from jaxtyping import install_import_hook  # noqa: E402
 
 def _checked_modules() -> list[str]:
     """Every module of ``jkatana`` (package ``__init__`` files hold re-exports only; the hook matches a
-    package name as a prefix of all its modules, so they are not listed) except
-    :mod:`jkatana.interactive.bake`: the source of its tap-fit functions is the cache key of the
-    shipped tap table (``tap_fit_key``), so correcting an annotation there means regenerating that table."""
+    package name as a prefix of all its modules, so they are not listed)."""
     root = Path(__file__).resolve().parents[1]
-    names = [".".join(p.relative_to(root).with_suffix("").parts) for p in (root / "jkatana").rglob("*.py")
-             if p.name != "__init__.py"]
-    return sorted(n for n in names if n != "jkatana.interactive.bake")
+    return sorted(".".join(p.relative_to(root).with_suffix("").parts) for p in (root / "jkatana").rglob("*.py")
+                  if p.name != "__init__.py")
 
 
 # PEP 484's numeric tower: an ``int`` is a valid ``float`` (as the annotations are written)

@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from jkatana.interactive import bake as B
+from jkatana.interactive import caps as CP
+from jkatana.interactive import levels as LV
+from jkatana.interactive import lobe_tables as LT
+from jkatana.interactive import tables as T
+from jkatana.interactive import taps as TP
 from jkatana.light.prefilter import kernel_table, lobe_of_width
 from jkatana.models.lobes import Gaussian
 
@@ -29,10 +35,10 @@ def test_level_convolution_matches_the_full_resolution_one():
         # dense reference: out[o, φ] = Σ_i Σ_j K[o, i, j] img[i, φ − j]  (circular in longitude)
         rolled = np.stack([np.roll(img, j, axis=1) for j in range(W)])             # (j, i, φ, c)
         ref = np.einsum("oij,jiwc->owc", K, rolled)
-        got = B.prefilter_level(img, mu, texels_per_mu=1e9)
+        got = LV.prefilter_level(img, mu, texels_per_mu=1e9)
         np.testing.assert_allclose(got, ref, rtol=2e-4, atol=2e-4 * np.abs(ref).max())
         # on a coarser level (2 texels per μ) and resampled back: the lobe-scale structure survives
-        coarse = B.prefilter(img, mu)
+        coarse = LV.prefilter(img, mu)
         assert np.abs(coarse - ref).max() < 0.05 * np.abs(ref).max()
 
 
@@ -62,9 +68,9 @@ def test_shipped_material_table_is_current(tmp_path):
     from jkatana.spectral import DEFAULT_GRID
 
     conductor = Conductor.from_table("Fe-Johnson", DEFAULT_GRID, dtype=jnp.float32)
-    b, err, lut, spread = B._cached_material_tables(conductor, 3, B.MU_LEVELS, tmp_path)
-    assert not (tmp_path / "interactive").exists(), f"stale shipped material table in {B.SHIPPED_TAPS}"
-    assert lut.shape == (2, len(B.MU_LEVELS), 64, 3) and b.shape == (3, DEFAULT_GRID.size)
+    b, err, lut, spread = T.cached_material_tables(conductor, 3, LV.MU_LEVELS, tmp_path)
+    assert not (tmp_path / "interactive").exists(), f"stale shipped material table in {T.SHIPPED_TAPS}"
+    assert lut.shape == (2, len(LV.MU_LEVELS), 64, 3) and b.shape == (3, DEFAULT_GRID.size)
 
 
 def _sun_map(grid, height=64, sun=(20, 37), boost=5000.0):
@@ -89,7 +95,7 @@ def test_sun_caps_conserve_power_and_find_the_sun():
     b = np.linalg.qr(rng.random((grid.size, 3)))[0].T                 # any orthonormal basis (3, wl)
     W = film_weights(grid)
     rad, sun_dir = _sun_map(grid)
-    rest, cdir, crad, q = B.sun_caps(rad, grid, b, W)
+    rest, cdir, crad, q = CP.sun_caps(rad, grid, b, W)
     assert cdir.shape == (1, 3) and crad.shape == (1,) and q.shape == (1, 3, 3)
     assert np.degrees(np.arccos(np.clip(cdir[0] @ sun_dir, -1, 1))) < 0.5 * 180 / 64   # within half a texel
     omega = texel_solid_angles_np(*rad.shape[:2])
@@ -99,7 +105,7 @@ def test_sun_caps_conserve_power_and_find_the_sun():
     # no compact source: nothing split, the map itself
     smooth = rad.copy()
     smooth[20, 37] = smooth[20, 36]
-    rest, cdir, crad, q = B.sun_caps(smooth, grid, b, W)
+    rest, cdir, crad, q = CP.sun_caps(smooth, grid, b, W)
     assert cdir.shape == (0, 3) and q.shape == (0, 3, 3) and rest is smooth
 
 
@@ -119,8 +125,8 @@ def test_bake_without_a_compact_source_is_unchanged():
 
 
 def test_cap_kernel_is_the_prefilter_kernel_over_the_cap():
-    """:func:`bake.cap_kernel` (the shader's closed form: the prefilter kernel convolved with the cap's
-    disc by moment matching) against the same kernel (:func:`bake._prefilter_kernel_normalised`)
+    """:func:`caps.cap_kernel` (the shader's rule: the prefilter kernel convolved with the cap's disc as the
+    kernel at a changed width) against the same kernel (:func:`taps.prefilter_kernel`)
     integrated over the cap by :func:`jkatana.light.capquad.cap_nodes`' rule (8 × 32 nodes), for level widths
     μ 0.004–0.4 and caps of 0.26°–1.1° radius, centred on the tap and 0.5–3 widths away. Error relative
     to the value at the centre."""
@@ -139,10 +145,10 @@ def test_cap_kernel_is_the_prefilter_kernel_over_the_cap():
                 C = np.array([0.0, np.sin(a), np.cos(a)])
                 L, w = cap_nodes(jnp.asarray(R), jnp.asarray(C), r, width, n_radial=8, n_azimuth=32)
                 L, w = np.asarray(L, np.float64), np.asarray(w, np.float64)
-                k = np.asarray(B._prefilter_kernel_normalised(jnp.asarray(np.clip(0.5 * (1 - L @ R), 0, 1)),
-                                                              jnp.asarray(mu)), np.float64)
+                k = np.asarray(TP.prefilter_kernel(jnp.asarray(np.clip(0.5 * (1 - L @ R), 0, 1)),
+                                                   jnp.asarray(mu)), np.float64)
                 exact = float((w * k).sum())
-                closed = 4 * np.pi * np.sin(r / 2) ** 2 * float(B.cap_kernel(R, mu, C, r))
+                closed = 4 * np.pi * np.sin(r / 2) ** 2 * float(CP.cap_kernel(R, mu, C, r))
                 centre = exact if centre is None else centre
                 worst[mu, r, off] = abs(closed - exact) / centre
     # sun-sized caps (r ≤ 0.0055 rad, r/σ ≤ 0.8): within 1 %; a cap 3× wider than the narrowest kernel:
@@ -150,8 +156,8 @@ def test_cap_kernel_is_the_prefilter_kernel_over_the_cap():
     bad = {k: v for k, v in worst.items() if v > (CAP_KERNEL_TOL if k[1] <= 0.0055 else 0.15)}
     assert not bad, bad
     # it can fail: without the disc term (a point source) the narrowest level misses the peak
-    closed_point = 4 * np.pi * np.sin(0.0055 / 2) ** 2 * float(B.cap_kernel(R, 0.004, R, 0.0))
-    closed_disc = 4 * np.pi * np.sin(0.0055 / 2) ** 2 * float(B.cap_kernel(R, 0.004, R, 0.0055))
+    closed_point = 4 * np.pi * np.sin(0.0055 / 2) ** 2 * float(CP.cap_kernel(R, 0.004, R, 0.0))
+    closed_disc = 4 * np.pi * np.sin(0.0055 / 2) ** 2 * float(CP.cap_kernel(R, 0.004, R, 0.0055))
     assert closed_point > (1 + 4 * CAP_KERNEL_TOL) * closed_disc
 
 
@@ -161,9 +167,9 @@ CAP_KERNEL_TOL = 0.01
 
 
 def test_cap_response_against_the_models_over_the_cap():
-    """The shader's cap rule for the paper's lobes — the lobe's energy times Ω_cap × :func:`bake.cap_kernel`
+    """The shader's cap rule for the paper's lobes — the lobe's energy times Ω_cap × :func:`caps.cap_kernel`
     over the moment-matched pattern (¼, ½, ¼ at the mean offset and ± √2 × the in-plane spread, each at the
-    across-plane width; :func:`bake.lobe_lut`'s moments) — against :func:`jkatana.light.capquad.cap_integral` of
+    across-plane width; :func:`lobe_tables.lobe_lut`'s moments) — against :func:`jkatana.light.capquad.cap_integral` of
     :meth:`Hiraji.brdf_cos` / :meth:`Hamon.brdf_cos` over a 0.31° cap (sunrise.exr's sun), summed over λ,
     with the cap on the lobe's mean direction and 0.7–1.4 widths away along and across the plane of
     incidence. Errors relative to the value on the mean: within 2 % at normal incidence, 6 % at 45°; at
@@ -180,14 +186,14 @@ def test_cap_response_against_the_models_over_the_cap():
 
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     iron = Conductor.from_table("Fe-Johnson", dtype=dt)
-    _, _, _, spread = B._cached_material_tables(iron, 3, B.MU_LEVELS)
+    _, _, _, spread = T.cached_material_tables(iron, 3, LV.MU_LEVELS)
     cos_grid = np.linspace(0.0, 1.0, spread.shape[2])
     r = 0.0055
     omega = 4 * np.pi * np.sin(r / 2) ** 2
     worst = {}
     for m, cls in enumerate((Hiraji, Hamon)):
         for i in (3, 5, 7):                                   # μ = 0.035, 0.071, 0.141
-            mu = float(B.MU_LEVELS[i])
+            mu = float(LV.MU_LEVELS[i])
             model = cls(jnp.asarray(1.0, dt), jnp.asarray(mu, dt))
             for j in (63, 45, 25):                            # cos θv = 1, 0.71, 0.40
                 cv = cos_grid[j]
@@ -199,7 +205,7 @@ def test_cap_response_against_the_models_over_the_cap():
                 s0, s1, mean = spread[m, i, j]
                 mu_e = mu * np.exp(s0)
                 taps = [(mean, 0.5), (mean + np.sqrt(2) * s1, 0.25), (mean - np.sqrt(2) * s1, 0.25)]
-                energy = float(np.sum(np.asarray(B.lobe_integral(model, iron, jnp.asarray(V, dt)))))
+                energy = float(np.sum(np.asarray(LT.lobe_integral(model, iron, jnp.asarray(V, dt)))))
                 wt, wy = np.hypot(s1, mu_e * np.sqrt(2 / np.log(2))), mu_e * np.sqrt(2 / np.log(2))
                 errs, peak = [], None
                 for at, ay in ((0, 0), (0.7 * wt, 0), (-0.7 * wt, 0), (0, 0.7 * wy), (1.4 * wt, 0), (0, 1.4 * wy)):
@@ -209,7 +215,7 @@ def test_cap_response_against_the_models_over_the_cap():
                     truth = float(np.sum(np.asarray(cap_integral(
                         functools.partial(model.brdf_cos, conductor=iron), jnp.asarray(V, dt),
                         jnp.asarray(C, dt), r, float(Gaussian(jnp.asarray(mu), jnp.asarray(1.0), normalised=False).reflected_width())))))
-                    rule = energy * omega * sum(w * float(B.cap_kernel(np.cos(o) * R + np.sin(o) * t, mu_e, C, r))
+                    rule = energy * omega * sum(w * float(CP.cap_kernel(np.cos(o) * R + np.sin(o) * t, mu_e, C, r))
                                                 for o, w in taps)
                     peak = truth if peak is None else peak
                     errs.append(abs(rule - truth) / peak)
@@ -217,3 +223,42 @@ def test_cap_response_against_the_models_over_the_cap():
     for cos_v, bound in ((1.0, 0.02), (0.71, 0.06), (0.4, 0.45)):
         at = {k: v for k, v in worst.items() if k[2] == cos_v}
         assert at and max(at.values()) < bound, (cos_v, at)
+
+
+def test_lobe_tables_of_a_parameter_files_lobe():
+    """The bake's tables for another lobe (:func:`lobe_tables.region_lobes` of a GGX parameter file): its
+    energy is the lobe's own ∫ f_r cos θi dω (against a 4× finer quadrature and the lobe's albedo from
+    :meth:`~jkatana.models.lobes.Lobe.brdf_cos` by Monte Carlo over its own samples), the tables are keyed
+    per lobe family, and a region without a file keeps the paper's lobe."""
+    import jax
+    import jax.numpy as jnp
+
+    from jkatana.models import Conductor
+    from jkatana.models.lobes import GGX, GaussianVCavity, lobe_shape
+
+    iron = Conductor.from_table("Fe-Johnson", dtype=jnp.float64)
+    width, key = lobe_shape(GGX(jnp.float64(0.08)).to_params())
+    lobes = LT.region_lobes({"hiraji": key, "hamon": None})
+    assert lobes[1] is GaussianVCavity and lobes[0] == LT.region_lobes({"hiraji": key})[0]   # hashable by value
+    assert LT.region_lobes() == LT.PAPER_LOBES
+    assert T.tap_fit_key(iron, lobes=lobes) != T.tap_fit_key(iron)
+    b, _ = T.material_basis(iron, 3)
+    mus = np.array([0.05, 0.1])
+    cos, lut, shape = LT.lobe_lut(iron, b, mus, n_cos=5, lobes=lobes)
+    F = np.asarray(iron.fresnel(jnp.asarray(1.0)))
+    for j, mu in enumerate(mus):
+        lobe = lobes[0](jnp.float64(mu))
+        assert isinstance(lobe, GGX) and float(lobe.alpha) == pytest.approx(mu)
+        V = np.array([[np.sqrt(1 - c * c), 0.0, c] for c in np.maximum(cos[[1, 2, 4]], 1e-3)])
+        fine = np.asarray(LT.lobe_integral(lobe, iron, V, n_phi=128, n_psi=96, width=mu, tails=True))
+        np.testing.assert_allclose(lut[0, j, [1, 2, 4]] @ b, fine, rtol=2e-3)
+        # the albedo by the lobe's own importance sampling (an independent estimate), normal incidence
+        u = jax.random.uniform(jax.random.PRNGKey(j), (200_000, 2), jnp.float64)
+        Vn = jnp.asarray([0.0, 0.0, 1.0])
+        L, p = lobe.sample(Vn, u)
+        f = lobe.f_cos(L, Vn)
+        mc = float(jnp.mean(jnp.where(p > 0, f / jnp.where(p > 0, p, 1.0), 0.0)))
+        np.testing.assert_allclose((lut[0, j, -1] @ b) / F, mc, rtol=0.02)   # F varies < 1 % over the lobe
+    # the paper's region is unchanged by the other one's lobe
+    _, paper, _ = LT.lobe_lut(iron, b, mus, n_cos=5)
+    np.testing.assert_array_equal(lut[1], paper[1])

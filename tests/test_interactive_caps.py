@@ -11,7 +11,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jkatana.interactive import bake as B
+from jkatana.interactive import lobe_tables as LT
+from jkatana.interactive import tables as T
+from jkatana.interactive.levels import MU_LEVELS
 from jkatana.interactive import caprule as C
 from jkatana.light.capquad import cap_integral
 from jkatana.models.lobes import Gaussian
@@ -33,7 +35,7 @@ WIDE_TOL = {0: 0.02, 44: 0.07, 56: 0.15, 66: 0.55}
 def _tables():
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     iron = Conductor.from_table("Fe-Johnson", dtype=dt)
-    _, _, _, spread = B._cached_material_tables(iron, 3, B.MU_LEVELS)
+    _, _, _, spread = T.cached_material_tables(iron, 3, MU_LEVELS)
     return iron, dt, spread
 
 
@@ -41,7 +43,7 @@ def _errors(cls, level: int, row: int, isotropic: bool = False) -> float:
     """Worst |rule − cap_integral| over caps on the lobe's mean and 0.5–2 widths away along and across the
     plane of incidence, relative to cap_integral on the mean."""
     iron, dt, spread = _tables()
-    mu = float(B.MU_LEVELS[level])
+    mu = float(MU_LEVELS[level])
     model = cls(jnp.asarray(1.0, dt), jnp.asarray(mu, dt))
     cv = np.linspace(0.0, 1.0, spread.shape[2])[row]
     V = np.array([np.sqrt(1 - cv * cv), 0.0, cv])
@@ -64,7 +66,7 @@ def _errors(cls, level: int, row: int, isotropic: bool = False) -> float:
     truth = np.asarray(cap_integral(functools.partial(model.brdf_cos, conductor=iron),
                                     jnp.asarray(np.broadcast_to(V, caps.shape), dt), jnp.asarray(caps, dt),
                                     RADIUS, float(Gaussian(mu=jnp.asarray(mu, dt)).reflected_width()), n_radial=8, n_azimuth=32)).sum(-1)
-    energy = float(np.sum(np.asarray(B.lobe_integral(model, iron, jnp.asarray(V, dt)))))
+    energy = float(np.sum(np.asarray(LT.lobe_integral(model, iron, jnp.asarray(V, dt)))))
     omega = 4 * np.pi * np.sin(RADIUS / 2) ** 2
     rule = energy * omega * C.cap_response(R, t, sp, mu_e, caps, RADIUS)
     return float(np.max(np.abs(rule - truth)) / truth[0])
@@ -80,9 +82,9 @@ def test_cap_rule_against_the_cap_quadrature_of_the_models(cls):
     for deg, row in ROWS.items():
         for level in (1, 3, 5):
             worst[deg, level] = _errors(cls, level, row)
-            assert worst[deg, level] < NARROW_TOL[deg], (deg, float(B.MU_LEVELS[level]), worst)
+            assert worst[deg, level] < NARROW_TOL[deg], (deg, float(MU_LEVELS[level]), worst)
         worst[deg, 7] = _errors(cls, 7, row)
-        assert worst[deg, 7] < WIDE_TOL[deg], (deg, float(B.MU_LEVELS[7]), worst)
+        assert worst[deg, 7] < WIDE_TOL[deg], (deg, float(MU_LEVELS[7]), worst)
 
 
 def test_cap_rule_for_a_narrow_lobe_at_66_degrees():

@@ -239,18 +239,18 @@ def test_budget_comes_from_the_environment(monkeypatch):
 
 def test_bake_cache_shares_the_budget(tmp_path, monkeypatch):
     """The interactive bake's entries are listed, touched on read and evicted with the environments'."""
-    from jkatana.interactive import bake
+    from jkatana.interactive import tables
 
     monkeypatch.setenv("JKATANA_CACHE", str(tmp_path))
     old = _entry(tmp_path, "environments", "radiance-old.npy", 1000, 100.0)
     monkeypatch.setenv(cache.BUDGET_VARIABLE, "0.0001")
-    path = bake._cache_root() / "material-x.npz"
-    bake._save_entry(path, None, a=np.zeros(4))
+    path = tables.cache_folder() / "material-x.npz"
+    tables.save_entry(path, None, a=np.zeros(4))
     assert path.exists() and not old.exists()
     import os
 
     os.utime(path, (10.0, 10.0))
-    assert bake._load_entry(path, lambda z: z["a"].shape) == (4,)
+    assert tables.load_entry(path, lambda z: z["a"].shape) == (4,)
     assert path.stat().st_mtime > 10.0
 
 

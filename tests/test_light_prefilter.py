@@ -142,12 +142,12 @@ def test_gaussian_kernel_is_the_exp_form_with_the_reflection_jacobian(mu):
 
 def test_bake_levels_are_this_prefilter():
     """The interactive bake's levels are :func:`prefilter_level` of the Gaussian lobe at its resolution."""
-    from jkatana.interactive import bake as B
+    from jkatana.interactive import levels as LV
 
     img = _sun_map(32, 64)
     for mu in (0.05, 0.2):
-        np.testing.assert_array_equal(B.prefilter_level(img, mu),
-                                      prefilter_level(img, mu, texels_per_mu=B.TEXELS_PER_MU, sub=1))
+        np.testing.assert_array_equal(LV.prefilter_level(img, mu),
+                                      prefilter_level(img, mu, texels_per_mu=LV.TEXELS_PER_MU, sub=1))
 
 
 def _probe_dirs(sun):

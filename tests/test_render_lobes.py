@@ -138,17 +138,24 @@ def test_bad_lobe_entry_is_refused(tmp_path):
         prepare(load_scene(write_scene(tmp_path, hiraji=d)))
 
 
-def test_interactive_view_refuses_a_non_paper_lobe(tmp_path):
+def test_interactive_view_takes_the_lobe_of_a_parameter_file(tmp_path):
+    """``jkatana view`` of a scene whose hiraji file holds a GTR lobe: the interactive scene carries that lobe
+    (normalised, rebuilt at any width) for the bake's tables, the hamon the paper's, the map the fitted width."""
     from jkatana.interactive.scene import from_render_scene
+    from jkatana.models.lobes import GTR, GaussianVCavity
 
-    text = write_scene(tmp_path, hiraji=params_dict("gtr")).read_text()
+    d = params_dict("gtr")
+    text = write_scene(tmp_path, hiraji=d).read_text()
     text = text.replace("sphere = {radius = 1.0}", 'mesh = "builtin:katana"').replace(
         "w = 1.0\nmu0 = 0.04\nmu1 = 0.06\n", "")
     (tmp_path / "scene.toml").write_text(text)
-    with pytest.raises(InputError) as e:
-        from_render_scene(tmp_path / "scene.toml")
-    assert "\n" not in str(e.value) and "'gtr'" in str(e.value) and "interactive" in str(e.value)
-    assert "taps fitted to the paper's lobe" in str(e.value)
+    sc = from_render_scene(tmp_path / "scene.toml")
+    hiraji, hamon = sc.lobes
+    assert hamon is GaussianVCavity
+    width = lobe_shape(d["lobe"])[0]
+    lobe = hiraji(jnp.float64(width))
+    assert isinstance(lobe, GTR) and float(lobe.alpha) == pytest.approx(width)
+    assert float(np.median(sc.refl_map[..., 1])) == pytest.approx(width, rel=1e-6)
 
 
 def test_cli_prints_one_line_and_exits_2(tmp_path):

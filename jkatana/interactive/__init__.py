@@ -2,7 +2,12 @@
 
 - :mod:`~jkatana.interactive.bake`: the shader tables (low-rank Fresnel basis,
   environment projected on it and prefiltered per μ, lobe LUT, display
-  transform), computed from :mod:`jkatana.models` and :mod:`jkatana.spectral`.
+  transform), computed from :mod:`jkatana.models` and :mod:`jkatana.spectral`;
+  one module per table: :mod:`~jkatana.interactive.levels` (prefiltered levels),
+  :mod:`~jkatana.interactive.lobe_tables` (lobe energy and moments),
+  :mod:`~jkatana.interactive.taps` (the fitted tap pattern),
+  :mod:`~jkatana.interactive.caps` (suns split off as caps),
+  :mod:`~jkatana.interactive.tables` (cached and shipped tables).
 - :mod:`~jkatana.interactive.gl`: OpenGL platform choice (EGL, OSMesa,
   window), the pyrender/PyOpenGL versions, the numpy-2 alias.
 - :mod:`~jkatana.interactive.glstate`: the baked tables as float GL textures and the

@@ -1,12 +1,12 @@
 """The interactive shader's cap rule (``shaders/shade.glsl``'s ``jk_caps_xyz``), in NumPy for tests.
 
-A compact source split off the map (:func:`jkatana.interactive.bake.sun_caps`) is a spherical cap of angular
+A compact source split off the map (:func:`jkatana.interactive.caps.sun_caps`) is a spherical cap of angular
 radius r about C. The shader's reflected radiance from it is ``A · Q · K(C)``: the lobe table A (the lobe's
-energy on the Fresnel basis, :func:`jkatana.interactive.bake.lobe_lut`), the cap's projected radiance Q
+energy on the Fresnel basis, :func:`jkatana.interactive.lobe_tables.lobe_lut`), the cap's projected radiance Q
 (Ω_cap Σ_λ b_r W L_cap) and K, the lobe's normalised kernel averaged over the cap's disc.
 
 K is one anisotropic Gaussian on the sphere with the lobe's own first and second moments
-(:func:`jkatana.interactive.bake.lobe_integral`, ``moments=True``): centred on the lobe's mean direction M
+(:func:`jkatana.interactive.lobe_tables.lobe_integral`, ``moments=True``): centred on the lobe's mean direction M
 (R turned by the mean offset towards N in the plane of incidence), variance ``var_par`` along that plane and
 ``var_perp`` across it, written in the prefilter kernel's form ``exp(−c h²)/cos h`` (Walter et al. 2007's
 half-angle Gaussian, the form the map levels are filtered with: h is half the angle from M, ``c = 2/var``
@@ -59,7 +59,7 @@ def kernel(M: ArrayLike, t_par: ArrayLike, t_perp: ArrayLike, c_par: ArrayLike, 
 def cap_response(R: ArrayLike, t: ArrayLike, spread: ArrayLike, mu_e: ArrayLike, cap_dir: ArrayLike,
                  radius: ArrayLike) -> np.ndarray:
     """K for a reflection lobe about the mirror direction ``R`` (unit), ``t`` the unit direction in the plane of
-    incidence ⟂ R towards N, ``spread (..., 3)`` the lobe's moments as :func:`bake.lobe_lut` tabulates them
+    incidence ⟂ R towards N, ``spread (..., 3)`` the lobe's moments as :func:`lobe_tables.lobe_lut` tabulates them
     (log across-width ratio, in-plane extra spread √(var_par − var_perp), mean offset towards N) and ``mu_e``
     the width of the moment pattern's prefilter level (μ·e^{spread[0]}): what ``shade.glsl`` computes per
     pixel and cap. Multiply by the lobe's energy and the cap's Ω_cap L_cap."""

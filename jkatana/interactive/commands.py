@@ -117,7 +117,7 @@ def _state(sc, args, glrender):
 
     t = time.perf_counter()
     baked = cached_bake(sc.radiance, sc.grid, rank=max(args.rank, 3), colourspace=sc.colourspace,
-                        transfer=sc.transfer, source=sc.source, progress=True)
+                        transfer=sc.transfer, source=sc.source, progress=True, lobes=sc.lobes)
     print(f"[view] tables baked/loaded in {time.perf_counter() - t:.1f} s (rank {baked.rank}, "
           f"{len(baked.mus)} μ levels, Fresnel rank-{baked.rank} max rel. error {baked.fresnel_err:.1e})",
           file=sys.stderr)

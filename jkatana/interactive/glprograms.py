@@ -161,7 +161,7 @@ class BakedProgram(ShaderProgram):
         GL.glUniform1f(loc(pid, "jk_n_cos"), float(b.lut.shape[2]))
         GL.glUniform1f(loc(pid, "jk_n_transfer"), float(len(b.transfer)))
         n = b.n_caps
-        if n:                                  # the compact sources split off the map (bake.sun_caps)
+        if n:                                  # the compact sources split off the map (caps.sun_caps)
             cap = np.zeros((n, 4), np.float32)
             cap[:, :3] = b.cap_dir
             cap[:, 3] = np.asarray(b.cap_radius) ** 2

@@ -89,9 +89,9 @@ class ShadingState:
       and the static switches `rank` (≤ baked rank; default :data:`DEFAULT_RANK`), `rough`, `blend`, `two_tap` (anisotropic lobe:
       three (or, with `taps=5`, five) binomial prefiltered taps along the plane of incidence; off: one tap),
       `fit` (with three taps: their offsets, weights and filter width fitted to the lobe by
-      :func:`jkatana.interactive.bake.tap_fit` — the default; off: moment-matched binomial taps, which
+      :func:`jkatana.interactive.taps.tap_fit` — the default; off: moment-matched binomial taps, which
       miss the lobe's skew: ~10 % too dark on a sun inside the oblique hamon lobe; `taps=5` is always
-      moment-matched). The baked caps (compact sources split off the map, :func:`~jkatana.interactive.bake.sun_caps`)
+      moment-matched). The baked caps (compact sources split off the map, :func:`~jkatana.interactive.caps.sun_caps`)
       are a static switch too (``JK_CAPS``, their number; 0: no cap code).
     - `env_format`: GL internal format of the environment textures (:data:`ENV_FORMAT`).
     """
@@ -144,7 +144,7 @@ class ShadingState:
             lut[:2, ..., :rank] = b.lut
             lut[2, ..., :3] = b.spread[0]                                # layer 2: hiraji lobe shape
             lut[3, ..., :3] = b.spread[1]                                # layer 3: hamon lobe shape
-            T = (b.taps.shape[-1] - 1) // 2                              # fitted taps (bake.tap_fit):
+            T = (b.taps.shape[-1] - 1) // 2                              # fitted taps (taps.tap_fit):
             lut[4:6, ..., :1 + T] = b.taps[:, ..., :1 + T]               # layers 4, 5: log(μ_e/μ), offsets
             lut[6:8, ..., :T] = b.taps[:, ..., 1 + T:]                   # layers 6, 7: weights
             self._textures[key] = (

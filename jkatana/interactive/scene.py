@@ -30,6 +30,7 @@ import numpy as np
 import trimesh
 
 from jkatana.errors import InputError
+from jkatana.interactive.lobe_tables import PAPER_LOBES, region_lobes
 from jkatana.light.envmap import texel_directions_np
 from jkatana.maps.reflectance_map import default_map
 from jkatana.render.film import film_weights
@@ -191,7 +192,9 @@ class InteractiveScene:
 
     - `mesh` (trimesh with UVs), `refl_map` ``(H, W, 3)`` (w, μ0, μ1), `radiance` ``(H, W, wl)`` on `grid`;
     - `view`: the initial camera; `target`: orbit centre; `exposure`, `colourspace`, `transfer`;
-    - `env_rotation` (radians about +Y); `source`: optical constants; `name`.
+    - `env_rotation` (radians about +Y); `source`: optical constants; `name`;
+    - `lobes`: the regions' lobe families (hiraji, hamon) the bake's tables are computed for
+      (:func:`jkatana.interactive.lobe_tables.region_lobes`; default the paper's).
     """
 
     mesh: trimesh.Trimesh
@@ -206,6 +209,7 @@ class InteractiveScene:
     env_rotation: float = 0.0
     source: str = "Fe-Johnson"
     name: str = "default"
+    lobes: tuple = PAPER_LOBES
 
     def orbit(self, n: int) -> list[View]:
         """``n`` views turning about the vertical axis through `target` (full turn split evenly)."""
@@ -240,7 +244,7 @@ def default_scene(env: str = "sky", width: int = 800, height: int = 600) -> Inte
 
 def from_render_scene(path) -> InteractiveScene:
     """Load a :mod:`jkatana.render` scene TOML (geometry, map, environment, camera, film, spectral grid)."""
-    from jkatana.render.renderer import camera_for, check_lobe_mode, load_environment, load_geometry, load_material
+    from jkatana.render.renderer import camera_for, load_environment, load_geometry, load_material
     from jkatana.render.scenefile import load_scene
 
     sc = load_scene(path)
@@ -250,7 +254,6 @@ def from_render_scene(path) -> InteractiveScene:
         raise InputError("the interactive viewer needs a mesh (not an analytic sphere)", path=str(path),
                          field="geometry")
     maps, _, _, lobes = load_material(sc, geometry)
-    check_lobe_mode(lobes, sc, "interactive")  # the bake's taps are fitted to the paper's lobe
     cam = camera_for(sc)
     view = View(look_at(cam.position, cam.look_at, cam.up), np.deg2rad(cam.fov_deg), cam.width, cam.height)
     film = sc.film
@@ -261,4 +264,4 @@ def from_render_scene(path) -> InteractiveScene:
         exposure=float("nan") if film.exposure == "auto" else float(film.exposure),
         colourspace=film.colourspace, transfer=film.transfer,
         env_rotation=np.deg2rad(sc.environment.rotation_deg),
-        source=sc.material.optical_constants, name=Path(path).stem)
+        source=sc.material.optical_constants, name=Path(path).stem, lobes=region_lobes(lobes))

@@ -19,13 +19,13 @@
 // level), JK_BLEND (0: hiraji everywhere), JK_TWO_TAP (the lobe's anisotropy:
 // three binomial taps along the plane of incidence, prefiltered for the
 // across-plane width, matching the lobe's in-plane mean and variance — moments
-// baked from the models by jkatana.interactive.bake.lobe_lut; the name is
+// baked from the models by jkatana.interactive.lobe_tables.lobe_lut; the name is
 // historical: two extra taps; JK_TAPS = 5: four extra taps), JK_TAP_FIT (default: instead of the
 // moment-matched binomial taps, three taps whose offsets, weights and filter width are fitted by least
 // squares to the lobe's own kernel per (cos θv, μ) — filtered importance sampling (Křivánek & Colbert
-// 2008) with a baked pattern; jkatana.interactive.bake.tap_fit; LUT layers 4–7; entries whose
-// filter width the map does not resolve hold the moment pattern, bake.resolved_taps), JK_CAPS (0..4:
-// compact bright sources split off the map as spherical caps, bake.sun_caps: each cap's radiance Q, weighted
+// 2008) with a baked pattern; jkatana.interactive.taps.tap_fit; LUT layers 4–7; entries whose
+// filter width the map does not resolve hold the moment pattern, taps.resolved_taps), JK_CAPS (0..4:
+// compact bright sources split off the map as spherical caps, caps.sun_caps: each cap's radiance Q, weighted
 // by the lobe table A, times the lobe's normalised kernel over the cap's disc, in closed form — one
 // anisotropic Gaussian with the lobe's moments, jk_caps_xyz; its NumPy twin
 // jkatana.interactive.caprule.cap_response is tested against jkatana.light.capquad.cap_integral of the models).
@@ -63,7 +63,7 @@ uniform vec3 jk_cap_q[4 * JK_CAPS]; // [4k + r]: Q_r of cap k, Ω_cap Σ_λ b_r(
 
 // The cap rule (NumPy twin: jkatana.interactive.caprule.cap_response, tested against
 // jkatana.light.capquad.cap_integral of the models). The reflected lobe is one anisotropic Gaussian on the sphere
-// with the lobe's own first and second moments (bake.lobe_lut): centred on its mean direction, variance
+// with the lobe's own first and second moments (lobe_tables.lobe_lut): centred on its mean direction, variance
 // var_par along the plane of incidence and var_perp across it, in the prefilter kernel's form
 // exp(−c h²)/cos h with h half the angle from the centre and c = 2/var per axis (the kernel of Walter et al.
 // 2007 that the map levels are filtered with). The cap's disc is folded in per axis by keeping the kernel's
@@ -188,7 +188,7 @@ vec4 jk_shade(vec3 N, vec3 Vd, vec2 uv)
 #endif
         vec4 a = w * lobe(0.0, cv, lf) + (1.0 - w) * lobe(1.0, cv, lt);
 #if JK_ROUGH && JK_TAP_FIT
-        // fitted taps (jkatana.interactive.bake.tap_fit): x = log(μ_e/μ), yzw = offsets o_j along the
+        // fitted taps (jkatana.interactive.taps.tap_fit): x = log(μ_e/μ), yzw = offsets o_j along the
         // plane of incidence (rad, towards N); layers 6, 7: weights w_j
         vec4 tp = w * lobe(4.0, cv, lf) + (1.0 - w) * lobe(5.0, cv, lt);
         vec3 tw = w * lobe(6.0, cv, lf).rgb + (1.0 - w) * lobe(7.0, cv, lt).rgb;

@@ -1,0 +1,205 @@
+"""The shader's tap pattern: the reflected lobe approximated by a few reads of the prefiltered environment.
+
+Per (lobe, μ, cos θv) the shader reads the environment levels (prefiltered
+with :func:`prefilter_kernel`, the kernel of
+:func:`jkatana.light.prefilter.prefilter_level`) at T = :data:`N_TAPS`
+directions rotated from the mirror direction R in the plane of incidence,
+each at a fitted level width, with fitted weights (:func:`tap_fit`): filtered
+importance sampling (Křivánek & Colbert 2008) with a pattern fitted to the
+lobe instead of drawn from it. Where the map cannot resolve a fitted level
+the moment-matched pattern is used instead (:func:`resolved_taps`).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import ArrayLike, Float
+
+from jkatana.interactive.levels import MU_LEVELS
+from jkatana.interactive.lobe_tables import PAPER_LOBES, lobe_lut, moment_taps
+from jkatana.light.fresnel_basis import fresnel_basis
+from jkatana.light.prefilter import LobeFamily, reflected_lobe
+from jkatana.models import Conductor
+from jkatana.models.lobes import Gaussian
+
+#: Taps of the fitted lobe kernel (:func:`tap_fit`), read by the shader when ``JK_TAP_FIT`` is set.
+N_TAPS = 3
+
+
+def prefilter_kernel(sin2_half, mu_e, family: LobeFamily = Gaussian, n_quad: int = 1024):
+    """The kernel the environment levels are prefiltered with, normalised to 1 over the sphere, at the
+    direction x = sin²(ψ/2) from its centre: :func:`jkatana.light.prefilter.reflected_lobe` of
+    ``family(mu_e)`` (the lobe's f_r cos θi at normal incidence, zero below the horizon; Walter et al.
+    2007, Karis 2013), as the prefilter tabulates it. The normalisation 2π ∫ k sin ψ dψ is a trapezoid
+    rule on ψ = (π/2) t², t uniform (nodes dense at the peak), so a JAX function with finite gradients
+    in ``mu_e`` and in the direction; ``mu_e`` may be an array (broadcast against ``sin2_half``)."""
+    mu_e = jnp.asarray(mu_e)
+    lobe = family(mu_e)
+    t = jnp.linspace(0.0, 1.0, n_quad, dtype=mu_e.dtype).reshape((n_quad,) + (1,) * mu_e.ndim)
+    psi = 0.5 * jnp.pi * t * t
+    k = reflected_lobe(lobe, jnp.sin(0.5 * psi) ** 2)
+    norm = jnp.trapezoid(k * 2.0 * jnp.pi * jnp.sin(psi) * (jnp.pi * t), t, axis=0)
+    return reflected_lobe(lobe, jnp.asarray(sin2_half, mu_e.dtype)) / norm
+
+
+def lobe_kernel(model, conductor: Conductor, cos_v, n: int = 64, width=None):
+    """The reflected lobe of ``model`` as a normalised kernel around the mirror direction R, on a grid.
+
+    Angles from R: ``a_par`` along the plane of incidence (positive towards N) and ``a_perp`` across
+    it, L = cos a_perp (cos a_par R + sin a_par t) + sin a_perp y, dω = cos a_perp da_par da_perp.
+    The kernel is the lobe's own f_r cos θi (``model.brdf_cos``, summed over λ) at V = (sin θv, 0, cos θv),
+    normalised so that Σ K dω = 1. With μ = ``width`` (default ``model.mu``) the grid spans ±min(14 μ, π)
+    along the plane and ±min(14 μ max(cos θv, 0.15), π/2) across (the lobe narrows across the plane by
+    ≈ cos θv).
+
+    **Returns** ``(K (n, n), a_par (n, n), a_perp (n, n), dω (n, n))``.
+    """
+    dt = conductor.n.dtype
+    mu = jnp.asarray(model.mu if width is None else width, dt)
+    cv = jnp.asarray(cos_v, dt)
+    sv = jnp.sqrt(jnp.maximum(1.0 - cv ** 2, 0.0))
+    V = jnp.stack([sv, jnp.zeros_like(sv), cv])
+    R = jnp.stack([-sv, jnp.zeros_like(sv), cv])
+    tt = jnp.asarray([0.0, 0.0, 1.0], dt) - cv * R
+    tn = jnp.linalg.norm(tt)
+    t = jnp.where(tn > 1e-9, tt / jnp.maximum(tn, 1e-12), jnp.asarray([1.0, 0.0, 0.0], dt))
+    y = jnp.cross(R, t)
+    lim_par = jnp.minimum(14.0 * mu, jnp.pi)
+    lim_perp = jnp.minimum(14.0 * mu * jnp.maximum(cv, 0.15), jnp.pi / 2)
+    u = (jnp.arange(n, dtype=dt) + 0.5) / n * 2 - 1
+    ap, aq = jnp.meshgrid(u * lim_par, u * lim_perp, indexing="ij")
+    L = ((jnp.cos(aq) * jnp.cos(ap))[..., None] * R + (jnp.cos(aq) * jnp.sin(ap))[..., None] * t
+         + jnp.sin(aq)[..., None] * y)
+    f = model.brdf_cos(L, jnp.broadcast_to(V, L.shape), conductor).sum(-1)
+    dw = jnp.cos(aq) * (2 * lim_par / n) * (2 * lim_perp / n)
+    K = f / jnp.maximum(jnp.sum(f * dw), 1e-30)
+    return K, ap, aq, dw
+
+
+def tap_kernel(params, mu, ap, aq, mu_min: Float[ArrayLike, ""] = 0.0):
+    """The shader's kernel for tap parameters ``(s, o_1..o_T, l_1..l_T)``: T taps at angles o_j from R
+    along the plane of incidence, weights softmax(l), each the prefilter kernel at width
+    μ_e = max(μ e^s, mu_min) (the environment level the shader reads)."""
+    T = (params.shape[-1] - 1) // 2
+    s, o, l = params[0], params[1:1 + T], params[1 + T:]
+    w = jax.nn.softmax(l)
+    mu_e = jnp.maximum(mu * jnp.exp(s), mu_min)
+    # sin²(α/2) for the angle α between L and tap j: 1 − cos α = 2 sin²(a_perp/2) + 2 cos a_perp sin²(d/2)
+    x = jnp.sin(aq / 2)[None] ** 2 + jnp.cos(aq)[None] * jnp.sin((ap[None] - o[:, None, None]) / 2) ** 2
+    return jnp.einsum("j,jab->ab", w, prefilter_kernel(x, mu_e))
+
+
+@functools.partial(jax.jit, static_argnames=("family", "n"))
+def _lobe_kernels(family, mu, conductor, cos_v, n: int):
+    model = family(mu)
+    return jax.vmap(lambda cv: lobe_kernel(model, conductor, cv, n, width=mu))(cos_v)
+
+
+@jax.jit
+def _fit_scan(K, ap, aq, dw, moments, mu, mu_min):
+    """Least-squares tap fits for a batch of lobes ``K (B, C, n, n)`` (widths ``mu (B,)``), along
+    decreasing cos θv (axis C), each warm-started from the previous one so that the tables are
+    continuous in cos θv and bilinear lookups between entries stay meaningful. ``moments (B, C, 1 + 2T)``:
+    the moment-matched pattern in the same layout, kept where the fit does not beat it."""
+    import optimistix as optx
+
+    solver = optx.LevenbergMarquardt(rtol=1e-5, atol=1e-7)
+    spread = jnp.linspace(-0.25, 0.25, N_TAPS).astype(mu.dtype)
+
+    def one(prev, m, Kc, apc, aqc, dwc, pm):
+        sq = jnp.sqrt(dwc)
+        # warm start, taps pulled apart by ±μ/4: coincident taps (the optimum at normal incidence) are a
+        # saddle the solver cannot leave (their Jacobian columns are equal)
+        p0 = prev.at[1:1 + N_TAPS].add(m * spread)
+
+        def resid(p, _):
+            r = (tap_kernel(p, m, apc, aqc, mu_min) - Kc) * sq
+            return jnp.concatenate([r.ravel(), 1e-3 * p[1 + N_TAPS:]])   # keeps the softmax logits bounded
+        sol = optx.least_squares(resid, solver, p0, max_steps=64, throw=False)
+        p = sol.value
+        err = jnp.sum(jnp.abs(tap_kernel(p, m, apc, aqc, mu_min) - Kc) * dwc)
+        # never worse than the moment-matched binomial pattern (lobe_lut's), which is also the fallback
+        err_m = jnp.sum(jnp.abs(tap_kernel(pm, m, apc, aqc, mu_min) - Kc) * dwc)
+        better = jnp.isfinite(err) & jnp.all(jnp.isfinite(p)) & (err <= err_m)
+        p, err = jnp.where(better, p, pm), jnp.where(better, err, err_m)
+        idx = jnp.argsort(p[1:1 + N_TAPS])                                 # taps ordered by offset
+        p = jnp.concatenate([p[:1], p[1:1 + N_TAPS][idx], p[1 + N_TAPS:][idx]])
+        return p, err, (sol.result == optx.RESULTS.successful) & better
+
+    def step(prev, xs):
+        p, err, ok = jax.vmap(one)(prev, mu, *xs)
+        return p, (p, err, ok)
+    p0 = jnp.zeros((mu.shape[0], 1 + 2 * N_TAPS), mu.dtype)
+    xs = tuple(jnp.moveaxis(x, 1, 0) for x in (K, ap, aq, dw, moments))
+    _, (ps, errs, ok) = jax.lax.scan(step, p0, xs)
+    return ps, errs, ok                                                      # (C, B, ...)
+
+
+def tap_fit(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64, n: int = 32, lobes: tuple = PAPER_LOBES):
+    """Filtered importance sampling pattern of the lobe, fitted per (cos θv, μ) for hiraji and hamon, whose
+    lobes are ``lobes`` (families width ↦ lobe, :func:`jkatana.interactive.lobe_tables.region_lobes`).
+
+    The shader approximates ∫ K(ω) L_env(ω) dω, K the reflected lobe normalised (:func:`lobe_kernel`),
+    by Σ_j w_j L̃_{μ_e}(ω_j): T = :data:`N_TAPS` reads of the environment prefiltered at width μ_e,
+    at directions ω_j rotated from R by o_j in the plane of incidence. This is filtered importance
+    sampling (Křivánek & Colbert 2008, "Real-time Shading with Filtered Importance Sampling"), with the
+    taps, weights and filter width not drawn from the lobe but fitted to it: least squares
+    ∫ (K − Σ_j w_j K_{μ_e}(·, ω_j))² dω (optimistix Levenberg–Marquardt), so the sum has the lobe's
+    skew (off normal incidence the lobe's peak stays near R while its mean moves towards N) and a small
+    bright source inside the lobe (a sun; a softbox edge) receives the lobe's own weight. The
+    moment-matched pattern (:func:`~jkatana.interactive.lobe_tables.moment_taps`) has the lobe's mean and
+    variance but not its skew: too little weight near the peak at oblique view (θv = 55–65°).
+
+    **Returns** ``(cos, taps (2, n_mu, n_cos, 1 + 2T), l1 (2, n_mu, n_cos), ok (2, n_mu, n_cos))``:
+    per model (0 hiraji, 1 hamon), ``taps`` = (s, o_1..o_T, w_1..w_T) with s = log(μ_e/μ), offsets in
+    radians towards N, weights summing to 1; ``l1`` = ∫ |K − fit| dω (0: exact, 2: disjoint), and
+    whether the solver converged.
+    """
+    cos = np.linspace(0.0, 1.0, n_cos)
+    cos_c = np.maximum(cos, 1e-3)[::-1]                     # fit from normal incidence towards grazing
+    dt = conductor.n.dtype
+    mu_min = float(np.min(mus))
+    kern = [_lobe_kernels(family, jnp.asarray(mu, dt), conductor, jnp.asarray(cos_c, dt), n)
+            for family in lobes for mu in mus]
+    K, ap, aq, dw = (jnp.stack([k[i] for k in kern]) for i in range(4))     # (2·n_mu, n_cos, n, n)
+    mu_b = jnp.asarray(np.tile(np.asarray(mus, np.float64), 2), dt)
+    # the moment-matched binomial pattern (1/4, 1/2, 1/4 at mean, mean ± √2 spread; lobe_lut) as logits
+    b = np.asarray(fresnel_basis(conductor, 1).basis)                      # the moments do not depend on it
+    _, _, shape = lobe_lut(conductor, b, mus, n_cos=n_cos, lobes=lobes)     # (2, n_mu, n_cos, 3)
+    moments = moment_taps(shape[:, :, ::-1].reshape(2 * len(mus), n_cos, 3))
+    moments[..., 1 + N_TAPS:] = np.log(moments[..., 1 + N_TAPS:])                # weights as logits
+    ps, errs, good = _fit_scan(K, ap, aq, dw, jnp.asarray(moments, dt), mu_b, jnp.asarray(mu_min, dt))
+    ps = np.asarray(ps, np.float64)[::-1].transpose(1, 0, 2).reshape(2, len(mus), n_cos, -1)
+    w = np.exp(ps[..., 1 + N_TAPS:] - ps[..., 1 + N_TAPS:].max(-1, keepdims=True))
+    taps = np.concatenate([ps[..., :1 + N_TAPS], w / w.sum(-1, keepdims=True)], -1)
+    l1 = np.asarray(errs, np.float64)[::-1].T.reshape(2, len(mus), n_cos)
+    ok = np.asarray(good)[::-1].T.reshape(2, len(mus), n_cos)
+    return cos, taps, l1, ok
+
+
+#: The fitted pattern is used where its filter width μ_e spans at least this many texels of the map.
+MIN_FIT_TEXELS = 2.0
+
+
+def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int) -> np.ndarray:
+    """The fitted taps where the map resolves them, the moment-matched ones elsewhere.
+
+    The fit (:func:`tap_fit`) models each tap as the continuous prefilter kernel of width μ_e; the
+    shader reads a prefiltered equirectangular map of ``height`` rows, bilinearly. Where μ_e is below
+    :data:`MIN_FIT_TEXELS` texels (π/height rad each) the map does not resolve the fitted kernel's
+    shape, and a small bright source (a sun of ~2 texels) lands on whichever texel the fitted offsets
+    happen to hit; the moment pattern, wider, averages over it (the sun-glint view of
+    ``experiments/interactive_agreement.py`` compares both). So per table entry: fitted if
+    μ e^s ≥ MIN_FIT_TEXELS·π/height, else moments.
+    """
+    mu_e = np.asarray(mus, np.float64)[None, :, None] * np.exp(taps[..., 0])
+    use = mu_e >= MIN_FIT_TEXELS * np.pi / height
+    return np.where(use[..., None], taps, moment_taps(spread))
+
+
+#: The functions whose source text keys the tap table (:func:`jkatana.interactive.tables.tap_fit_key`).
+FIT_SOURCES = (reflected_lobe, prefilter_kernel, lobe_kernel, tap_kernel, _lobe_kernels, _fit_scan, tap_fit)
