@@ -4,9 +4,15 @@ Lobes: the solve time of every fitted lobe after compilation (goal ≤ 1 ms per
 region), the cost of a second fit of another table of the same shape (no
 recompilation), the first and second call of ``jkatana fit`` (the second
 reads JAX's persistent compilation cache), and ``compare`` on 6 incidences ×
-all lobes (first and second call). ``--quick`` times the solve of
-:data:`QUICK_LOBES` only (fewer repeats; no second fit, CLI or compare), so
-that the module fits its quick budget.
+all lobes (first and second call). ``--quick`` makes every kind of record
+with fewer repetitions: 5 timed solves per lobe instead of 30, one timed
+call instead of three of the whole region fit, the solver comparison and
+emcee on the hiraji region only, 2000 pixels instead of 10000, one timed
+float32 fit per solver and start; the float32 subprocess runs beside the
+main process (started first, collected last) so that the module uses both
+cores. Each section's CPU seconds (this process; the subprocesses' own)
+are logged and recorded, a load-independent measure of its cost on a
+shared machine.
 
 Every approximation is measured against a reference with error and time side
 by side: solvers against the float64 LM optimum, the fixed-step per-pixel fit
@@ -19,6 +25,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 import time
@@ -64,7 +71,7 @@ def _pixels(P, dtype, seed=0):
     return terms, Y, chi, mu, nm
 
 
-def _float32_worker():
+def _float32_worker(quick: bool = False):
     """Runs in a subprocess with x64 off: float32 region fits (LM, Dogleg; near and far start), pixels."""
     import jax.numpy as jnp
 
@@ -77,15 +84,16 @@ def _float32_worker():
         for start_name, start in (("closed", None), ("far", {"beta": 1e4, "mu": 0.1})):
             f = fit_region(data, solver=solver, start=start, dtype=jnp.float32, per_incidence=False, irls=False)
             t = timeit(lambda: fit_region(data, solver=solver, start=start, dtype=jnp.float32,
-                                          per_incidence=False, irls=False), repeats=3)
+                                          per_incidence=False, irls=False), repeats=1 if quick else 3, warmup=0)
             out[f"{solver}_{start_name}"] = dict(values=f.values, converged=f.converged, reasons=f.reasons,
                                                  time_s=t)
     for P in (2000,):
         terms, Y, chi, mu, nm = _pixels(P, jnp.float32)
         r = fit_pixels(Y, terms, noise=nm)
-        t = timeit(lambda: fit_pixels(Y, terms, noise=nm), repeats=3)
+        t = timeit(lambda: fit_pixels(Y, terms, noise=nm), repeats=1 if quick else 3, warmup=0)
         out["pixels"] = dict(P=P, fits_per_s=P / t["median"], stragglers=r["n_stragglers"],
                              mu=r["mu"].tolist(), scale=r["scale"].tolist(), converged=r["converged"].tolist())
+    out["cpu_s"] = time.process_time()
     print("JSON" + json.dumps(out))
 
 
@@ -113,12 +121,7 @@ def _lobe_campaign(model, seed=0):
     return FitData(pairs[:, 0], pairs[:, 1], y, sig)
 
 
-#: Lobes the quick mode times (the full mode times every lobe of jkatana.fit._model.MODELS).
-QUICK_LOBES = ("beckmann", "two-lobe")
-
-
 def _lobes(quick: bool, rows: list, log) -> None:
-    import os
     import tempfile
     from pathlib import Path
 
@@ -129,33 +132,32 @@ def _lobes(quick: bool, rows: list, log) -> None:
     from jkatana.fit.compare import compare_models
     from jkatana.fit.region import fit_region
 
-    # quick: the two lobes with the most work per solve (Beckmann, two-lobe), no second fit, no CLI, no compare
-    for model in (QUICK_LOBES if quick else MODELS):
+    for model in MODELS:
         data = _lobe_campaign(model)
         t0 = time.perf_counter()
         ref = fit_region(data, model=model, per_incidence=False, robust=False)
         first = time.perf_counter() - t0
-        second = None
-        if not quick:
-            other = _lobe_campaign(model, seed=1)
-            t0 = time.perf_counter()
-            fit_region(other, model=model, per_incidence=False, robust=False)
-            second = time.perf_counter() - t0
+        other = _lobe_campaign(model, seed=1)
+        t0 = time.perf_counter()
+        fit_region(other, model=model, per_incidence=False, robust=False)
+        second = time.perf_counter() - t0
         y = jnp.asarray(data.value)
         w = jnp.asarray(ref.weight)
         terms, spec = ref.terms, ref.spec
         p0 = start_vector(terms, y, w, spec)
         out = solve(terms, y, w, p0, spec=spec)
-        t = timeit(lambda: solve(terms, y, w, p0, spec=spec), repeats=5 if quick else 30)
-        t_start = timeit(lambda: start_vector(terms, y, w, spec), repeats=5 if quick else 30)
+        reps = 5 if quick else 30
+        t = timeit(lambda: solve(terms, y, w, p0, spec=spec), repeats=reps)
+        t_start = timeit(lambda: start_vector(terms, y, w, spec), repeats=reps)
+        t_fit = timeit(lambda: solve(terms, y, w, start_vector(terms, y, w, spec), spec=spec), repeats=reps)
         rows.append(record(B, dict(method=f"lobe {model}: LM solve after compilation", model=model,
                                    n_points=int(data.value.size)), time_s=t, steps=int(out["steps"]),
-                           start_time_s=t_start["median"], goal="<= 1 ms per region fit",
+                           start_time_s=t_start["median"], start_and_solve_time_s=t_fit,
+                           goal="<= 1 ms per region fit",
                            first_fit_region_s=first, second_fit_region_other_table_s=second,
                            converged=bool(ref.converged)))
-        log("lobe", model, "solve", t["median"], "start", t_start["median"], "first", first, "second", second)
-    if quick:
-        return
+        log("lobe", model, "solve", t["median"], "start", t_start["median"], "start+solve", t_fit["median"],
+            "min", t_fit["min"], "first", first, "second", second)
     # jkatana fit, first and second call (fresh persistent compilation cache)
     with tempfile.TemporaryDirectory() as tmp:
         from jkatana.measure.table import MeasurementTable, write_table
@@ -204,7 +206,21 @@ def run(quick: bool) -> list[dict]:
 
     rows = []
     log = lambda *a: print(*a, file=sys.stderr, flush=True)  # noqa: E731
+    # float32 runs with x64 off in its own process, beside this one
+    f32_proc = subprocess.Popen([sys.executable, "-c", "from benchmarks.bench_fit import _float32_worker as w; "
+                                 f"w(quick={quick})"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env={**os.environ, "JAX_ENABLE_X64": "0"})
+    t_f32 = time.perf_counter()
+    cpu = {}
+
+    def section(name, c0):
+        cpu[name] = round(time.process_time() - c0, 2)
+        log("cpu", name, cpu[name])
+        return time.process_time()
+
+    c0 = time.process_time()
     _lobes(quick, rows, log)
+    c0 = section("lobes, CLI (this process's share), compare", c0)
 
     # ---- region fits: solvers after JIT, error vs the LM optimum
     for region in ("hiraji", "hamon"):
@@ -213,7 +229,8 @@ def run(quick: bool) -> list[dict]:
         y = jnp.asarray(np.where(data.usable, data.value, 0.0))
         w = jnp.asarray(ref.weight)
         terms, spec = ref.terms, ref.spec
-        t_cf = timeit(lambda: closed_form_start(terms, y, w, spec), repeats=20)  # jitted
+        reps = 5 if quick else 20
+        t_cf = timeit(lambda: closed_form_start(terms, y, w, spec), repeats=reps)  # jitted
         p_cf = np.asarray(closed_form_start(terms, y, w, spec))
         rows.append(record(B, dict(region=region, method="closed form only", n_points=int(data.usable.sum())),
                            time_s=t_cf, error=dict(max_abs_log_param=float(np.max(np.abs(p_cf - ref.p)))),
@@ -222,17 +239,17 @@ def run(quick: bool) -> list[dict]:
         p0 = closed_form_start(terms, y, w, spec)
         for solver in ("lm", "dogleg", "gn", "jaxopt"):
             out = solve(terms, y, w, p0, spec=spec, solver=solver)
-            t = timeit(lambda: solve(terms, y, w, p0, spec=spec, solver=solver), repeats=20)
+            t = timeit(lambda: solve(terms, y, w, p0, spec=spec, solver=solver), repeats=reps)
             rows.append(record(B, dict(region=region, method=f"solve {solver} from closed form",
                                        n_points=int(data.usable.sum())), time_s=t,
                                error=dict(max_abs_log_param=float(np.max(np.abs(np.asarray(out["p"]) - ref.p)))),
                                reference="float64 optimistix LM optimum", steps=int(out["steps"]),
                                goal="<= 1 ms per region fit"))
             log(region, solver, t["median"], int(out["steps"]))
-        t_full = timeit(lambda: fit_region(data, per_incidence=False), repeats=3)
+        t_full = timeit(lambda: fit_region(data, per_incidence=False), repeats=1 if quick else 3)
         rows.append(record(B, dict(region=region, method="fit_region (noise estimate, prepare, 2 solves, Laplace)"),
                            time_s=t_full))
-        t_pi = timeit(lambda: fit_region(data, per_incidence=True), repeats=3)
+        t_pi = timeit(lambda: fit_region(data, per_incidence=True), repeats=1 if quick else 3)
         rows.append(record(B, dict(region=region, method="fit_region + per-incidence refits"), time_s=t_pi))
         # emcee (a short first run compiles the log-prob; the timed run is the second)
         sample(ref, seed=1, min_steps=100, chunk=100, max_steps=100)
@@ -245,8 +262,9 @@ def run(quick: bool) -> list[dict]:
                            acceptance=d["acceptance_fraction"], long_enough=d["long_enough"],
                            interval_width_95=widths, goal="<= 3 s per region"))
         log(region, "emcee", d["time_s"], widths)
-        if quick and region == "hiraji":
-            continue
+        if quick:  # one region: the hamon region's fits are timed by the float32 comparison's reference
+            break
+    c0 = section("region fits, solvers, emcee", c0)
 
     # ---- per-pixel throughput (200-point pixels), float64, vs per-pixel optimistix LM
     P = 2000 if quick else 10000
@@ -265,7 +283,7 @@ def run(quick: bool) -> list[dict]:
     vsolve = jax.jit(jax.vmap(lambda y, w: solve(terms, y, w, closed_form_start(terms, y, w, spec), spec=spec,
                                                  solver="lm")))
     ref = vsolve(Yr, Wr)
-    t_ref = timeit(lambda: vsolve(Yr, Wr), repeats=3)
+    t_ref = timeit(lambda: vsolve(Yr, Wr), repeats=1 if quick else 3)
     pref = np.asarray(ref["p"])
     err_mu = np.abs(np.log(r["mu"][:Pref]) - pref[:, 1])
     err_s = np.abs(np.log(r["scale"][:Pref]) - pref[:, 0])
@@ -279,15 +297,17 @@ def run(quick: bool) -> list[dict]:
                        time_s=t_ref, fits_per_s=Pref / t_ref["median"]))
     log("pixels", P / t["median"], "fits/s wall,", P / cpu_per_call, "per CPU-s; LM ref", Pref / t_ref["median"])
 
-    # ---- float32 (subprocess, x64 off)
-    t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", "from benchmarks.bench_fit import _float32_worker as w; w()"],
-                          capture_output=True, text=True, env={**__import__("os").environ, "JAX_ENABLE_X64": "0"})
-    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("JSON")]
-    if proc.returncode != 0 or not line:
-        rows.append(record(B, dict(method="float32 (subprocess)"), failed=proc.stderr[-1500:]))
+    c0 = section("pixels", c0)
+
+    # ---- float32 (subprocess started first, x64 off)
+    stdout, stderr = f32_proc.communicate()
+    log("float32 subprocess wall (beside the main process)", time.perf_counter() - t_f32)
+    line = [ln for ln in stdout.splitlines() if ln.startswith("JSON")]
+    if f32_proc.returncode != 0 or not line:
+        rows.append(record(B, dict(method="float32 (subprocess)"), failed=stderr[-1500:]))
         return rows
     f32 = json.loads(line[0][4:])
+    cpu["float32 subprocess"] = round(f32.pop("cpu_s"), 2)
     ref = fit_region(_campaign("hamon", seed=1), per_incidence=False, irls=False)
     for key, v in f32.items():
         if key == "pixels":
@@ -312,5 +332,9 @@ def run(quick: bool) -> list[dict]:
                                   n_off_10pct_flagged=int(np.sum((rel > 0.1) & ~conv))),
                        reference="fit_pixels float64"))
     log("float32 pixels", px["fits_per_s"], float(np.max(rel)))
-    log("subprocess", time.perf_counter() - t0)
+    section("float32 comparison (this process)", c0)
+    rows.append(record(B, dict(method="CPU seconds per section", quick=quick), cpu_s=cpu,
+                       load_avg_1min=os.getloadavg()[0],
+                       note="process CPU time: the wall time of each section on an idle machine is about this "
+                            "(compilation is single-threaded); the CLI subprocesses are not included"))
     return rows

@@ -194,27 +194,72 @@ def test_round_trip_merl_ggx_parameters_within_intervals(tmp_path):
         assert lo <= v <= hi, (name, v, lo, hi)
 
 
-_GAUSSIAN_TAILS = pytest.mark.xfail(reason="the .bsdf tables leave an RMS error of 0.2-0.3 sigma in the tails of "
-                                           "Gaussian-tailed lobes, which can bias the fit by more than its interval",
-                                    strict=False)
-
-
-_MERL_HIRAJI = pytest.mark.xfail(reason="MERL lookup of the paper's hiraji lobe (Fresnel and 1/cos at θi, not θd): "
-                                        "+50 % at θi 55°, θo 68° (RMS 2.1 sigma on the paper's protocol); "
-                                        "fitted chi 1.4 % high", strict=False)
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("kind,model", [(k, m) for k in ("merl", "table") for m in TRUTH
-                                        if (k, m) != ("merl", "hiraji")]
-                         + [pytest.param("merl", "hiraji", marks=_MERL_HIRAJI)]
-                         + [pytest.param("bsdf", m, marks=_GAUSSIAN_TAILS if m in ("hiraji", "hamon", "beckmann")
-                                         else ()) for m in TRUTH])
+@pytest.mark.parametrize("kind,model", [(k, m) for k in ("merl", "bsdf", "table") for m in TRUTH
+                                        if (k, m) != ("merl", "hiraji")])
 def test_round_trip_every_lobe_every_format(kind, model, tmp_path):
+    """Every lobe through every format and back, sliced and fitted: the truth inside the 95 % intervals.
+
+    MERL cannot hold the paper's hiraji lobe (it is not reciprocal; the limit is asserted by
+    :func:`test_merl_holds_the_reciprocal_image_of_the_non_reciprocal_hiraji_lobe`)."""
     fit = _round_trip(kind, model, tmp_path, seed=5)
     for name, v in TRUTH[model].items():
         lo, hi = fit.laplace["ci95"][name]
         assert lo <= v <= hi, (kind, model, name, v, lo, hi)
+
+
+def _protocol_rows():
+    from jkatana.measure.protocol import as_pairs
+
+    pairs = np.asarray(as_pairs(PROTO), np.float64)
+    wi, wo = goniometer_vectors(pairs[:, 0], pairs[:, 1], np.zeros(len(pairs)))
+    return pairs, wi, wo
+
+
+def _error_in_sigma(read, exact, pairs):
+    """Read-back error of f_r in units of the round trips' σ = 5 % ⊕ 1e-3 of the peak of f_r cos θi."""
+    cos_i = np.cos(np.radians(pairs[:, 0]))
+    m = exact * cos_i
+    z = (read - exact) * cos_i / np.sqrt((0.05 * m) ** 2 + (1e-3 * m.max()) ** 2)
+    return float(np.sqrt(np.mean(z * z))), float(np.max(np.abs(z)))
+
+
+@pytest.mark.slow
+def test_merl_holds_the_reciprocal_image_of_the_non_reciprocal_hiraji_lobe():
+    """MERL stores φd over [0, π) only (reciprocity: (ωi, ωo) at φd + π is (ωo, ωi) at φd), so a BRDF with
+    f(ωi, ωo) ≠ f(ωo, ωi) cannot be held. The paper's hiraji lobe is one: f_r = χ D F̄(θi) / cos θi puts
+    Fresnel and 1/cos at θi. In plane, the rows at φd = π read back f(ωo, ωi) — off by
+    cos θi F̄(θo) / (cos θo F̄(θi)), ×1.93 at θi 55°, θo 73° — and every row agrees with f at the pair the
+    format stores to 0.1σ RMS and 2 % relative (the MERL grid's own interpolation)."""
+
+    f = analytic_brdf("hiraji", TRUTH["hiraji"])
+    pairs, wi, wo = _protocol_rows()
+    read = merl.merl_from_function(f).eval(wi, wo, "green")
+    exact, swapped = f(wi, wo)[:, 1], f(wo, wi)[:, 1]
+    folded = np.abs(half_diff(wi, wo)[3]) > np.pi / 2  # in plane: φd = π, stored as the reciprocal pair at 0
+    stored = np.where(folded, swapped, exact)
+    assert folded.any() and (~folded).any()
+    rms, _ = _error_in_sigma(read, exact, pairs)
+    assert rms > 1.0  # the lobe itself does not survive: the limit is real, not interpolation
+    rms, worst = _error_in_sigma(read, stored, pairs)
+    assert rms < 0.1 and worst < 0.3, (rms, worst)
+    big = stored > 1e-3 * stored.max()
+    assert np.max(np.abs(read[big] / stored[big] - 1)) < 0.02
+    g = analytic_brdf("hamon", TRUTH["hamon"])  # the paper's hamon lobe is reciprocal: MERL holds it
+    np.testing.assert_allclose(g(wi, wo), g(wo, wi), rtol=1e-12)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("model", ["beckmann", "hiraji"])
+def test_bsdf_reads_back_gaussian_tailed_lobes_within_a_tenth_sigma(model):
+    """The .bsdf reflectance table at the writer's default resolution holds Gaussian-tailed lobes (the
+    hardest: few warped samples in their tails) within 0.1σ RMS and 0.5σ at worst on the protocol's rows."""
+    f = analytic_brdf(model, TRUTH[model])
+    pairs, wi, wo = _protocol_rows()
+    read = rgl.rgl_from_function(f, lobe_ndf(model, TRUTH[model]), theta_i_deg=PROTO.incidences_deg).eval(
+        wi, wo, "green")
+    rms, worst = _error_in_sigma(read, f(wi, wo)[:, 1], pairs)
+    assert rms < 0.1 and worst < 0.5, (rms, worst)
 
 
 def _cli(module, prefix, argv):

@@ -336,7 +336,7 @@ def write_rgl(brdf: RGLBRDF, path) -> Path:
 
 def rgl_from_function(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray], ndf: Callable[[np.ndarray], np.ndarray],
                       *, theta_i_deg=None, channels=("red", "green", "blue"), ndf_res: int = 257,
-                      vndf_res: int = 129, refl_res: int = 97, description: str = "jkatana analytic BRDF"
+                      vndf_res: int = 129, refl_res: int = 257, description: str = "jkatana analytic BRDF"
                       ) -> RGLBRDF:
     """Tabulate an isotropic analytic BRDF in the RGL layout (module docstring, "Writer").
 
@@ -349,12 +349,17 @@ def rgl_from_function(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray], ndf:
       evaluation interpolates linearly between them.
     - `channels`: names: ``red/green/blue`` (an RGB file, C = 3) or
       wavelengths in nm (a spectral file).
-    - `ndf_res`, `vndf_res`, `refl_res`: table resolutions (square). Lobes
-      with Gaussian tails (the paper's, Beckmann) need these finer tables
-      than the database's 64/32: their tails hold little of the vndf's mass,
-      so few warped samples fall there (measured on the paper's protocol,
-      σ = 5 % ⊕ 1e-3 peak: RMS table error 0.19σ for hiraji, 0.27σ for
-      Beckmann; 0.04σ for GGX).
+    - `ndf_res`, `vndf_res`, `refl_res`: table resolutions (square). The
+      reflectance table sets the accuracy of lobes with Gaussian tails (the
+      paper's, Beckmann): their tails hold little of the vndf's mass, so few
+      warped samples fall there and the reflectance f·4σ/D — which still
+      varies with 1/cos θo and masking towards grazing — is interpolated
+      bilinearly over wide cells. The error falls as the square of the
+      spacing; the ``ndf`` and ``vndf`` resolutions barely matter (on a
+      three-incidence in-plane protocol at σ = 5 % ⊕ 1e-3 peak, Beckmann
+      α = 0.07 reads back within 0.35σ RMS at ``refl_res`` 97, 0.094σ at
+      193, 0.041σ at 257; GGX within 0.011σ at 257), hence the default of
+      257, finer than the database's own tables.
     """
     th_nodes = np.deg2rad(np.arange(0.0, 86.0, 5.0) if theta_i_deg is None
                           else np.sort(np.asarray(theta_i_deg, np.float64)))

@@ -36,8 +36,9 @@ from jkatana.fit._model import MODELS
 from jkatana.fit._solve import residuals
 
 
-def _loio(fit) -> list[float]:
-    """Held-out χ² per point for each incidence (refit on the others)."""
+def _loio(fit, *, solver: str = "lm", max_steps: int = 200) -> list[float]:
+    """Held-out χ² per point for each incidence (refit on the others; the same compiled batch of refits as
+    the fit's per-incidence refits, :func:`jkatana.fit.quality.per_incidence`)."""
     from jkatana.fit.uncertainty import _refits
 
     data, spec = fit.data, fit.spec
@@ -45,7 +46,7 @@ def _loio(fit) -> list[float]:
     y = jnp.asarray(np.where(data.usable, data.value, 0.0), w.dtype)
     masks = np.stack([np.isclose(data.theta_i_deg, inc) & data.usable for inc in data.incidences])
     W_train = w[None, :] * jnp.asarray(~masks, w.dtype)
-    outs = _refits(fit.terms, y, W_train, jnp.asarray(fit.p, w.dtype), spec=spec)
+    outs = _refits(fit.terms, y, W_train, jnp.asarray(fit.p, w.dtype), spec=spec, solver=solver, max_steps=max_steps)
     W_test = w[None, :] * jnp.asarray(masks, w.dtype)
     r = jax.vmap(lambda p, wk: residuals(p, (fit.terms, y, wk, spec)))(outs["p"], W_test)
     r = np.asarray(r, np.float64)
@@ -71,7 +72,7 @@ def compare_models(data, models=None, *, setup=None, **fit_kwargs) -> dict:
         n = int(fit.diagnostics["n_points"])
         k = fit.spec.size
         chi2 = 2.0 * float(fit.diagnostics["cost"])
-        loio = _loio(fit)
+        loio = _loio(fit, solver=fit_kwargs.get("solver", "lm"), max_steps=fit_kwargs.get("max_steps", 200))
         rows.append(dict(model=m, k=k, n=n, chi2=chi2, chi2_dof=fit.diagnostics["chi2_dof"],
                          aic=chi2 + 2 * k, bic=chi2 + k * math.log(n),
                          per_incidence_chi2_dof=[r["chi2_dof"] for r in fit.per_incidence],

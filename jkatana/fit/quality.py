@@ -17,12 +17,11 @@ solver.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jkatana.fit._model import to_natural
-from jkatana.fit._solve import laplace, residuals, solve, start_vector, verdict
+from jkatana.fit._solve import laplace, residuals, verdict
 
 
 def per_incidence(fit, *, solver: str = "lm", max_steps: int = 200, refit: bool = True) -> list[dict]:
@@ -44,14 +43,11 @@ def per_incidence(fit, *, solver: str = "lm", max_steps: int = 200, refit: bool 
                          max_abs_rel=float(np.max(np.abs(m[mk] - data.value[mk])) / peak) if nk else None))
     if not refit:
         return rows
+    from jkatana.fit.uncertainty import _refits
+
+    # the one compiled batch of refits that leave-one-incidence-out (jkatana.fit.compare) also runs
     W = jnp.where(jnp.asarray(masks), w[None, :], 0.0)
-
-    def one(wk):
-        p0 = start_vector(terms, y, wk, spec)
-        p0 = jnp.where(jnp.all(jnp.isfinite(p0)), p0, jnp.asarray(fit.p, w.dtype))
-        return solve(terms, y, wk, p0, spec=spec, solver=solver, max_steps=max_steps)
-
-    outs = jax.vmap(one)(W)
+    outs = _refits(terms, y, W, jnp.asarray(fit.p, w.dtype), spec=spec, solver=solver, max_steps=max_steps)
     outs = {k: np.asarray(v) for k, v in outs.items()}
     for i, row in enumerate(rows):
         o = {k: v[i] for k, v in outs.items()}
