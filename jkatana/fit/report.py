@@ -96,7 +96,9 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
         data, spec, terms, p = _refit_from_params(d, tpath)
         m = np.asarray(green(jnp.asarray(p), terms, spec))
         nz = diag.get("noise") or {}
-        if nz.get("sigma") == "per-row (given)" and data.has_sigma:
+        # the fitter uses a table's per-row σ when it has one; a file without diagnostics (written by the
+        # API) therefore means the table's σ when the table has it
+        if data.has_sigma and nz.get("sigma", "per-row (given)") == "per-row (given)":
             sig = np.where(data.usable, data.sigma, np.inf)
         else:
             noise = NoiseModel(**{k: nz[k] for k in ("relative", "absolute", "shot") if k in nz})

@@ -26,7 +26,7 @@ from jaxtyping import Array, Float
 from jkatana.light.envmap import EnvMap, direction_to_uv
 from jkatana.light.envmap import bilinear_uv as bilinear_equirect_uv  # the one bilinear lookup, under the render name
 from jkatana.light.sampling import EnvSampler
-from jkatana.light.sun import SunSplit, split_compact_sources
+from jkatana.light.sun import SunSplit, cap_solid_angle, split_compact_sources
 
 
 #: Render modes that split compact sources off the map by default (where one exists): the fast
@@ -64,8 +64,8 @@ class Caps(eqx.Module):
         return jnp.sin(0.5 * self.radius) ** 2
 
     def solid_angle(self) -> Float[Array, "K"]:
-        """``Ω = 2π (1 − cos r) = 4π sin²(r/2)`` per cap."""
-        return 4.0 * jnp.pi * self.sin2_half()
+        """Solid angle per cap (:func:`jkatana.light.sun.cap_solid_angle`)."""
+        return cap_solid_angle(self.radius)
 
     def world(self, rotation: Float[Array, "3 3"]) -> Float[Array, "K 3"]:
         """Cap centres in world coordinates for a world → map ``rotation``."""

@@ -165,15 +165,15 @@ def check_lobe_mode(lobes: dict, scene: Scene, mode: str) -> None:
     """One :class:`InputError` line when a region's lobe (not the paper's) cannot be rendered in ``mode``.
 
     :data:`~jkatana.render.plan.LOBE_MODES` render any lobe. The paper's modes keep the paper's estimator
-    (Gaussian-weighted rays within 2.5 μ of the mirror direction: a microfacet lobe's tails would be cut
-    off), and the interactive viewer's taps are fitted to the paper's lobe.
+    (Gaussian-weighted rays within 2.5 μ of the mirror direction), which would cut off a microfacet lobe's
+    tails.
     """
     from jkatana.render.plan import LOBE_MODES
 
     if mode in LOBE_MODES:
         return
-    why = ("is the paper's estimator: Gaussian-weighted rays within 2.5 μ of the mirror direction, which would "
-           "cut off this lobe's tails" if mode.startswith("paper") else "uses taps fitted to the paper's lobe")
+    why = "is the paper's estimator: Gaussian-weighted rays within 2.5 μ of the mirror direction, which would " \
+          "cut off this lobe's tails"
     for region, key in lobes.items():
         if key is not None:
             raise InputError(f"holds a {key[0]!r} lobe, which renders in modes {', '.join(LOBE_MODES)} only "

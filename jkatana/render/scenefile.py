@@ -13,7 +13,7 @@ relative to the scene file)::
     hiraji = "hiraji.json"           # optional: jkatana fit parameter files of any lobe (the paper's,
     hamon = "hamon.json"             #   beckmann, ggx, gtr, two-lobe): their lobe and width (and
                                      #   scale) replace the map's for that region; other lobes than
-                                     #   the paper's render in modes reference and lowrank only
+                                     #   the paper's render in every mode but the paper's two, and in `jkatana view`
     optical_constants = "Fe-Johnson" # shipped name or a refractiveindex.info YAML path
     # calibration = 1.0e5            # K: camera units per unit source radiance → calibrated χ, β;
                                      # omitted → normalised lobes (perfect mirror as μ → 0)
