@@ -63,10 +63,16 @@ def main(quick: bool = False) -> dict:
         drift[m] = [((r.get("refit") or {}).get("values") or {}).get(w, np.nan) / g for r in f.per_incidence]
     incs = result["incidences"]
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.2))
+    # one marker and dash per model: lobes that coincide (the paper's hamon and Beckmann at these widths)
+    # stay visible as overlapping, different symbols
+    marks = ["o", "x", "s", "+", "D", "v"]
+    dashes = ["-", "--", "-.", ":", "-", "--"]
     for i, r in enumerate(result["models"]):
-        ax[0].plot(incs, r["per_incidence_chi2_dof"], "o-", color=f"C{i}", label=r["model"])
-        ax[1].plot(incs, r["loio"], "s--", color=f"C{i}", label=r["model"])
-        ax[2].plot(incs, drift[r["model"]], "^-", color=f"C{i}", label=r["model"])
+        style = dict(color=f"C{i}", marker=marks[i % 6], ls=dashes[i % 6], mfc="none", ms=7 - i % 3,
+                     label=r["model"])
+        ax[0].plot(incs, r["per_incidence_chi2_dof"], **style)
+        ax[1].plot(incs, r["loio"], **style)
+        ax[2].plot(incs, drift[r["model"]], **style)
     for a, title in zip(ax, ("χ²/dof of the global fit", "held-out χ² per point (leave one incidence out)",
                              "per-incidence refit of the width / global width")):
         a.set_xlabel("incidence θi (°)")
