@@ -290,6 +290,19 @@ def test_scene_roundtrip_and_outputs(tmp_path):
     assert im.size == (24, 18) and im.text["jkatana_mode"] == "reference"
 
 
+def test_spectral_output_of_a_mesh(tmp_path):
+    """Spectral output with a mesh (whose G-buffer holds its camera rays lazily): the frame's spectra and
+    its background are written, and the spectra integrate to the frame's XYZ."""
+    from jkatana.render.renderer import prepare, render_view
+
+    text = SMALL.replace('name = "f"', 'name = "f"\nspectral = true').replace("sphere = {radius = 1.0}",
+                                                                          'mesh = "builtin:katana"')
+    frame = render_view(prepare(load_scene(_write(tmp_path, text))))
+    assert frame.spectra is not None and frame.spectra.shape == (18, 24, GRID.size)
+    assert np.isfinite(frame.spectra).all() and frame.spectra.max() > 0
+    np.testing.assert_allclose(frame.spectra @ CMF, frame.xyz, rtol=1e-4, atol=1e-6 * frame.xyz.max())
+
+
 def test_spectral_exr_on_request(tmp_path):
     from jkatana.light.spectral_exr import is_spectral_exr, read_spectral_exr
     from jkatana.render.renderer import prepare, render_view, write_outputs

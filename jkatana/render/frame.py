@@ -211,9 +211,10 @@ def resolve_plan(plan: Plan, mat: Material) -> Plan:
     return dataclasses.replace(plan, fresnel_rank=fresnel_rank_for(mat.ftable) if ok else 0)
 
 
-@functools.lru_cache(maxsize=8)
-def _compiled_background(spectral: bool):
-    return jax.jit(lambda env, d, cmf: background(env, d, cmf, spectral))
+@functools.lru_cache(maxsize=1)
+def _compiled_background_spectral():
+    """The background with its spectra (spectral output); XYZ-only frames use :func:`background_all`."""
+    return jax.jit(lambda env, d, cmf: background(env, d, cmf, True))
 
 
 @functools.lru_cache(maxsize=8)
@@ -360,14 +361,14 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
         raise ValueError(f"supersample must be ≥ 1, got {supersample}")
     plan = dataclasses.replace(plan, subpixels=ss * ss)
     spectral_out = plan.spectral and not plan.factored
-    bg_all = None
+    rays = bg_all = None
     if not spectral_out:
         # every pixel's background, dispatched first: the devices look it up while the host casts the G-buffer
         rays = gb.ray if gb is not None else camera.rays()[1]
         bg_all = background_all(env, rays.reshape(-1, 3), cmf, dtype, n_devices)
     if gb is None:
         gb = gbuffer(geometry, camera)
-        if isinstance(gb, GBuffer) and gb.rays is None:
+        if rays is not None and isinstance(gb, GBuffer) and gb.rays is None:
             gb.rays = rays
     rays0, cast0 = (occluders.rays_cast, occluders.cast_s) if occluders is not None else (0, 0.0)
     H, W = gb.mask.shape
@@ -410,7 +411,7 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
     if bg_all is not None:
         xyz[bg] = np.asarray(bg_all)[:H * W][bg]
     elif bg.any():
-        bx, bs = _compiled_background(True)(env, jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype), jnp.asarray(cmf, dtype))
+        bx, bs = _compiled_background_spectral()(env, jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype), jnp.asarray(cmf, dtype))
         spectra[bg] = np.asarray(bs)
         xyz[bg] = np.asarray(bx)
     t3 = time.perf_counter()
