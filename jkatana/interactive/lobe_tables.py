@@ -21,28 +21,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import dataclasses
 
 from jkatana.interactive.levels import MU_LEVELS
 from jkatana.models import Conductor
-from jkatana.models.lobes import Gaussian, GaussianVCavity, LobeKey, key_params, lobe_key, lobe_with_width
+from jkatana.models.lobes import Gaussian, GaussianVCavity, WidthFamily, key_params, lobe_key
 from jkatana.models.lobes import normalised_params
-
-
-@dataclasses.dataclass(frozen=True)
-class WidthFamily:
-    """A parameter file's lobe as a family width ↦ lobe (:func:`jkatana.models.lobes.lobe_with_width` of its
-    :func:`~jkatana.models.lobes.lobe_shape` key, in the normalised convention as every interactive table):
-    hashable by value, so a jitted table function compiles once per lobe family."""
-
-    key: LobeKey
-
-    def __call__(self, width):
-        return lobe_with_width(self.key, width)
-
-    @property
-    def name(self) -> str:
-        return repr(self.key)
 
 
 #: The paper's lobes (hiraji: Gaussian, eq. 1; hamon: Gaussian V-cavity, eq. 2), normalised, as families

@@ -691,6 +691,23 @@ def lobe_with_width(key: LobeKey, width, dtype=None) -> Lobe:
     return lobe_from_params(params, width.dtype)
 
 
+@dataclasses.dataclass(frozen=True)
+class WidthFamily:
+    """The lobe of a :func:`lobe_shape` key as a family width ↦ lobe (:func:`lobe_with_width`), the form the
+    prefilter and the interactive tables take a lobe in (:data:`jkatana.light.prefilter.LobeFamily`):
+    hashable by value, so a jitted function of it compiles once per lobe family."""
+
+    key: LobeKey
+
+    def __call__(self, width) -> Lobe:
+        return lobe_with_width(self.key, width)
+
+    @property
+    def name(self) -> str:
+        """A stable name (a cache key's part): the key's repr."""
+        return repr(self.key)
+
+
 def normalised_params(params: dict) -> dict:
     """A ``to_params()`` dict with every Gaussian part in the normalised convention (scale N(μ), recomputed;
     the microfacet lobes are normalised already): the lobe a renderer uses without a calibration."""
@@ -705,4 +722,5 @@ def normalised_params(params: dict) -> dict:
 
 
 __all__ = ["LOBES", "Lobe", "LobeKey", "Gaussian", "GaussianVCavity", "Beckmann", "GGX", "GTR", "Mixture", "reflect",
-           "lobe_from_params", "lobe_key", "key_params", "lobe_shape", "lobe_with_width", "normalised_params"]
+           "lobe_from_params", "lobe_key", "key_params", "lobe_shape", "lobe_with_width", "normalised_params",
+           "WidthFamily"]

@@ -27,6 +27,7 @@ from jkatana.light.envmap import EnvMap, direction_to_uv
 from jkatana.light.envmap import bilinear_uv as bilinear_equirect_uv  # the one bilinear lookup, under the render name
 from jkatana.light.sampling import EnvSampler
 from jkatana.light.sun import SunSplit, cap_solid_angle, split_compact_sources
+from jkatana.models.lobes import WidthFamily
 
 
 #: Render modes that split compact sources off the map by default (where one exists): the fast
@@ -240,31 +241,12 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
 
         pre = project(light_prefilter(src, mus).levels)
         if any(key is not None for key in prefilter_lobes):
-            lobe_pre = tuple(() if key is None else project(light_prefilter(src, mus, lobe=_LobeFamily(key)).levels,
+            lobe_pre = tuple(() if key is None else project(light_prefilter(src, mus, lobe=WidthFamily(key)).levels,
                                                             [lobe_albedo(key, m) for m in mus])
                              for key in prefilter_lobes)
     env = Environment(jnp.asarray(coeffs, dtype), jnp.asarray(basis, dtype), jnp.asarray(rot, dtype), sampler,
                       pre, jnp.asarray(np.asarray(mus, np.float64), dtype), caps, lobe_pre)
     return env, factored, resid
-
-
-class _LobeFamily:
-    """μ ↦ the lobe of a :func:`~jkatana.models.lobes.lobe_shape` key at primary width μ
-    (a :data:`jkatana.light.prefilter.LobeFamily`; hashable by its key, so one compilation per key)."""
-
-    def __init__(self, key):
-        self.key = key
-
-    def __call__(self, mu):
-        from jkatana.models.lobes import lobe_with_width
-
-        return lobe_with_width(self.key, mu, jnp.asarray(mu).dtype)
-
-    def __hash__(self):
-        return hash(self.key)
-
-    def __eq__(self, other):
-        return isinstance(other, _LobeFamily) and other.key == self.key
 
 
 def lobe_albedo(key, mu: float) -> float:
@@ -273,7 +255,7 @@ def lobe_albedo(key, mu: float) -> float:
     on its nodes, which resolve the peak)."""
     from jkatana.light.prefilter import kernel_table, lobe_of_width
 
-    x, k = kernel_table(lobe_of_width(_LobeFamily(key), mu))
+    x, k = kernel_table(lobe_of_width(WidthFamily(key), mu))
     return float(4.0 * np.pi * np.trapezoid(k, x))
 
 
