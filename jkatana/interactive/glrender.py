@@ -3,20 +3,26 @@
 Two ways to draw a frame, the same shading (``shaders/shade.glsl``, programs from
 :mod:`jkatana.interactive.glprograms`, tables from :mod:`jkatana.interactive.glstate`):
 
-- **deferred** (headless default): pyrender's forward pass draws the mesh with
-  ``gbuffer.frag`` into one G-buffer target (the unit normal in octahedral
-  coordinates, u, v) and a depth buffer; then one full-screen triangle on the far
-  plane, depth test ``GL_GREATER`` against that depth, runs ``deferred.frag`` once
-  per covered pixel, with the view direction from the camera ray through the pixel. llvmpipe rasterises in 4×4 blocks and runs the fragment shader on every
-  block a triangle touches, so on the dense blade mesh (51k triangles, most a few
-  pixels) a forward shader runs 2–4× per covered pixel; deferred, the expensive
-  shader runs once per pixel and the G-buffer pass costs a few stores per block.
+- **deferred** (headless default): the mesh is drawn with ``gbuffer.frag`` into one
+  G-buffer target (the unit normal in octahedral coordinates, u, v) and a depth
+  buffer; then a convex polygon on the far plane (``cover.vert``: the hull of the
+  drawn chunks' projected boxes), depth test ``GL_GREATER`` against that depth,
+  runs ``deferred.frag`` once per covered pixel, with the view direction from the
+  camera ray through the pixel. llvmpipe rasterises in 4×4 blocks and runs the
+  fragment shader on every block a triangle touches, so on the dense blade mesh
+  (51k triangles, most a few pixels) a forward shader runs 2–4× per covered pixel;
+  deferred, the expensive shader runs once per pixel and the G-buffer pass costs a
+  few stores per block. The G-buffer pass draws, per primitive, only the run of
+  triangles between the first and the last of its chunks (:func:`mesh_chunks`;
+  :func:`build_scene` orders the triangles along the blade) that the view frustum
+  touches: llvmpipe's vertex stage is single-threaded, and a close-up sees a tenth
+  of the blade.
 - **forward** (``mesh.frag``; MSAA frames): shades the rasterised fragments directly.
 
 A deferred frame is :meth:`SampleCountRenderer._forward_pass` (replacing pyrender's):
 G-buffer pass (only depth is cleared: the shading pass reads the G-buffer only
 where this frame wrote depth), shading pass into an RGBA8 renderbuffer, restricted
-to the meshes' projected bounding box, then either the read-back of colour only
+to the cover polygon, then either the read-back of colour only
 (offscreen; pyrender also blits, reads and linearises depth) or a colour blit to
 the window (the Viewer). :meth:`BakedOffscreenRenderer.draw` draws and waits
 without reading back, which is what a window pays. Where a frame's time goes is
@@ -33,6 +39,7 @@ Import this module only after :func:`jkatana.interactive.gl.import_pyrender`
 
 from __future__ import annotations
 
+import ctypes
 import os
 from pathlib import Path
 
@@ -145,21 +152,6 @@ class SampleCountRenderer(Renderer):
         self._gtex = None
         self._main_fb_dims = (None, None)
 
-    def _screen_box(self, scene, w, h):
-        """``(x, y, width, height)`` pixel rectangle holding every mesh's projected world bounding box,
-        or None when a corner lies behind the camera (then the whole viewport is shaded)."""
-        V, P = self._get_camera_matrices(scene)
-        lo, hi = scene.bounds
-        corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-        clip = corners @ (P @ V).T
-        if np.any(clip[:, 3] <= 1e-9):
-            return None
-        ndc = clip[:, :2] / clip[:, 3:4]
-        x0, y0 = np.floor((ndc.min(0) * 0.5 + 0.5) * (w, h)).astype(int) - 1
-        x1, y1 = np.ceil((ndc.max(0) * 0.5 + 0.5) * (w, h)).astype(int) + 1
-        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
-        return (int(x0), int(y0), int(max(x1 - x0, 0)), int(max(y1 - y0, 0)))
-
     def _forward_pass(self, scene, flags, seg_node_map=None):
         """Deferred: G-buffer pass, shading pass, then the read-back (offscreen) or a colour blit to the
         window (on screen); pyrender's forward pass otherwise."""
@@ -201,8 +193,14 @@ class SampleCountRenderer(Renderer):
 
     def _gbuffer_pass(self, scene, flags, w, h):
         """Pass 1: the meshes with ``gbuffer.frag`` into the G-buffer. Only depth is cleared: the shading
-        pass reads the G-buffer only where this frame's depth is < 1, i.e. where this pass wrote it."""
-        from pyrender.constants import ProgramFlags
+        pass reads the G-buffer only where this frame's depth is < 1, i.e. where this pass wrote it.
+
+        Each primitive is drawn as one range of its triangles: from its first to its last chunk
+        (:func:`mesh_chunks`) that the view frustum touches, so a close-up does not run the vertex stage
+        (single-threaded in llvmpipe) on the part of the blade out of the picture. No blending (pyrender
+        enables GL_BLEND with factors ONE, ZERO). The clip-space corners of the drawn chunks' boxes are kept
+        for the shading pass's cover polygon (:meth:`_cover`)."""
+        from pyrender.constants import GLTF, ProgramFlags
 
         GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb_ms)
         GL.glViewport(0, 0, w, h)
@@ -212,26 +210,50 @@ class SampleCountRenderer(Renderer):
         GL.glDepthRange(0.0, 1.0)
         GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
         GL.glDisable(GL.GL_MULTISAMPLE)
+        GL.glDisable(GL.GL_BLEND)
+        GL.glPolygonMode(GL.GL_FRONT_AND_BACK, GL.GL_FILL)
+        GL.glCullFace(GL.GL_BACK)
         V, P = self._get_camera_matrices(scene)
+        PV = np.asarray(P, np.float64) @ np.asarray(V, np.float64)
+        self._cover_corners = []
         program = None
         for node in self._sorted_mesh_nodes(scene):
             if not node.mesh.is_visible:
                 continue
+            pose = scene.get_pose(node)
             for primitive in node.mesh.primitives:
                 program = self._get_primitive_program(primitive, flags, ProgramFlags.USE_MATERIAL)
                 program._bind()
                 program.set_uniform("V", V)
                 program.set_uniform("P", P)
-                self._bind_and_draw_primitive(primitive=primitive, pose=scene.get_pose(node), program=program,
-                                              flags=flags)
-                self._reset_active_textures()
+                program.set_uniform("M", pose)
+                first, count, corners = _visible_range(primitive, PV @ np.asarray(pose, np.float64))
+                self._cover_corners.append(corners)
+                if count == 0:
+                    continue
+                if primitive.material.doubleSided:
+                    GL.glDisable(GL.GL_CULL_FACE)
+                else:
+                    GL.glEnable(GL.GL_CULL_FACE)
+                n_inst = 1 if primitive.poses is None else len(primitive.poses)
+                primitive._bind()
+                if primitive.indices is not None and primitive.mode == GLTF.TRIANGLES:
+                    GL.glDrawElementsInstanced(primitive.mode, 3 * count, GL.GL_UNSIGNED_INT,
+                                               ctypes.c_void_p(12 * first), n_inst)
+                elif primitive.indices is not None:
+                    GL.glDrawElementsInstanced(primitive.mode, primitive.indices.size, GL.GL_UNSIGNED_INT,
+                                               ctypes.c_void_p(0), n_inst)
+                else:
+                    GL.glDrawArraysInstanced(primitive.mode, 0, len(primitive.positions), n_inst)
+                primitive._unbind()
         if program is not None:
             program._unbind()
+        GL.glEnable(GL.GL_CULL_FACE)
 
     def _shading_pass(self, scene, w, h):
         """Pass 2: one full-screen triangle, ``deferred.frag`` once per pixel the G-buffer pass covered,
         into :attr:`_main_fb` (RGBA8, sharing the G-buffer's depth)."""
-        program = self._program_cache.get_program("deferred.vert", "deferred.frag")
+        program = self._program_cache.get_program("cover.vert", "deferred.frag")
         if not program._in_context():
             program._add_to_context()
         program.gbuffer = {"jk_g0": self._gtex[0]}
@@ -242,19 +264,18 @@ class SampleCountRenderer(Renderer):
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthMask(GL.GL_FALSE)
         GL.glDepthFunc(GL.GL_GREATER)          # only where the G-buffer pass drew (its depth < 1)
-        box = self._screen_box(scene, w, h)    # and only inside the meshes' projected bounding box
-        if box is not None:
-            GL.glEnable(GL.GL_SCISSOR_TEST)
-            GL.glScissor(*box)
         GL.glDisable(GL.GL_BLEND)
         GL.glDisable(GL.GL_CULL_FACE)
+        cover = _cover_polygon(getattr(self, "_cover_corners", None) or [], w, h)   # and only inside the cover
         program._bind()
-        self._set_camera_ray_uniforms(program._program_id, scene, w, h)
-        GL.glBindVertexArray(program._vao_id)
-        GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
-        GL.glBindVertexArray(0)
+        pid = program._program_id
+        self._set_camera_ray_uniforms(pid, scene, w, h)
+        if len(cover):
+            GL.glUniform2fv(GL.glGetUniformLocation(pid, "jk_cover"), len(cover), cover)
+            GL.glBindVertexArray(program._vao_id)
+            GL.glDrawArrays(GL.GL_TRIANGLE_FAN, 0, len(cover))
+            GL.glBindVertexArray(0)
         program._unbind()
-        GL.glDisable(GL.GL_SCISSOR_TEST)
         if self._program_cache.state.background:
             self._background_pass(scene, w, h)
         GL.glDepthFunc(GL.GL_LESS)
@@ -319,10 +340,102 @@ class SampleCountRenderer(Renderer):
         return color, None
 
 
+#: Chunks a mesh primitive's triangles are cut into for the G-buffer pass's frustum test and the cover
+#: polygon (:func:`mesh_chunks`).
+N_CHUNKS = 32
+#: Most vertices the cover polygon may have (``cover.vert``'s ``jk_cover`` array); more: a full-screen triangle.
+COVER_MAX = 64
+#: How far the cover polygon reaches beyond the projected chunk boxes, in pixels (rasterisation rounding).
+COVER_MARGIN_PX = 1.5
+_FULL_SCREEN = np.array([[-1.0, -1.0], [3.0, -1.0], [-1.0, 3.0]], np.float32)
+
+
+def mesh_chunks(primitive, n: int = N_CHUNKS) -> tuple[np.ndarray, np.ndarray]:
+    """``(starts, corners)``: the primitive's triangles (in index-buffer order) cut into ``n`` consecutive
+    runs, ``starts`` ``(n + 1,)`` the first triangle of each run (and the count), ``corners`` ``(n, 8, 4)`` the
+    homogeneous corners of each run's axis-aligned bounding box in model space. Cached on the primitive.
+    The runs are compact when the triangles are ordered along the mesh (:func:`build_scene` sorts them)."""
+    cached = getattr(primitive, "_jk_chunks", None)
+    if cached is not None:
+        return cached
+    tri = np.asarray(primitive.indices, np.int64).reshape(-1, 3)
+    pos = np.asarray(primitive.positions, np.float64)
+    n = max(1, min(n, len(tri)))
+    starts = np.linspace(0, len(tri), n + 1).round().astype(np.int64)
+    corners = np.ones((n, 8, 4))
+    for k in range(n):
+        p = pos[tri[starts[k]:starts[k + 1]].ravel()]
+        lo, hi = p.min(0), p.max(0)
+        corners[k, :, :3] = [[(lo, hi)[i >> 2][0], (lo, hi)[(i >> 1) & 1][1], (lo, hi)[i & 1][2]] for i in range(8)]
+    primitive._jk_chunks = (starts, corners)
+    return primitive._jk_chunks
+
+
+def _visible_range(primitive, mvp: np.ndarray) -> tuple[int, int, np.ndarray]:
+    """``(first, count, corners)``: the run of triangles from the first to the last chunk of the primitive
+    whose box is not wholly outside one clip plane of ``mvp`` (model → clip), and those chunks' clip-space
+    box corners ``(k, 8, 4)``. Primitives that are not indexed triangles are drawn whole (their bounds)."""
+    from pyrender.constants import GLTF
+
+    if primitive.indices is None or primitive.mode != GLTF.TRIANGLES:
+        lo, hi = primitive.bounds
+        c = np.array([[(lo, hi)[i >> 2][0], (lo, hi)[(i >> 1) & 1][1], (lo, hi)[i & 1][2], 1.0] for i in range(8)])
+        return 0, 0, (c @ mvp.T)[None]
+    starts, corners = mesh_chunks(primitive)
+    clip = corners @ mvp.T                                        # (n, 8, 4)
+    xyz, w = clip[..., :3], clip[..., 3:]
+    outside = np.any(np.all(xyz < -w, axis=1) | np.all(xyz > w, axis=1), axis=-1)
+    seen = np.flatnonzero(~outside)
+    if len(seen) == 0:
+        return 0, 0, clip[:0]
+    first, last = int(seen[0]), int(seen[-1])
+    return int(starts[first]), int(starts[last + 1] - starts[first]), clip[seen]
+
+
+def _cover_polygon(corners: list, w: int, h: int) -> np.ndarray:
+    """``(m, 2)`` float32 NDC vertices of a convex polygon (a triangle fan) holding every pixel the drawn
+    chunks can cover: the convex hull (scipy's Qhull) of their projected box corners, each edge moved out
+    by :data:`COVER_MARGIN_PX`. A full-screen triangle where a corner lies behind or near the camera's plane
+    (normalised device coordinates beyond ±64) or the hull has more than :data:`COVER_MAX` vertices; empty
+    where nothing was drawn."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    c = np.concatenate([np.reshape(x, (-1, 4)) for x in corners]) if corners else np.zeros((0, 4))
+    if len(c) == 0:
+        return np.zeros((0, 2), np.float32)
+    if np.any(c[:, 3] <= 1e-9):
+        return _FULL_SCREEN
+    ndc = c[:, :2] / c[:, 3:]
+    if np.any(np.abs(ndc) > 64.0):                                 # near the camera's plane: float32 would blur it
+        return _FULL_SCREEN
+    px = (ndc * 0.5 + 0.5) * (w, h)                               # pixel coordinates
+    try:
+        hull = px[ConvexHull(px).vertices]                        # counter-clockwise
+    except (QhullError, ValueError):                               # degenerate (a line or a point)
+        return _FULL_SCREEN
+    if len(hull) > COVER_MAX:
+        return _FULL_SCREEN
+    e = np.roll(hull, -1, axis=0) - hull                          # edge i: hull[i] → hull[i + 1]
+    nrm = np.stack([e[:, 1], -e[:, 0]], -1) / np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-12)
+    n_in, n_out = np.roll(nrm, 1, axis=0), nrm                    # the two edges meeting at vertex i
+    miter = (n_in + n_out) / np.maximum(1.0 + np.sum(n_in * n_out, -1, keepdims=True), 1e-6)   # exact offset
+    grown = hull + COVER_MARGIN_PX * miter
+    return ((grown / (w, h)) * 2.0 - 1.0).astype(np.float32)
+
+
 def build_scene(mesh, view, bg=(0.08, 0.08, 0.09)):
-    """A pyrender Scene with the blade (smooth vertex normals and UVs) and a perspective camera."""
+    """A pyrender Scene with the blade (smooth vertex normals and UVs) and a perspective camera.
+
+    The triangles are reordered along the mesh's longest axis (vertices, normals and UVs unchanged), so
+    that :func:`mesh_chunks`' runs are compact slices of the blade for the G-buffer pass's frustum test."""
     material = pyrender.MetallicRoughnessMaterial(doubleSided=False)
     prim = pyrender.Mesh.from_trimesh(mesh, material=material, smooth=True)
+    for p in prim.primitives:
+        if p.indices is not None:
+            tri = np.asarray(p.indices).reshape(-1, 3)
+            pos = np.asarray(p.positions, np.float64)
+            axis = int(np.argmax(np.ptp(pos, axis=0)))
+            p.indices = tri[np.argsort(pos[tri.astype(np.int64), axis].mean(1), kind="stable")]
     scene = pyrender.Scene(bg_color=np.array([*bg, 1.0]), ambient_light=np.zeros(3))
     scene.add(prim, name="blade")
     cam = pyrender.PerspectiveCamera(yfov=view.yfov, aspectRatio=view.width / view.height,
