@@ -53,35 +53,33 @@ def test_deferred_frame_is_the_forward_frame(glr, closeup):
 
 
 @pytest.mark.gl
-def test_culled_gbuffer_and_cover_polygon_change_no_pixel(glr, monkeypatch):
+def test_culled_gbuffer_pass_changes_no_pixel(glr, monkeypatch):
     """The G-buffer pass draws only the run of triangles from the first to the last chunk in the frustum,
-    and the shading pass covers only the convex hull of the drawn chunks' projected boxes: the frame is the
-    one drawn with the whole mesh and a full-screen triangle, pixel for pixel, in views that see all, part
-    or a sliver of the blade, and one whose camera sits inside the blade's bounds (full-screen fallback)."""
+    and the shading pass is scissored to the drawn chunks' projected boxes: the frame is the one drawn with
+    the whole mesh and an unscissored full-screen triangle, pixel for pixel, in views that see all, part or a
+    sliver of the blade, and one whose camera sits beside it looking along it (no box: a corner is behind)."""
     sc = S.default_scene("sky", 200, 150)
     st = glr.ShadingState(B.cached_bake(sc.radiance, sc.grid, rank=3), sc.refl_map)
-    lo, hi = sc.mesh.bounds
-    inside = S.View(S.look_at(np.array([0.35, -0.02, 0.01]), np.array([0.7, -0.02, 0.0])), np.deg2rad(60.0), 200, 150)
+    beside = S.View(S.look_at(np.array([0.35, -0.02, 0.01]), np.array([0.7, -0.02, 0.0])), np.deg2rad(60.0), 200, 150)
     views = {"demo": sc.view, "closeup": S.closeup_view(sc.mesh, 200, 150),
-             "orbit": S.orbit_views(sc.mesh, 3, 200, 150, distance=0.45)[1], "inside": inside}
+             "orbit": S.orbit_views(sc.mesh, 3, 200, 150, distance=0.45)[1], "beside": beside}
     whole = glr._visible_range
 
     def draw(view, full: bool):
         with monkeypatch.context() as m:
             if full:
                 m.setattr(glr, "_visible_range", lambda p, mvp: (0, len(p.indices), whole(p, mvp)[2]))
-                m.setattr(glr, "_cover_polygon", lambda c, w, h: glr._FULL_SCREEN)
+                m.setattr(glr, "_screen_box", lambda c, w, h: None)
             r = glr.BakedOffscreenRenderer(st, view.width, view.height)
             scene = glr.build_scene(sc.mesh, view)
             frame = r.render(scene, mask=True)
-            rr = r._r._renderer
-            cover = glr._cover_polygon(rr._cover_corners, view.width, view.height)
+            box = glr._screen_box(r._r._renderer._drawn_corners, view.width, view.height)
             mask = r.last_mask.copy()
             r.delete()
-        return frame, mask, cover, scene
+        return frame, mask, box, scene
 
     for name, view in views.items():
-        culled, mask, cover, scene = draw(view, False)
+        culled, mask, box, scene = draw(view, False)
         full, _, _, _ = draw(view, True)
         assert mask.sum() > 50, name
         assert np.array_equal(culled, full), (name, int(np.any(culled != full, -1).sum()))
@@ -90,30 +88,25 @@ def test_culled_gbuffer_and_cover_polygon_change_no_pixel(glr, monkeypatch):
             V = np.linalg.inv(scene.get_pose(scene.main_camera_node))
             P = scene.main_camera_node.camera.get_projection_matrix(view.width, view.height)
             assert glr._visible_range(prim, P @ V)[1] < 0.2 * len(prim.indices)
-        if name == "demo":                        # the cover is far smaller than the screen
-            x, y = ((cover * 0.5 + 0.5) * (view.width, view.height)).T
-            area = 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
-            assert area < 0.5 * view.width * view.height
-        if name == "inside":
-            assert np.array_equal(cover, glr._FULL_SCREEN)
+        assert (box is None) == (name == "beside"), (name, box)
 
 
-def test_cover_polygon_holds_every_projected_corner_with_its_margin(glr):
-    """Every projected box corner lies inside the cover polygon, at least COVER_MARGIN_PX from each edge;
-    a corner behind the camera's plane gives the full-screen triangle; no chunk, no polygon."""
+def test_screen_box_holds_every_projected_corner(glr):
+    """The scissor box holds every projected corner on the screen; a corner behind the camera's plane
+    gives no box (the whole viewport); no chunk drawn, an empty box."""
     rng = np.random.default_rng(3)
     w, h = 320, 240
-    for _ in range(20):
-        c = np.ones((5, 8, 4))
-        c[..., :2] = rng.normal(0.0, 0.6, (5, 8, 2)) * rng.uniform(0.05, 1.0, 2)   # thin or fat clouds
-        c[..., 3] = rng.uniform(0.5, 2.0, (5, 8))
-        c[..., :2] *= c[..., 3:]
-        poly = (glr._cover_polygon([c], w, h).astype(np.float64) * 0.5 + 0.5) * (w, h)
-        pts = (c[..., :2].reshape(-1, 2) / c[..., 3].reshape(-1, 1) * 0.5 + 0.5) * (w, h)
-        e = np.roll(poly, -1, axis=0) - poly
-        nrm = np.stack([e[:, 1], -e[:, 0]], -1) / np.linalg.norm(e, axis=-1, keepdims=True)   # outward (CCW)
-        dist = np.einsum("ek,pek->pe", nrm, poly[None] - pts[:, None])                       # ≥ 0: inside
-        assert dist.min() >= glr.COVER_MARGIN_PX - 1e-3, dist.min()
+    c = np.ones((5, 8, 4))
+    c[..., :2] = rng.normal(0.0, 0.3, (5, 8, 2))
+    c[..., 3] = rng.uniform(0.5, 2.0, (5, 8))
+    c[..., :2] *= c[..., 3:]
+    x, y, bw, bh = glr._screen_box([c], w, h)
+    px = (c[..., :2].reshape(-1, 2) / c[..., 3].reshape(-1, 1) * 0.5 + 0.5) * (w, h)
+    inside = px[(px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)]
+    assert len(inside) > 20
+    assert np.all(inside[:, 0] >= x) and np.all(inside[:, 0] <= x + bw)
+    assert np.all(inside[:, 1] >= y) and np.all(inside[:, 1] <= y + bh)
+    assert bw < w and bh < h                      # and is not the whole screen
     c[0, 0, 3] = -0.1
-    assert np.array_equal(glr._cover_polygon([c], w, h), glr._FULL_SCREEN)
-    assert glr._cover_polygon([], w, h).shape == (0, 2)
+    assert glr._screen_box([c], w, h) is None
+    assert glr._screen_box([], w, h) == (0, 0, 0, 0)

@@ -3,7 +3,7 @@
 pyrender chooses shaders by file name through its renderer's ``ShaderProgramCache`` and binds only its own
 uniforms and 8-bit textures. :class:`BakedProgramCache` (a subclass, installed on the renderer) serves
 jkatana's shaders from :data:`SHADER_DIR` — ``mesh.vert``/``mesh.frag`` (forward), ``gbuffer.frag``,
-``cover.vert``/``deferred.frag`` and ``deferred.vert``/``background.frag`` (deferred) — as :class:`BakedProgram` objects,
+``deferred.vert``/``deferred.frag`` and ``background.frag`` (deferred) — as :class:`BakedProgram` objects,
 whose ``_bind`` also binds jkatana's float textures (:class:`~jkatana.interactive.glstate.ShadingState`, on
 units 8–15, above the ones pyrender allocates from 0) and sets jkatana's uniforms. Every other shader
 pyrender asks for is served from pyrender's own directory. jkatana's static switches (rank, roughness,
@@ -33,7 +33,7 @@ from jkatana.interactive.glstate import ShadingState  # noqa: E402
 
 SHADER_DIR = Path(__file__).parent / "shaders"
 _PYRENDER_SHADERS = Path(pyrender.__file__).parent / "shaders"
-_OWN = {"mesh.vert", "mesh.frag", "gbuffer.frag", "deferred.vert", "cover.vert", "deferred.frag", "background.frag"}
+_OWN = {"mesh.vert", "mesh.frag", "gbuffer.frag", "deferred.vert", "deferred.frag", "background.frag"}
 _UNIT0 = 8
 
 #: Uniforms the fragment shader must expose (checked after linking).

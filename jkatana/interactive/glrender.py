@@ -5,8 +5,8 @@ Two ways to draw a frame, the same shading (``shaders/shade.glsl``, programs fro
 
 - **deferred** (headless default): the mesh is drawn with ``gbuffer.frag`` into one
   G-buffer target (the unit normal in octahedral coordinates, u, v) and a depth
-  buffer; then a convex polygon on the far plane (``cover.vert``: the hull of the
-  drawn chunks' projected boxes), depth test ``GL_GREATER`` against that depth,
+  buffer; then one full-screen triangle on the far plane, scissored to the drawn
+  chunks' projected boxes, depth test ``GL_GREATER`` against that depth,
   runs ``deferred.frag`` once per covered pixel, with the view direction from the
   camera ray through the pixel. llvmpipe rasterises in 4×4 blocks and runs the
   fragment shader on every block a triangle touches, so on the dense blade mesh
@@ -22,7 +22,7 @@ Two ways to draw a frame, the same shading (``shaders/shade.glsl``, programs fro
 A deferred frame is :meth:`SampleCountRenderer._forward_pass` (replacing pyrender's):
 G-buffer pass (only depth is cleared: the shading pass reads the G-buffer only
 where this frame wrote depth), shading pass into an RGBA8 renderbuffer, restricted
-to the cover polygon, then either the read-back of colour only
+to the drawn chunks' projected bounding box, then either the read-back of colour only
 (offscreen; pyrender also blits, reads and linearises depth) or a colour blit to
 the window (the Viewer). :meth:`BakedOffscreenRenderer.draw` draws and waits
 without reading back, which is what a window pays. Where a frame's time goes is
@@ -199,7 +199,7 @@ class SampleCountRenderer(Renderer):
         (:func:`mesh_chunks`) that the view frustum touches, so a close-up does not run the vertex stage
         (single-threaded in llvmpipe) on the part of the blade out of the picture. No blending (pyrender
         enables GL_BLEND with factors ONE, ZERO). The clip-space corners of the drawn chunks' boxes are kept
-        for the shading pass's cover polygon (:meth:`_cover`)."""
+        for the shading pass's scissor box (:func:`_screen_box`)."""
         from pyrender.constants import GLTF, ProgramFlags
 
         GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb_ms)
@@ -215,7 +215,7 @@ class SampleCountRenderer(Renderer):
         GL.glCullFace(GL.GL_BACK)
         V, P = self._get_camera_matrices(scene)
         PV = np.asarray(P, np.float64) @ np.asarray(V, np.float64)
-        self._cover_corners = []
+        self._drawn_corners = []
         program = None
         for node in self._sorted_mesh_nodes(scene):
             if not node.mesh.is_visible:
@@ -228,7 +228,7 @@ class SampleCountRenderer(Renderer):
                 program.set_uniform("P", P)
                 program.set_uniform("M", pose)
                 first, count, corners = _visible_range(primitive, PV @ np.asarray(pose, np.float64))
-                self._cover_corners.append(corners)
+                self._drawn_corners.append(corners)
                 if count == 0:
                     continue
                 if primitive.material.doubleSided:
@@ -253,7 +253,7 @@ class SampleCountRenderer(Renderer):
     def _shading_pass(self, scene, w, h):
         """Pass 2: one full-screen triangle, ``deferred.frag`` once per pixel the G-buffer pass covered,
         into :attr:`_main_fb` (RGBA8, sharing the G-buffer's depth)."""
-        program = self._program_cache.get_program("cover.vert", "deferred.frag")
+        program = self._program_cache.get_program("deferred.vert", "deferred.frag")
         if not program._in_context():
             program._add_to_context()
         program.gbuffer = {"jk_g0": self._gtex[0]}
@@ -266,16 +266,18 @@ class SampleCountRenderer(Renderer):
         GL.glDepthFunc(GL.GL_GREATER)          # only where the G-buffer pass drew (its depth < 1)
         GL.glDisable(GL.GL_BLEND)
         GL.glDisable(GL.GL_CULL_FACE)
-        cover = _cover_polygon(getattr(self, "_cover_corners", None) or [], w, h)   # and only inside the cover
+        box = _screen_box(getattr(self, "_drawn_corners", None) or [], w, h)   # and only inside the drawn box
+        if box is not None:
+            GL.glEnable(GL.GL_SCISSOR_TEST)
+            GL.glScissor(*box)
         program._bind()
-        pid = program._program_id
-        self._set_camera_ray_uniforms(pid, scene, w, h)
-        if len(cover):
-            GL.glUniform2fv(GL.glGetUniformLocation(pid, "jk_cover"), len(cover), cover)
+        self._set_camera_ray_uniforms(program._program_id, scene, w, h)
+        if box is None or box[2] * box[3] > 0:
             GL.glBindVertexArray(program._vao_id)
-            GL.glDrawArrays(GL.GL_TRIANGLE_FAN, 0, len(cover))
+            GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
             GL.glBindVertexArray(0)
         program._unbind()
+        GL.glDisable(GL.GL_SCISSOR_TEST)
         if self._program_cache.state.background:
             self._background_pass(scene, w, h)
         GL.glDepthFunc(GL.GL_LESS)
@@ -340,14 +342,12 @@ class SampleCountRenderer(Renderer):
         return color, None
 
 
-#: Chunks a mesh primitive's triangles are cut into for the G-buffer pass's frustum test and the cover
-#: polygon (:func:`mesh_chunks`).
+#: Chunks a mesh primitive's triangles are cut into for the G-buffer pass's frustum test and the shading
+#: pass's scissor box (:func:`mesh_chunks`).
 N_CHUNKS = 32
-#: Most vertices the cover polygon may have (``cover.vert``'s ``jk_cover`` array); more: a full-screen triangle.
-COVER_MAX = 64
-#: How far the cover polygon reaches beyond the projected chunk boxes, in pixels (rasterisation rounding).
-COVER_MARGIN_PX = 1.5
-_FULL_SCREEN = np.array([[-1.0, -1.0], [3.0, -1.0], [-1.0, 3.0]], np.float32)
+#: Slabs along the mesh's longest axis that :func:`build_scene` orders the triangles by; within a slab the
+#: mesh's own order (its strips) is kept, so that the vertex stage's cache still finds shared vertices.
+SORT_SLABS = 4 * N_CHUNKS
 
 
 def mesh_chunks(primitive, n: int = N_CHUNKS) -> tuple[np.ndarray, np.ndarray]:
@@ -392,42 +392,28 @@ def _visible_range(primitive, mvp: np.ndarray) -> tuple[int, int, np.ndarray]:
     return int(starts[first]), int(starts[last + 1] - starts[first]), clip[seen]
 
 
-def _cover_polygon(corners: list, w: int, h: int) -> np.ndarray:
-    """``(m, 2)`` float32 NDC vertices of a convex polygon (a triangle fan) holding every pixel the drawn
-    chunks can cover: the convex hull (scipy's Qhull) of their projected box corners, each edge moved out
-    by :data:`COVER_MARGIN_PX`. A full-screen triangle where a corner lies behind or near the camera's plane
-    (normalised device coordinates beyond ±64) or the hull has more than :data:`COVER_MAX` vertices; empty
-    where nothing was drawn."""
-    from scipy.spatial import ConvexHull, QhullError
-
+def _screen_box(corners: list, w: int, h: int) -> tuple[int, int, int, int] | None:
+    """``(x, y, width, height)`` pixel rectangle holding the projected clip-space box corners of the drawn
+    chunks (:func:`_visible_range`), one pixel wider on each side; ``(0, 0, 0, 0)`` where nothing was drawn;
+    None (the whole viewport) where a corner lies behind the camera's plane."""
     c = np.concatenate([np.reshape(x, (-1, 4)) for x in corners]) if corners else np.zeros((0, 4))
     if len(c) == 0:
-        return np.zeros((0, 2), np.float32)
+        return (0, 0, 0, 0)
     if np.any(c[:, 3] <= 1e-9):
-        return _FULL_SCREEN
-    ndc = c[:, :2] / c[:, 3:]
-    if np.any(np.abs(ndc) > 64.0):                                 # near the camera's plane: float32 would blur it
-        return _FULL_SCREEN
-    px = (ndc * 0.5 + 0.5) * (w, h)                               # pixel coordinates
-    try:
-        hull = px[ConvexHull(px).vertices]                        # counter-clockwise
-    except (QhullError, ValueError):                               # degenerate (a line or a point)
-        return _FULL_SCREEN
-    if len(hull) > COVER_MAX:
-        return _FULL_SCREEN
-    e = np.roll(hull, -1, axis=0) - hull                          # edge i: hull[i] → hull[i + 1]
-    nrm = np.stack([e[:, 1], -e[:, 0]], -1) / np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-12)
-    n_in, n_out = np.roll(nrm, 1, axis=0), nrm                    # the two edges meeting at vertex i
-    miter = (n_in + n_out) / np.maximum(1.0 + np.sum(n_in * n_out, -1, keepdims=True), 1e-6)   # exact offset
-    grown = hull + COVER_MARGIN_PX * miter
-    return ((grown / (w, h)) * 2.0 - 1.0).astype(np.float32)
+        return None
+    ndc = np.clip(c[:, :2] / c[:, 3:], -2.0, 2.0)
+    x0, y0 = np.floor((ndc.min(0) * 0.5 + 0.5) * (w, h)).astype(int) - 1
+    x1, y1 = np.ceil((ndc.max(0) * 0.5 + 0.5) * (w, h)).astype(int) + 1
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+    return (int(x0), int(y0), int(max(x1 - x0, 0)), int(max(y1 - y0, 0)))
 
 
 def build_scene(mesh, view, bg=(0.08, 0.08, 0.09)):
     """A pyrender Scene with the blade (smooth vertex normals and UVs) and a perspective camera.
 
-    The triangles are reordered along the mesh's longest axis (vertices, normals and UVs unchanged), so
-    that :func:`mesh_chunks`' runs are compact slices of the blade for the G-buffer pass's frustum test."""
+    The triangles are reordered by slab along the mesh's longest axis (:data:`SORT_SLABS`; vertices, normals
+    and UVs unchanged), so that :func:`mesh_chunks`' runs are compact slices of the blade for the G-buffer
+    pass's frustum test."""
     material = pyrender.MetallicRoughnessMaterial(doubleSided=False)
     prim = pyrender.Mesh.from_trimesh(mesh, material=material, smooth=True)
     for p in prim.primitives:
@@ -435,7 +421,9 @@ def build_scene(mesh, view, bg=(0.08, 0.08, 0.09)):
             tri = np.asarray(p.indices).reshape(-1, 3)
             pos = np.asarray(p.positions, np.float64)
             axis = int(np.argmax(np.ptp(pos, axis=0)))
-            p.indices = tri[np.argsort(pos[tri.astype(np.int64), axis].mean(1), kind="stable")]
+            x = pos[tri.astype(np.int64), axis].mean(1)
+            slab = np.floor((x - x.min()) / max(np.ptp(x), 1e-30) * SORT_SLABS).clip(0, SORT_SLABS - 1)
+            p.indices = tri[np.argsort(slab, kind="stable")]
     scene = pyrender.Scene(bg_color=np.array([*bg, 1.0]), ambient_light=np.zeros(3))
     scene.add(prim, name="blade")
     cam = pyrender.PerspectiveCamera(yfov=view.yfov, aspectRatio=view.width / view.height,

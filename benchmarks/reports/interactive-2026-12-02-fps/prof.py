@@ -1,4 +1,5 @@
-"""CPU ms per 800x600 frame (process CPU time, llvmpipe threads included) per view, per shader variant.
+"""CPU ms per 800x600 frame (process CPU time, llvmpipe threads included) per view, per variant: a shader
+directory, or old:DIR for the committed glrender ($OLD_GLRENDER) with that directory.
 
 usage: prof.py VARIANT_DIR[,VARIANT_DIR...] [--cfg k=v ...]
 Each variant is a shader directory (A/B in one process, alternated, min over rounds of the per-round median)."""
@@ -42,12 +43,9 @@ for vn in views_wanted:
             r.draw(scene)
         rs.append((d, r, scene))
     res = {d: [] for d in dirs}
-    for _ in range(ROUNDS):
+    for _ in range(ROUNDS * N):                   # variants alternate frame by frame
         for d, r, scene in rs:
-            ts = []
-            for _ in range(N):
-                c = time.process_time(); r.draw(scene); ts.append(time.process_time() - c)
-            res[d].append(np.median(ts))
+            c = time.process_time(); r.draw(scene); res[d].append(time.process_time() - c)
     frames = [r.render(scene) for d, r, scene in rs]
     for d, r, scene in rs:
         r.delete()
@@ -55,5 +53,5 @@ for vn in views_wanted:
         diff = np.abs(f.astype(int) - frames[0].astype(int)).max(-1)
         print(f"{vn:8s} {d}: frame vs {dirs[0]}: {(diff > 0).sum()} px differ, max {diff.max()}")
     for d in dirs:
-        out[(vn, d)] = 1e3 * min(res[d])
-        print(f"{vn:8s} {os.path.basename(d.rstrip('/')):14s} cpu {1e3*min(res[d]):6.2f} ms/frame (rounds {', '.join(f'{1e3*x:.1f}' for x in res[d])})  load {os.getloadavg()[0]:.2f}", flush=True)
+        x = 1e3 * np.asarray(res[d])
+        print(f"{vn:8s} {d:34s} cpu p10 {np.percentile(x, 10):6.2f}  p25 {np.percentile(x, 25):6.2f}  median {np.median(x):6.2f} ms/frame ({len(x)} frames)  load {os.getloadavg()[0]:.2f}", flush=True)
