@@ -13,6 +13,11 @@ sun left in the prefiltered map.
 Cases (each on both views); all but ``forward`` and ``msaa4`` use deferred shading (a G-buffer pass,
 then the shader once per covered pixel, see :mod:`jkatana.interactive.glrender`):
 
+- ``default``: what a user gets — :class:`~jkatana.interactive.glstate.ShadingState`'s defaults (today
+  rank 2, roughness, blend map, three fitted taps, the caps split off), whatever they become; the
+  per-view table printed at the end (and ``python -m benchmarks.bench_interactive --defaults``, this case
+  alone on the three views) gives its fps, CPU time and ΔE2000 against the agreement bar (mean ≤ 1,
+  p95 ≤ 2.5);
 - ``full``: rank 3, roughness (prefiltered μ levels), blend map, three fitted taps;
   ``rank2``: the same at rank 2 — the default of ``jkatana view`` and of ``ShadingState``;
 - ``forward``: ``full`` shaded in the forward pass (the shader on every fragment llvmpipe rasterises:
@@ -75,6 +80,7 @@ from benchmarks._harness import machine_facts, record, timeit
 from validation import gl_agreement as A
 
 CONFIGS = {
+    "default": dict(samples=0),
     "full": dict(rank=3, rough=True, blend=True, two_tap=True, samples=0),
     "forward": dict(rank=3, rough=True, blend=True, two_tap=True, samples=0, deferred=False),
     "rank1": dict(rank=1, rough=True, blend=True, two_tap=True, samples=0),
@@ -93,10 +99,13 @@ CONFIGS = {
 REF_SAMPLES = 256
 #: cases skipped in quick mode (per view)
 QUICK_SKIP = {"demo": {"msaa4", "env_f16", "gbuffer_f16", "forward"}, "closeup": {"msaa4", "gbuffer_f16"},
-              "glint_sunrise": set(CONFIGS) - {"full", "rank2", "one_tap", "five_tap"}}
+              "glint_sunrise": set(CONFIGS) - {"default", "full", "rank2", "one_tap", "five_tap"}}
+#: the agreement bar every view must meet at the defaults (ΔE2000 mean, p95)
+BAR = (1.0, 2.5)
 #: cases run on each view (the sun-glint view: the shading switches that matter for a cap, and the unsplit map)
 VIEW_CONFIGS = {"demo": CONFIGS, "closeup": CONFIGS,
-                "glint_sunrise": {**{k: CONFIGS[k] for k in ("full", "rank2", "one_tap", "five_tap", "no_rough")},
+                "glint_sunrise": {**{k: CONFIGS[k] for k in ("default", "full", "rank2", "one_tap", "five_tap",
+                                                             "no_rough")},
                                   "full_no_split": {**CONFIGS["full"], "split_sun": False}}}
 
 
@@ -156,7 +165,28 @@ def _viewer_fps(frames: int, closeup: bool, size=(800, 600), drag_scale: float =
             "fps": float(m.group(3)), "draw_s": float(m.group(5)) * 1e-3}
 
 
-def run(quick: bool = False) -> list[dict]:
+def _state_kwargs(cfg: dict) -> dict:
+    """ShadingState keyword arguments of a case: only what it sets (the ``default`` case sets nothing)."""
+    keys = ("rank", "rough", "blend", "two_tap", "taps")
+    return {k: cfg[k] for k in keys if k in cfg}
+
+
+def defaults_table(rows: list[dict]) -> str:
+    """The ``default`` case per view: drawn ms and fps, CPU ms per frame, ΔE2000 against the bar, load."""
+    lines = ["| view | drawn ms | fps | CPU ms/frame | ΔE2000 mean | p95 | within bar | load |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if r.get("case", {}).get("config") != "default" or "error" not in r:
+            continue
+        e = r["error"]
+        ok = e["dE00_mean"] <= BAR[0] and e["dE00_p95"] <= BAR[1]
+        lines.append(f"| {r['case']['view']} | {1e3 * r['time_s']['median']:.1f} | {r['fps']:.1f} | "
+                     f"{1e3 * r['cpu_s']:.1f} | {e['dE00_mean']:.2f} | {e['dE00_p95']:.2f} | {'yes' if ok else 'NO'} | "
+                     f"{r['loadavg_1min']:.1f} |")
+    return "\n".join(lines)
+
+
+def run(quick: bool = False, defaults_only: bool = False) -> list[dict]:
     from jkatana.interactive import glrender as G      # first: it chooses the GL platform (EGL)
     from jkatana.interactive import scene as S
     from jkatana.interactive.bake import cached_bake
@@ -194,12 +224,11 @@ def run(quick: bool = False) -> list[dict]:
         ref_s = time.perf_counter() - t
         _log(f"{vname}: reference {small.width}×{small.height} ({fr.mask.sum()} px) in {ref_s:.1f} s")
         for cname, cfg in VIEW_CONFIGS[vname].items():
-            if quick and cname in QUICK_SKIP.get(vname, ()):
+            if (quick and cname in QUICK_SKIP.get(vname, ())) or (defaults_only and cname != "default"):
                 continue
             tables = baked_sun[cfg.get("split_sun", True)] if vname == "glint_sunrise" else baked
             gbuffer_format = formats[cfg.get("gbuffer_format", "RGBA32F")]
-            st = G.ShadingState(tables, sc.refl_map, rank=cfg["rank"], rough=cfg["rough"], blend=cfg["blend"],
-                                two_tap=cfg["two_tap"], taps=cfg.get("taps", 3), exposure=exposure,
+            st = G.ShadingState(tables, sc.refl_map, **_state_kwargs(cfg), exposure=exposure,
                                 env_format=formats[cfg.get("env_format", "RGBA32F")])
             r = G.BakedOffscreenRenderer(st, view.width, view.height, samples=cfg["samples"],
                                          deferred=cfg.get("deferred"), gbuffer_format=gbuffer_format)
@@ -224,7 +253,7 @@ def run(quick: bool = False) -> list[dict]:
                  f"{1e3 * readback['median']:5.1f} ms ({1 / readback['median']:5.1f} fps)  cpu "
                  f"{1e3 * cpu_s:5.1f} ms/frame  ΔE mean {err['dE00_mean']:.2f} p95 {err['dE00_p95']:.2f}  "
                  f"(load {load:.1f})")
-            rows.append(record("bench_interactive", {"view": vname, "config": cname, **cfg,
+            rows.append(record("bench_interactive", {"view": vname, "config": cname, **cfg, "rank": st.rank,
                                                      "width": view.width, "height": view.height,
                                                      "caps": tables.n_caps},
                                time_s=drawn, error=err,
@@ -240,6 +269,10 @@ def run(quick: bool = False) -> list[dict]:
             if stages:
                 _log(f"{vname:8s} {cname:11s} stages (glFinish after each): "
                      + ", ".join(f"{k[:-2]} {1e3 * v:.2f} ms" for k, v in stages.items()))
+    _log("the defaults per view (800×600; ΔE2000 at " + f"{err_res[0]}×{err_res[1]}):\n" + defaults_table(rows))
+    if defaults_only:
+        rows.append(record("bench_interactive", {"machine": True}, **machine_facts()))
+        return rows
     # what the CPU time per blade pixel says about the texture fetches: rank 4 − rank 1 is 9 more
     # trilinear environment fetches per pixel (3 taps × 3 ranks)
     by = {(r_["case"]["view"], r_["case"]["config"]): r_ for r_ in rows}
@@ -287,3 +320,7 @@ def run(quick: bool = False) -> list[dict]:
                            platform="GLX on Xvfb (llvmpipe)"))
     rows.append(record("bench_interactive", {"machine": True}, **machine_facts()))
     return rows
+
+
+if __name__ == "__main__":          # python -m benchmarks.bench_interactive [--quick] [--defaults]
+    run(quick="--quick" in sys.argv, defaults_only="--defaults" in sys.argv)
