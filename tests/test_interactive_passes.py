@@ -110,3 +110,24 @@ def test_screen_box_holds_every_projected_corner(glr):
     c[0, 0, 3] = -0.1
     assert glr._screen_box([c], w, h) is None
     assert glr._screen_box([], w, h) == (0, 0, 0, 0)
+
+
+@pytest.mark.gl
+def test_instanced_primitive_is_drawn_whole(glr):
+    """A primitive with instance poses is not chunk-culled (its chunks' boxes ignore the instances): both
+    instances are drawn, so a second copy of the blade moved up adds pixels."""
+    sc = S.default_scene("sky", 160, 120)
+    st = glr.ShadingState(B.cached_bake(sc.radiance, sc.grid, rank=3), sc.refl_map)
+    counts = []
+    for instanced in (False, True):
+        scene = glr.build_scene(sc.mesh, sc.view)
+        prim = next(iter(scene.mesh_nodes)).mesh.primitives[0]
+        if instanced:
+            up = np.eye(4)
+            up[1, 3] = 0.03
+            prim.poses = np.stack([np.eye(4), up])
+        r = glr.BakedOffscreenRenderer(st, 160, 120)
+        r.render(scene, mask=True)
+        counts.append(int(r.last_mask.sum()))
+        r.delete()
+    assert counts[0] > 100 and counts[1] > 1.3 * counts[0], counts

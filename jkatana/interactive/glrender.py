@@ -200,7 +200,7 @@ class SampleCountRenderer(Renderer):
         (single-threaded in llvmpipe) on the part of the blade out of the picture. No blending (pyrender
         enables GL_BLEND with factors ONE, ZERO). The clip-space corners of the drawn chunks' boxes are kept
         for the shading pass's scissor box (:func:`_screen_box`)."""
-        from pyrender.constants import GLTF, ProgramFlags
+        from pyrender.constants import ProgramFlags
 
         GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb_ms)
         GL.glViewport(0, 0, w, h)
@@ -237,7 +237,7 @@ class SampleCountRenderer(Renderer):
                     GL.glEnable(GL.GL_CULL_FACE)
                 n_inst = 1 if primitive.poses is None else len(primitive.poses)
                 primitive._bind()
-                if primitive.indices is not None and primitive.mode == GLTF.TRIANGLES:
+                if count > 0:                       # a run of indexed triangles
                     GL.glDrawElementsInstanced(primitive.mode, 3 * count, GL.GL_UNSIGNED_INT,
                                                ctypes.c_void_p(12 * first), n_inst)
                 elif primitive.indices is not None:
@@ -374,13 +374,14 @@ def mesh_chunks(primitive, n: int = N_CHUNKS) -> tuple[np.ndarray, np.ndarray]:
 def _visible_range(primitive, mvp: np.ndarray) -> tuple[int, int, np.ndarray]:
     """``(first, count, corners)``: the run of triangles from the first to the last chunk of the primitive
     whose box is not wholly outside one clip plane of ``mvp`` (model → clip), and those chunks' clip-space
-    box corners ``(k, 8, 4)``. Primitives that are not indexed triangles are drawn whole (their bounds)."""
+    box corners ``(k, 8, 4)``. Primitives that are not single-instance indexed triangles are drawn whole:
+    count -1, and the corners of their bounds (pyrender's, which hold the instances)."""
     from pyrender.constants import GLTF
 
-    if primitive.indices is None or primitive.mode != GLTF.TRIANGLES:
+    if primitive.indices is None or primitive.mode != GLTF.TRIANGLES or primitive.poses is not None:
         lo, hi = primitive.bounds
         c = np.array([[(lo, hi)[i >> 2][0], (lo, hi)[(i >> 1) & 1][1], (lo, hi)[i & 1][2], 1.0] for i in range(8)])
-        return 0, 0, (c @ mvp.T)[None]
+        return 0, -1, (c @ mvp.T)[None]
     starts, corners = mesh_chunks(primitive)
     clip = corners @ mvp.T                                        # (n, 8, 4)
     xyz, w = clip[..., :3], clip[..., 3:]
