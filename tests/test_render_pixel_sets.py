@@ -106,6 +106,29 @@ def test_pixel_estimate_is_unbiased_and_less_noisy():
     assert np.median(v_new / v_old) < 0.7, v_new / v_old
 
 
+@pytest.mark.parametrize("n_env", [0, 1, 12])
+def test_estimate_is_unbiased_for_any_number_of_environment_samples(n_env):
+    """The balance heuristic with sample counts: 4 lobe samples beside 0, 1 or 12 environment samples per
+    subpixel all have the converged mean (z-scores over seeds); ``env_samples=None`` is one per lobe sample."""
+    rng = np.random.default_rng(5)
+    n_pix, seeds = 4, 192
+    mat, env, px = _scene(n_pix, rng)
+    ids = _ids(n_pix)
+    keys = jax.random.split(jax.random.PRNGKey(7), seeds)
+    est = np.asarray(_shader(Plan(samples=4, env_samples=n_env, subpixels=S, fresnel_rank=0), mat, env, px, ids)(
+        keys))[..., 1]
+    ref = np.asarray(_shader(Plan(samples=4096, fresnel_rank=0), mat, env, px, None)(keys[:2])).mean(0)[..., 1]
+    zz = (est.mean(0) - ref) / (est.std(0, ddof=1) / np.sqrt(seeds) + 1e-3 * ref)
+    assert np.all(np.abs(zz) < 5.0), zz
+    assert np.mean(zz**2) < 3.0, zz
+    if n_env == 1:  # a different count is a different estimator: it must not be the default's
+        same = np.asarray(_shader(Plan(samples=4, subpixels=S, fresnel_rank=0), mat, env, px, ids)(keys[:4]))
+        explicit = np.asarray(_shader(Plan(samples=4, env_samples=4, subpixels=S, fresnel_rank=0), mat, env, px,
+                                      ids)(keys[:4]))
+        np.testing.assert_array_equal(same, explicit)
+        assert not np.allclose(est[:4], same[..., 1], rtol=1e-6)
+
+
 def test_frame_is_independent_of_chunking_and_devices():
     """With pixel ids the scramble depends on the frame seed and the pixel only: chunk size and device
     count do not change the frame; the seed does."""

@@ -29,11 +29,19 @@ class Plan:
     **Fields:**
 
     - `mode`: one of :data:`MODES` (``"paper-published"``: the paper's rays on the whole map, no cap).
-    - `samples`: lobe samples per pixel (``"reference"``/``"lowrank"``: pairs of
-      one lobe sample and one environment sample; ``"paper"``: jittered rays).
+    - `samples`: lobe samples per pixel (``"reference"``/``"lowrank"``: beside
+      `env_samples` environment samples, by default as many; ``"paper"``: jittered rays).
     - `hiraji`, `hamon`: whether any pixel has w > 0 / w < 1.
     - `mirror`: hiraji treated as a perfect mirror (μ0 < MIRROR_MU everywhere).
     - `env_sampling`: importance-sample the environment too (MIS).
+    - `env_samples`: environment samples per G-buffer sample in the MIS modes
+      (``None``: ``samples``, one environment sample beside each lobe sample).
+      The two strategies are combined by the balance heuristic with sample
+      counts (Veach & Guibas 1995, §3: ``w_i = n_i p_i / Σ_k n_k p_k``), so any
+      count ≥ 0 keeps the estimator unbiased; the best ratio depends on how
+      much of the integrand each strategy finds (a lobe much narrower than
+      the map's bright regions: fewer; a map whose power sits in small bright
+      regions: more).
     - `factored`: shade in the environment's spectral basis (rank = its channels).
     - `fresnel_rank`: ``R > 0``: shade with the Fresnel factor folded into the
       environment (:func:`~jkatana.render.fresnel_fold.fold_fresnel`: per sample a ``3R``-channel lookup and
@@ -83,6 +91,7 @@ class Plan:
     hamon: bool = True
     mirror: bool = False
     env_sampling: bool = True
+    env_samples: int | None = None
     factored: bool = False
     fresnel_rank: int | None = None
     lights: int = 0
@@ -93,6 +102,13 @@ class Plan:
     visibility: bool = False
     subpixels: int = 1
     cap_rule: str | None = None  # "nodes" | "stroud" (split caps, prefiltered/paper modes); None: chosen per frame
+
+    @property
+    def n_env(self) -> int:
+        """Environment samples per G-buffer sample of the MIS modes (0 without environment sampling)."""
+        if not self.env_sampling:
+            return 0
+        return self.samples if self.env_samples is None else int(self.env_samples)
 
 
 class Light(NamedTuple):

@@ -70,21 +70,24 @@ def mis_offset(key, P, dtype, plan: Plan | None = None, ids: PixelIds | None = N
     return jax.random.bits(key, (P, 5), jnp.uint32)
 
 
-def sample_index(plan: Plan, ids: PixelIds | None, k):
+def sample_index(plan: Plan, ids: PixelIds | None, k, n: int | None = None):
     """Index of the k-th sample of each G-buffer sample in its pixel's sequence: ``k`` (scalar), or
     ``(P,)`` per subpixel (subpixel ``s`` takes indices ``s·N … s·N + N − 1``: for ``N`` a power of two each
-    block is a (0, m, 2)-net and their union the full prefix)."""
+    block is a (0, m, 2)-net and their union the full prefix). ``n``: the strategy's samples per G-buffer
+    sample ``N`` (default ``plan.samples``)."""
     k = jnp.asarray(k, jnp.int32)
     if not per_pixel(plan, ids):
         return k
     sub = ids.subpixel.astype(jnp.int32)
-    return sub * plan.samples + k
+    return sub * (plan.samples if n is None else n) + k
 
 
-def uniforms(plan: Plan, offset, k, dtype, ids: PixelIds | None = None):
-    """The k-th point per pixel: ``(mix, lobe u1, lobe u2, env (P, 2))``."""
-    idx = sample_index(plan, ids, k)
-    n = plan.samples * (plan.subpixels if per_pixel(plan, ids) else 1)
+def uniforms(plan: Plan, offset, k, dtype, ids: PixelIds | None = None, n: int | None = None):
+    """The k-th point per pixel: ``(mix, lobe u1, lobe u2, env (P, 2))``, for a strategy of ``n`` samples
+    per G-buffer sample (default ``plan.samples``; the environment's is ``plan.n_env``)."""
+    n = plan.samples if n is None else n
+    idx = sample_index(plan, ids, k, n)
+    n = n * (plan.subpixels if per_pixel(plan, ids) else 1)
     t = jnp.asarray(sobol_table(n))[idx]  # (3,) the same point for every pixel, or (P, 3) per subpixel
     t = jnp.broadcast_to(t, offset.shape[:1] + (3,))
 
@@ -99,7 +102,8 @@ def sample_points(plan: Plan, key, n: int, ids: PixelIds | None = None, dtype=jn
     """The unit-cube points the MIS modes use: ``(n, plan.samples, 5)`` = (mixture choice, lobe u1, lobe u2,
     environment u1, u2) per G-buffer sample (Sobol), for inspection and tests.
 
-    Same construction as :func:`shade` with the same ``key`` and ``ids``.
+    Same construction as :func:`shade` with the same ``key`` and ``ids``; the environment's columns are the
+    environment's points when ``plan.n_env == plan.samples`` (the default).
     """
     offset = mis_offset(key, n, dtype, plan, ids)
 

@@ -16,7 +16,8 @@ static (trace-time) choices recorded in a :class:`Plan`:
 - ``"reference"`` — importance sampling of the lobe mixture (Gaussian facet
   normals, exact pdf) and of the environment (piecewise-constant luminance
   density), combined with multiple importance sampling, balance heuristic
-  (Veach & Guibas 1995). Unbiased; its error is measured against a converged
+  (Veach & Guibas 1995), with the two strategies' sample counts
+  (``Plan.samples``, ``Plan.env_samples``). Unbiased; its error is measured against a converged
   frame by ``benchmarks/bench_render.py``.
 - ``"paper"`` — the paper's method (§5): a fixed number of jittered reflection
   rays around the mirror direction (stratified facet normals in a disk of
@@ -147,18 +148,19 @@ def _paper_ray(plan: Plan, px: Pixels, Vl, fr, key, k):
     return Ll, to_world(Ll, *fr), phi, mu
 
 
-def _mis_rays(plan: Plan, env: Environment, sampler, Vl, fr, offset, k, ids: PixelIds | None = None):
-    """The k-th MIS pair: ``(Ll, Lw, pdf)`` from the lobe mixture ``sampler``, ``(Ll2, Lw2, pe2, uv2)`` from the
-    environment (``None`` without environment sampling; ``uv2`` the map coordinates of ``Lw2``, or ``None``)."""
-    dtype = Vl.dtype
-    r0, r1, r2, re = uniforms(plan, offset, k, dtype, ids)
+def _lobe_ray(plan: Plan, sampler, Vl, fr, offset, k, ids: PixelIds | None = None):
+    """The k-th lobe sample of the MIS modes: ``(Ll, Lw, pdf)`` from the lobe mixture ``sampler``."""
+    r0, r1, r2, _ = uniforms(plan, offset, k, Vl.dtype, ids)
     Ll, pb = sampler.sample(Vl, jnp.stack([r1, r2], -1), r0)
-    Lw = to_world(Ll, *fr)
-    if not plan.env_sampling:
-        return Ll, Lw, pb, None, None, None, None
-    d_map, pe2, u2, v2 = env.sampler.sample_uniform2(re)
-    Lw2, uv2 = d_map @ env.rotation, (u2, v2)
-    return Ll, Lw, pb, to_local(Lw2, *fr), Lw2, pe2, uv2
+    return Ll, to_world(Ll, *fr), pb
+
+
+def _env_ray(plan: Plan, env: Environment, fr, offset, k, ids: PixelIds | None = None):
+    """The k-th of ``plan.n_env`` environment samples: ``(Ll, Lw, pdf, uv)`` (``uv`` the map coordinates of ``Lw``)."""
+    _, _, _, re = uniforms(plan, offset, k, fr[0].dtype, ids, plan.n_env)
+    d_map, pe, u, v = env.sampler.sample_uniform2(re)
+    Lw = d_map @ env.rotation
+    return to_local(Lw, *fr), Lw, pe, (u, v)
 
 
 def _light_ray(lights: Light, j: int, px: Pixels):
@@ -205,14 +207,9 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
     elif plan.mode in ("reference", "lowrank") and _has_lobe(plan):
         offset = mis_offset(key, P, dtype, plan, ids)
         sampler = _sampler(_lobes(plan, px, (1.0, 1.0)))  # sampling needs the widths only
-
-        def one(k):
-            _, Lw, _, _, Lw2, _, _ = _mis_rays(plan, env, sampler, Vl, fr, offset, k, ids)
-            return Lw, (Lw2 if Lw2 is not None else jnp.zeros((P, 3), dtype))
-
-        lobe, envd = jax.vmap(one, out_axes=1)(ks)
-        if not plan.env_sampling:
-            envd = empty
+        lobe = jax.vmap(lambda k: _lobe_ray(plan, sampler, Vl, fr, offset, k, ids)[1], out_axes=1)(ks)
+        if plan.n_env:
+            envd = jax.vmap(lambda k: _env_ray(plan, env, fr, offset, k, ids)[1], out_axes=1)(jnp.arange(plan.n_env))
     n = plan.lights if lights is not None else 0
     ls = [_light_ray(lights, j, px) for j in range(n)]
     dirs = [x[0] for x in ls]
@@ -369,54 +366,61 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         if caps is not None:
             acc = add_cap_rule(acc)
     elif _has_lobe(plan):  # reference / lowrank: MIS of lobe and environment sampling (and of each cap)
+        # balance heuristic with sample counts (Veach & Guibas 1995): a sample of either strategy weighs
+        # f / (S p_lobe + S_env p_env), which sums over both strategies' samples to an unbiased estimate
         offset = mis_offset(key, P, dtype, plan, ids)
         cap_offset = _cap_offsets(plan, key, P, dtype, ids, caps.count) if caps is not None else []
+        S_env = plan.n_env
+        n_lobe, n_env = jnp.asarray(S, dtype), jnp.asarray(S_env, dtype)
 
-        def body(acc_, xs):
-            k, v1, v2 = xs
-            Ll, Lw, pb, Ll2, Lw2, pe2, uv2 = _mis_rays(plan, env, sampler, Vl, fr, offset, k, ids)
+        def lobe_body(acc_, xs):
+            k, v1 = xs
+            Ll, Lw, pb = _lobe_ray(plan, sampler, Vl, fr, offset, k, ids)
             uv = env_uv(env, Lw)  # one atan2 pair serves the density and the lookup
-            pe = env.sampler.pdf_uv(*uv) if plan.env_sampling else 0.0
+            pe = env.sampler.pdf_uv(*uv) if S_env else 0.0
             ok = (Ll[:, 2] > 0) & (pb > 0)
-            wgt = jnp.where(ok, 1.0 / jnp.where(ok, pb + pe, 1.0), 0.0)
+            wgt = jnp.where(ok, 1.0 / jnp.where(ok, n_lobe * pb + n_env * pe, 1.0), 0.0)
             if v1 is not None:
                 wgt = wgt * v1
             if caps is None:
-                acc_ = acc_ + radiance_terms(Ll, Lw, wgt, uv)
-            else:
-                # the lobe sample serves two integrands: the remainder (MIS with the environment
-                # strategy) and each cap it falls in (MIS with that cap's cone strategy)
-                E = wgt[:, None] * bilinear_equirect_uv(env.channels, *uv)
-                ins = caps.inside(Lw, env.rotation)
-                for kc in range(caps.count):
-                    wc = jnp.where(ok & ins[:, kc], 1.0 / jnp.where(ok, pb + p_cap[kc], 1.0), 0.0)
-                    if v1 is not None:
-                        wc = wc * v1
-                    E = E + wc[:, None] * Ecap[kc]
-                acc_ = acc_ + radiance_terms(Ll, Lw, 1.0, E=E)
-                # each cap's own sample: uniform in its cone, balance heuristic with the lobe
-                for kc in range(caps.count):
-                    _, u1, u2, _ = uniforms(plan, cap_offset[kc], k, dtype, ids)
-                    Lwc = _cap_ray(caps, Cw, kc, u1, u2)
-                    Llc = to_local(Lwc, *fr)
-                    pbc = sampler.pdf(Llc, Vl)
-                    okc = Llc[:, 2] > 0
-                    wc = jnp.where(okc, 1.0 / (pbc + p_cap[kc]), 0.0)
-                    if cap_vis[kc] is not None:
-                        wc = wc * cap_vis[kc]
-                    acc_ = acc_ + radiance_terms(Llc, Lwc, 1.0, E=wc[:, None] * Ecap[kc])
-            if plan.env_sampling:
-                pb2 = sampler.pdf(Ll2, Vl)
-                ok2 = (Ll2[:, 2] > 0) & (pe2 > 0)
-                wgt2 = jnp.where(ok2, 1.0 / jnp.where(ok2, pb2 + pe2, 1.0), 0.0)
-                if v2 is not None:
-                    wgt2 = wgt2 * v2
-                acc_ = acc_ + radiance_terms(Ll2, Lw2, wgt2, uv2)
+                return acc_ + radiance_terms(Ll, Lw, wgt, uv), None
+            # the lobe sample serves two integrands: the remainder (MIS with the environment
+            # strategy) and each cap it falls in (MIS with that cap's cone strategy, S samples each)
+            E = wgt[:, None] * bilinear_equirect_uv(env.channels, *uv)
+            ins = caps.inside(Lw, env.rotation)
+            for kc in range(caps.count):
+                wc = jnp.where(ok & ins[:, kc], 1.0 / jnp.where(ok, n_lobe * (pb + p_cap[kc]), 1.0), 0.0)
+                if v1 is not None:
+                    wc = wc * v1
+                E = E + wc[:, None] * Ecap[kc]
+            acc_ = acc_ + radiance_terms(Ll, Lw, 1.0, E=E)
+            # each cap's own sample: uniform in its cone, balance heuristic with the lobe
+            for kc in range(caps.count):
+                _, u1, u2, _ = uniforms(plan, cap_offset[kc], k, dtype, ids)
+                Lwc = _cap_ray(caps, Cw, kc, u1, u2)
+                Llc = to_local(Lwc, *fr)
+                pbc = sampler.pdf(Llc, Vl)
+                okc = Llc[:, 2] > 0
+                wc = jnp.where(okc, 1.0 / (n_lobe * (pbc + p_cap[kc])), 0.0)
+                if cap_vis[kc] is not None:
+                    wc = wc * cap_vis[kc]
+                acc_ = acc_ + radiance_terms(Llc, Lwc, 1.0, E=wc[:, None] * Ecap[kc])
             return acc_, None
 
-        xs = (ks, None, None) if vis is None else (ks, vis.lobe.T, vis.env.T if plan.env_sampling else None)
-        lob, _ = jax.lax.scan(body, jnp.zeros_like(acc), xs)
-        acc = acc + lob / S
+        def env_body(acc_, xs):
+            k, v2 = xs
+            Ll2, Lw2, pe2, uv2 = _env_ray(plan, env, fr, offset, k, ids)
+            pb2 = sampler.pdf(Ll2, Vl)
+            ok2 = (Ll2[:, 2] > 0) & (pe2 > 0)
+            wgt2 = jnp.where(ok2, 1.0 / jnp.where(ok2, n_lobe * pb2 + n_env * pe2, 1.0), 0.0)
+            if v2 is not None:
+                wgt2 = wgt2 * v2
+            return acc_ + radiance_terms(Ll2, Lw2, wgt2, uv2), None
+
+        lob, _ = jax.lax.scan(lobe_body, jnp.zeros_like(acc), (ks, None if vis is None else vis.lobe.T))
+        if S_env:
+            lob, _ = jax.lax.scan(env_body, lob, (jnp.arange(S_env), None if vis is None else vis.env.T))
+        acc = acc + lob
 
     # --- analytic lights (point: kind 0, directional: kind 1); a delta hiraji lobe never sees one
     if plan.lights and lights is not None:
