@@ -225,6 +225,45 @@ def _compiled_background_xyz(n_dev: int):
     return jax.jit(f), mesh
 
 
+def _camera_axes(camera: Camera, dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(fwd (3,), x·right (W, 3), y·up (H, 3))``: the terms of :meth:`Camera.rays` per column and row;
+    pixel ``(r, c)``'s direction is ``fwd + x_c·right + y_r·up`` normalised (``tests/test_render_derived.py``
+    holds the two to float32 rounding)."""
+    right, up, fwd = camera.frame()
+    tan_half = np.tan(np.radians(camera.fov_deg) / 2)
+    x = ((np.arange(camera.width) + 0.5) / camera.width * 2 - 1) * tan_half * (camera.width / camera.height)
+    y = (1 - (np.arange(camera.height) + 0.5) / camera.height * 2) * tan_half
+    return fwd.astype(dtype), (x[:, None] * right).astype(dtype), (y[:, None] * up).astype(dtype)
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled_background_camera(n_dev: int, width: int, height: int):
+    """The background along every camera ray, the rays made on the devices (each its own range of pixels)."""
+    mesh = jax.make_mesh((n_dev,), ("d",), devices=jax.local_devices()[:n_dev])
+    per = -(-width * height // n_dev)
+
+    def per_device(env, fwd, x_right, y_up):
+        i = jax.lax.axis_index("d").astype(jnp.int32) * per + jnp.arange(per, dtype=jnp.int32)
+        row, col = jnp.divmod(jnp.minimum(i, width * height - 1), width)
+        d = fwd + x_right[col] + y_up[row]
+        d = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
+        return background(env, d, jnp.eye(3, dtype=d.dtype))[0]
+
+    f = jax.shard_map(per_device, mesh=mesh, in_specs=(PS(), PS(), PS(), PS()), out_specs=PS("d"),
+                      check_vma=False)
+    return jax.jit(f), mesh
+
+
+def background_camera(env: Environment, camera: Camera, cmf, dtype, n_devices: int | None = None) -> jax.Array:
+    """:func:`background_all` along the camera's primary rays (:meth:`Camera.rays`), which the devices
+    make themselves from the camera's per-column and per-row terms (same directions to float32
+    rounding): the host neither builds nor sends the ``H × W`` rays."""
+    n_dev = n_devices or len(jax.local_devices())
+    f, mesh = _compiled_background_camera(n_dev, int(camera.width), int(camera.height))
+    env3 = jax.device_put(background_environment(env, np.asarray(cmf, dtype)), NamedSharding(mesh, PS()))
+    return f(env3, *jax.device_put(_camera_axes(camera, dtype), NamedSharding(mesh, PS())))
+
+
 def background_all(env: Environment, rays: np.ndarray, cmf, dtype, n_devices: int | None = None) -> jax.Array:
     """XYZ of the environment along camera ``rays (n, 3)`` (caps included), split across the local devices
     and dispatched asynchronously: a ``(n', 3)`` device array, ``n' ≥ n`` (padded to the devices).
@@ -364,12 +403,12 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
     rays = bg_all = None
     if not spectral_out:
         # every pixel's background, dispatched first: the devices look it up while the host casts the G-buffer
-        rays = gb.ray if gb is not None else camera.rays()[1]
-        bg_all = background_all(env, rays.reshape(-1, 3), cmf, dtype, n_devices)
+        if gb is not None:
+            bg_all = background_all(env, gb.ray.reshape(-1, 3), cmf, dtype, n_devices)
+        else:
+            bg_all = background_camera(env, camera, cmf, dtype, n_devices)
     if gb is None:
         gb = gbuffer(geometry, camera)
-        if rays is not None and isinstance(gb, GBuffer) and gb.rays is None:
-            gb.rays = rays
     rays0, cast0 = (occluders.rays_cast, occluders.cast_s) if occluders is not None else (0, 0.0)
     H, W = gb.mask.shape
     if H % ss or W % ss:

@@ -129,6 +129,32 @@ def _any_hits(isect, o: np.ndarray, d: np.ndarray, chunk: int = RAY_CHUNK) -> np
                            for s in range(0, len(d), chunk)] or [np.zeros(0, bool)])
 
 
+def _embree_first_hits(isect, origin: np.ndarray, d: np.ndarray):
+    """``(ray index, triangle index, barycentrics (m, 3))`` of the rays ``origin + t·d`` that hit, in ray order.
+
+    One Embree query (Wald et al. 2014) through trimesh's scene finds each ray's
+    triangle; the barycentrics ``(u, v)`` (the hit is ``(1 − u − v)·p₀ + u·p₁ + v·p₂``)
+    are then solved in float64 on that triangle (Möller & Trumbore 1997), where
+    Embree's own are float32 (off by up to ~1e-4 on the blade's long, thin triangles).
+    The hits are those of :func:`_first_hits`, without trimesh's re-intersection of each
+    ray with its triangle's plane and its barycentric solve.
+    """
+    o = np.broadcast_to(np.asarray(origin, np.float64), d.shape)
+    prim = np.asarray(isect._scene.run(o, np.asarray(d, np.float64)), np.int64)
+    idx_ray = np.flatnonzero(prim >= 0)
+    idx_tri = prim[idx_ray]
+    p = np.asarray(isect.mesh.vertices).view(np.ndarray)[np.asarray(isect.mesh.faces).view(np.ndarray)[idx_tri]]
+    dr = d[idx_ray]
+    e1, e2, tv = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], np.asarray(origin, np.float64) - p[:, 0]
+    pv = np.cross(dr, e2)
+    det = np.sum(e1 * pv, -1)
+    ok = np.abs(det) > 1e-300
+    inv = 1.0 / np.where(ok, det, 1.0)
+    u = np.where(ok, np.sum(tv * pv, -1) * inv, 1.0 / 3.0)
+    v = np.where(ok, np.sum(dr * np.cross(tv, e1), -1) * inv, 1.0 / 3.0)
+    return idx_ray, idx_tri, np.stack([1.0 - u - v, u, v], -1)
+
+
 #: Side (pixels) of the screen tiles :func:`candidate_pixels` marks.
 TILE = 8
 
@@ -196,21 +222,25 @@ def gbuffer_mesh(mesh: trimesh.Trimesh, camera: Camera) -> GBuffer:
     cand = candidate_pixels(mesh, camera)
     cand = np.arange(H * W) if cand is None else cand
     origin, dc = camera.rays(cand)
-    isect, _ = _intersector(mesh)
-    loc, idx_ray, idx_tri = _first_hits(isect, np.broadcast_to(origin, dc.shape), dc)
-    order = np.argsort(idx_ray, kind="stable")  # ascending pixel order
-    loc, idx_ray, idx_tri = loc[order], idx_ray[order], idx_tri[order]
+    isect, engine = _intersector(mesh)
+    # plain arrays: trimesh's tracked arrays re-hash on every access
+    verts = np.asarray(mesh.vertices).view(np.ndarray)
+    if engine == "embree":
+        idx_ray, idx_tri, bary = _embree_first_hits(isect, origin, dc)
+    else:
+        loc, idx_ray, idx_tri = _first_hits(isect, np.broadcast_to(origin, dc.shape), dc)
+        order = np.argsort(idx_ray, kind="stable")  # ascending pixel order
+        idx_ray, idx_tri = idx_ray[order], idx_tri[order]
+        bary = trimesh.triangles.points_to_barycentric(verts[np.asarray(mesh.faces)[idx_tri]], loc[order])
     mask = np.zeros(H * W, bool)
     mask[cand[idx_ray]] = True
     n = len(idx_ray)
-    ns, T, uvp = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 2))
+    ns, T, uvp, loc = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 3))
     if n:
         d = dc[idx_ray]
-        # plain arrays: trimesh's tracked arrays re-hash on every access
-        verts = np.asarray(mesh.vertices).view(np.ndarray)
         tri = np.asarray(mesh.faces).view(np.ndarray)[idx_tri]
         corners = verts[tri]
-        bary = trimesh.triangles.points_to_barycentric(corners, loc)
+        loc = np.einsum("pk,pkc->pc", bary, corners)
         vn = np.asarray(mesh.vertex_normals).view(np.ndarray)[tri]
         ns = np.einsum("pk,pkc->pc", bary, vn)
         ng = np.asarray(mesh.face_normals).view(np.ndarray)[idx_tri]
