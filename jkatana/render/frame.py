@@ -31,6 +31,9 @@ from jkatana.render.shading import (Environment, Light, Material, PixelIds, Pixe
 
 DEFAULT_CHUNK = 16384
 
+#: Per-device sizes of a prefiltered frame's last call (:func:`shade_pixels`): 1024 · 2^(k/2), rounded to 512.
+_TAIL_LADDER = (1024, 1536, 2048, 3072, 4096, 6144, 8192, 12288)
+
 
 def sample_map(maps: jax.Array, uv: jax.Array) -> jax.Array:
     """Bilinear lookup of a ``(H, W, C)`` reflectance map at UVs ``(P, 2)`` (clamped at the borders).
@@ -50,6 +53,9 @@ def sample_map(maps: jax.Array, uv: jax.Array) -> jax.Array:
     top = maps[y0, x0] * (1 - fx) + maps[y0, x1] * fx
     bot = maps[y1, x0] * (1 - fx) + maps[y1, x1] * fx
     return top * (1 - fy) + bot * fy
+
+
+_sample_map = jax.jit(sample_map)
 
 
 @dataclasses.dataclass
@@ -281,6 +287,21 @@ def background_all(env: Environment, rays: np.ndarray, cmf, dtype, n_devices: in
     return f(env3, jax.device_put(d, NamedSharding(mesh, PS("d"))))
 
 
+#: The values padding pixels take (a lit, upward-facing, mid-width pixel: finite everywhere, then discarded).
+_PAD_PIXEL = ((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, 1.0), 1.0, 0.05, 0.05)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _split_calls(px: Pixels, counts: tuple):
+    """``px`` padded with :data:`_PAD_PIXEL` to ``sum(counts)`` rows and cut into calls of ``counts`` rows:
+    one dispatch for what would otherwise be a dozen eager operations per call."""
+    pad = sum(counts) - px.normal.shape[0]
+    full = Pixels(*(jnp.concatenate([a, jnp.broadcast_to(jnp.asarray(fill, a.dtype), (pad,) + a.shape[1:])])
+                    for a, fill in zip(px, _PAD_PIXEL)))
+    starts = np.cumsum((0,) + counts)
+    return [jax.tree.map(lambda a, s=s, n=n: a[s:s + n], full) for s, n in zip(starts[:-1], counts)]
+
+
 def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels,
                  cmf, key, *, n_devices: int | None = None, chunk: int = DEFAULT_CHUNK, occluders=None,
                  ids: PixelIds | None = None):
@@ -316,7 +337,13 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     chunk = int(min(size, chunk))
     call = n_dev * chunk
     n_calls = max(1, -(-P // call))
-    pad = n_calls * call - P
+    sizes = [chunk] * n_calls  # per-device pixels of each call
+    if plan.mode == "prefiltered" and n_calls > 1:
+        # deterministic shading: the last call from a finer ladder (steps ≤ 1.5×), padding the remainder
+        # instead of a whole call; the sampling modes keep whole calls (their streams follow the call layout)
+        rest = -(-(P - (n_calls - 1) * call) // n_dev)
+        sizes[-1] = min(s for s in _TAIL_LADDER + (chunk,) if s >= min(rest, chunk))
+    pad = sum(sizes) * n_dev - P
     dtype = px.normal.dtype
 
     def padded(a, fill):
@@ -325,8 +352,7 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
         fill_arr = jnp.broadcast_to(jnp.asarray(fill, a.dtype), (pad,) + a.shape[1:])
         return jnp.concatenate([a, fill_arr])
 
-    px = Pixels(padded(px.position, 0.0), padded(px.normal, [0.0, 0.0, 1.0]), padded(px.view, [0.0, 0.0, 1.0]),
-                padded(px.w, 1.0), padded(px.mu0, 0.05), padded(px.mu1, 0.05))
+    calls = _split_calls(px, tuple(n_dev * s for s in sizes))
     if ids is not None and plan.subpixels > 1:
         ids = PixelIds(padded(jnp.asarray(ids.pixel, jnp.uint32), 0), padded(jnp.asarray(ids.subpixel, jnp.int32), 0))
     else:
@@ -338,8 +364,10 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     outs = []
     rays_f = _compiled_rays(plan, n_dev, chunk) if plan.visibility else None
     for i in range(n_calls):
-        sl = slice(i * call, (i + 1) * call)
-        chunk_px = jax.device_put(jax.tree.map(lambda a: a[sl], px), split)
+        sl = slice(i * call, i * call + n_dev * sizes[i])
+        if sizes[i] != chunk:
+            f = _compiled(plan, n_dev, sizes[i])[0]
+        chunk_px = jax.device_put(calls[i], split)
         chunk_ids = None if ids is None else jax.device_put(jax.tree.map(lambda a: a[sl], ids), split)
         ckey = jax.device_put(key if ids is not None else jax.random.fold_in(key, i), rep)
         vis = None
@@ -432,7 +460,7 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
     key = jax.random.PRNGKey(seed)
     if len(sel):
         uv = jnp.asarray(gb.hit_uv[keep], dtype)
-        mp = sample_map(jnp.asarray(maps, dtype), uv)
+        mp = _sample_map(jnp.asarray(maps, dtype), uv)
         px = Pixels(jnp.asarray(gb.hit_position[keep], dtype), jnp.asarray(gb.hit_normal[keep], dtype),
                     jnp.asarray(gb.hit_view[keep], dtype), mp[:, 0], mp[:, 1], mp[:, 2])
         ids = None
