@@ -218,8 +218,8 @@ def _convergence(quick: bool, budget: float, left, scenes: dict | None = None,
                                    devices=len(jax.local_devices()), env=prep.env_info,
                                    load_avg_1min=os.getloadavg()[0]))
                 _log(f"[render] {scene_name} {label}: {t['median']:.3f} s, CPU {cpu_s:.3f} s "
-                     + " ".join(f"{k} {stages[k]:.3f}/{stages[k.replace('_s', '_cpu_s')]:.3f}"
-                                for k in ("gbuffer_s", "shade_s", "background_s") if k.replace('_s', '_cpu_s') in stages)
+                     + " ".join(f"{k[:-2]} {stages[k]:.3f}/{stages[k[:-2] + '_cpu_s']:.3f}"
+                                for k in ("gbuffer_s", "shade_s", "background_s") if k[:-2] + "_cpu_s" in stages)
                      + " (wall/CPU s) "
                      f"ΔE mean {err['dE2000_mean']:.3f} p99 {err['dE2000_p99']:.2f}  caps {caps}  "
                      f"load {os.getloadavg()[0]:.2f}")
