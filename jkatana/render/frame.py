@@ -5,8 +5,10 @@ each call running :func:`jkatana.render.shading.shade` under
 ``jax.shard_map`` over a 1-D device mesh (on CPU, several host devices come
 from ``XLA_FLAGS=--xla_force_host_platform_device_count=N``, which the CLI
 sets to the core count). Fixed call shapes mean one compilation per
-(plan, chunk) whatever the view's coverage; JAX's asynchronous dispatch keeps
-both devices busy while Python queues the next call.
+(plan, chunk) whatever the view's coverage (a prefiltered frame's last call takes
+the smallest of a finer ladder of sizes that holds the remaining pixels: one
+program per size); JAX's asynchronous dispatch keeps both devices busy while
+Python queues the next call.
 """
 
 from __future__ import annotations
@@ -428,7 +430,7 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
         raise ValueError(f"supersample must be ≥ 1, got {supersample}")
     plan = dataclasses.replace(plan, subpixels=ss * ss)
     spectral_out = plan.spectral and not plan.factored
-    rays = bg_all = None
+    bg_all = None
     if not spectral_out:
         # every pixel's background, dispatched first: the devices look it up while the host casts the G-buffer
         if gb is not None:
