@@ -197,11 +197,15 @@ def _convergence(quick: bool, budget: float, left, scenes: dict | None = None,
                     c0 = time.process_time()
                     holder["f"] = render_view(prep, seed=1)
                     holder.setdefault("cpu", []).append(time.process_time() - c0)
+                    holder.setdefault("stages", []).append(holder["f"].timing)
                     return holder["f"].xyz
 
                 t = timeit(go, repeats=3, warmup=1)
                 f = holder["f"]
                 cpu_s = float(np.median(holder["cpu"][1:] or holder["cpu"]))  # after the warm-up call
+                timed = holder["stages"][1:] or holder["stages"]
+                # per stage (G-buffer, shading, background, total), wall and process CPU s: medians of the timed frames
+                stages = {k: round(float(np.median([s[k] for s in timed])), 4) for k in timed[0]}
                 err = _de(ref, f, mask)
                 label = _label(mode, split, spp, scene)
                 caps = prep.env_info.get("caps", 0)
@@ -209,12 +213,14 @@ def _convergence(quick: bool, budget: float, left, scenes: dict | None = None,
                                    study=study, variant=label, time_s=t, error=err, error_metric="dE2000_mean",
                                    reference=f"reference mode {ref_spp} spp, whole map, other seed", tolerance=1.0,
                                    items=int(mask.sum()), shade_s=f.timing["shade_s"],
-                                   frame_s={k: round(v, 4) for k, v in f.timing.items()}, frame_cpu_s=round(cpu_s, 4),
+                                   frame_s=stages, frame_cpu_s=round(cpu_s, 4),
                                    series=mode.replace("paper-published", "paper"), split_sun=split, caps=caps,
                                    devices=len(jax.local_devices()), env=prep.env_info,
                                    load_avg_1min=os.getloadavg()[0]))
                 _log(f"[render] {scene_name} {label}: {t['median']:.3f} s, CPU {cpu_s:.3f} s "
-                     f"(G-buffer {f.timing['gbuffer_s']:.3f} s, shading {f.timing['shade_s']:.3f} s) "
+                     + " ".join(f"{k[:-2]} {stages[k]:.3f}/{stages[k[:-2] + '_cpu_s']:.3f}"
+                                for k in ("gbuffer_s", "shade_s", "background_s") if k[:-2] + "_cpu_s" in stages)
+                     + " (wall/CPU s) "
                      f"ΔE mean {err['dE2000_mean']:.3f} p99 {err['dE2000_p99']:.2f}  caps {caps}  "
                      f"load {os.getloadavg()[0]:.2f}")
     return rows

@@ -132,3 +132,16 @@ def test_frame_is_the_frame_without_the_derived_maps(env):
     bg = ~f1.mask
     want, _ = background(env, jnp.asarray(cam.rays()[1][bg], jnp.float32), jnp.asarray(CMF))
     np.testing.assert_allclose(f1.xyz[bg], np.asarray(want), rtol=2e-6, atol=1e-6)
+
+
+def test_background_along_the_camera_rays_made_on_the_devices(env):
+    """:func:`~jkatana.render.frame.background_camera` (rays made on the devices from the camera's per-column
+    and per-row terms) is :func:`~jkatana.render.frame.background_all` of :meth:`Camera.rays` to float32
+    rounding, for an image whose pixel count does not divide by the devices."""
+    cam = Camera(position=(0.3, 0.2, 4.0), look_at=(0.0, 0.1, 0.0), fov_deg=55.0, width=37, height=23)
+    fwd, xr, yu = F._camera_axes(cam, np.float64)
+    d = fwd + xr[None, :, :] + yu[:, None, :]
+    np.testing.assert_allclose(d / np.linalg.norm(d, axis=-1, keepdims=True), cam.rays()[1], rtol=0, atol=1e-15)
+    got = np.asarray(F.background_camera(env, cam, CMF, jnp.float32))[:37 * 23]
+    want = np.asarray(F.background_all(env, cam.rays()[1].reshape(-1, 3), CMF, jnp.float32))[:37 * 23]
+    np.testing.assert_allclose(got, want, rtol=2e-5, atol=1e-6)

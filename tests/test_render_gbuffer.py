@@ -38,6 +38,23 @@ def test_chunked_fallback_matches_embree(monkeypatch):
     np.testing.assert_allclose(alt.uv[both], ref.uv[both], atol=1e-5)
 
 
+def test_embree_hits_equal_trimesh_first_hits_to_float64_rounding(monkeypatch):
+    """The G-buffer from Embree's triangle ids with float64 barycentrics equals the one from trimesh's
+    ``intersects_location`` (same Embree scene, its own plane intersection and barycentric solve), on the
+    same rays: same pixels, attributes to float64 rounding."""
+    pytest.importorskip("embreex")
+    mesh = _uv_sphere()
+    cam = Camera(position=(0.0, 0.3, 2.0), look_at=(0.1, 0.0, 0.0), fov_deg=40.0, width=64, height=48)
+    got = gb.gbuffer_mesh(mesh, cam)
+    real = gb._intersector
+    monkeypatch.setattr(gb, "_intersector", lambda m: (real(m)[0], "trimesh-locations"))
+    want = gb.gbuffer_mesh(mesh, cam)
+    assert want.mask.sum() > 500
+    np.testing.assert_array_equal(got.index, want.index)
+    for name in ("hit_position", "hit_normal", "hit_tangent", "hit_uv", "hit_view"):
+        np.testing.assert_allclose(getattr(got, name), getattr(want, name), rtol=0, atol=1e-12, err_msg=name)
+
+
 def _full_frame(monkeypatch, mesh, cam):
     """The G-buffer of a cast of every pixel's ray (no culling)."""
     with monkeypatch.context() as m:

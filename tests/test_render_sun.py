@@ -316,3 +316,41 @@ def test_tabulated_normalisation_matches_the_quadrature():
     np.testing.assert_allclose(np.asarray(n0), np.asarray(gaussian_normalisation(jnp.asarray(mu, f64))), rtol=1e-5)
     np.testing.assert_allclose(np.asarray(n1), np.asarray(gaussian_normalisation(jnp.asarray(mu[::-1].copy(), f64))),
                                rtol=1e-5)
+
+
+def test_cap_rule_per_lobe_keeps_each_lobes_rule():
+    """A narrow hiraji lobe (under 8 cap radii) beside a wide hamon lobe: :func:`cap_rule_for` picks the nodes
+    for the first and Stroud's 4 directions for the second, and the mixed rule's terms are, lobe by lobe,
+    those of the rule named for it; a bad rule name is refused."""
+    from jkatana.render.caps import _cap_rule_terms, cap_rule_for
+    from jkatana.models.lobes import GaussianVCavity
+
+    r = math.radians(1.0)
+    env, _, _ = build_environment(np.ones((16, 32, GRID.size)), grid=GRID)
+    caps = Caps(jnp.asarray(SUN_DIR[None], jnp.float32), jnp.asarray([r], jnp.float32),
+                jnp.ones((1, env.channels.shape[-1]), jnp.float32))
+    env = dataclasses.replace(env, caps=caps)
+    P = 5
+    f32 = jnp.float32
+    px = Pixels(jnp.zeros((P, 3), f32), jnp.tile(jnp.asarray([0.0, 0.0, 1.0], f32), (P, 1)),
+                jnp.tile(jnp.asarray([0.0, 0.0, 1.0], f32), (P, 1)), jnp.full((P,), 0.5, f32),
+                jnp.full((P,), 0.02, f32), jnp.full((P,), 0.3, f32))  # widths 0.034 < 8 r = 0.14 < 0.51
+    plan = Plan(mode="prefiltered", samples=1)
+    assert cap_rule_for(plan, env, px) == "nodes,stroud"
+    assert cap_rule_for(plan, env, px._replace(mu0=px.mu1)) == "stroud"
+    assert cap_rule_for(plan, env, px._replace(mu1=px.mu0)) == "nodes"
+    th = np.radians([0.0, 15.0, 30.0, 45.0, 60.0])
+    Vl = jnp.asarray(np.stack([np.sin(th), 0 * th, np.cos(th)], -1), f32)
+    fr = tuple(jnp.tile(jnp.asarray(e, f32), (P, 1)) for e in np.eye(3))
+    C = jnp.asarray([-0.3, 0.0, 0.954], f32)
+    C = C / jnp.linalg.norm(C)
+    lobes = [(Gaussian(px.mu0), px.w, None), (GaussianVCavity(px.mu1), 1.0 - px.w, None)]
+    mixed = _cap_rule_terms(lobes, Vl, fr, C, jnp.asarray(r, f32), "nodes,stroud")
+    nodes = _cap_rule_terms(lobes, Vl, fr, C, jnp.asarray(r, f32), "nodes")
+    stroud = _cap_rule_terms(lobes, Vl, fr, C, jnp.asarray(r, f32), "stroud")
+    assert len(mixed) == len(nodes) == len(stroud) == 2
+    np.testing.assert_array_equal(np.asarray(mixed[0][0]), np.asarray(nodes[0][0]))
+    np.testing.assert_array_equal(np.asarray(mixed[1][0]), np.asarray(stroud[1][0]))
+    assert not np.array_equal(np.asarray(nodes[0][0]), np.asarray(stroud[0][0]))  # the two rules differ there
+    with pytest.raises(ValueError, match="lobe parts"):
+        _cap_rule_terms(lobes, Vl, fr, C, jnp.asarray(r, f32), "nodes,stroud,nodes")

@@ -52,7 +52,9 @@ def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
     (:meth:`~jkatana.models.lobes.Lobe.reflected_width`),
     :data:`~jkatana.light.capquad.CAP_RULE` nodes per point, any lobe width; ``"stroud"``: the 4 fixed
     directions of :func:`~jkatana.light.capquad.cap_disc_nodes`, for lobes at least
-    :data:`~jkatana.light.capquad.STROUD_MIN_WIDTH` cap radii wide. Applied to the
+    :data:`~jkatana.light.capquad.STROUD_MIN_WIDTH` cap radii wide; or one of those per lobe part
+    (:func:`_parts` order), comma-separated (``"nodes,stroud"``: a narrow hiraji lobe by the nodes,
+    a wide hamon lobe by Stroud's 4 directions), as :func:`cap_rule_for` chooses. Applied to the
     Fresnel-free values ``a`` of the lobe objects; the Fresnel factor is taken at
     the cap's centre (it varies by ``|dF/dθ| · r`` across the cap, below 1e-4 for
     a sub-degree sun on iron).
@@ -60,19 +62,19 @@ def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
     Cl = to_local(Cw, *fr)
     out = []
     lobes = _parts(lobes)
-    if rule == "stroud":
-        Lw, q = capquad.cap_disc_nodes(Cw, radius)  # (4, 3), (4,): the same for every pixel
-        Ll = to_local(Lw[:, None, :], *fr)  # (4, P, 3)
-        for lobe, weight, gain in lobes:
-            weight = weight if gain is None else weight * gain
-            for (a, _), (_, c) in zip(lobe.terms(Ll, Vl), lobe.terms(Cl, Vl)):
-                out.append((weight * jnp.einsum("n,np->p", q.astype(a.dtype), a), c))
-        return out
+    rules = _per_part(rule, len(lobes))
+    if "stroud" in rules:
+        Lw, qs = capquad.cap_disc_nodes(Cw, radius)  # (4, 3), (4,): the same for every pixel
+        Ls = to_local(Lw[:, None, :], *fr)  # (4, P, 3)
     n_radial, n_azimuth = capquad.CAP_RULE
     R = jnp.stack([-Vl[:, 0], -Vl[:, 1], Vl[:, 2]], -1)
     N = jnp.asarray([0.0, 0.0, 1.0], Vl.dtype)
-    for lobe, weight, gain in lobes:
+    for (lobe, weight, gain), part_rule in zip(lobes, rules):
         weight = weight if gain is None else weight * gain
+        if part_rule == "stroud":
+            for (a, _), (_, c) in zip(lobe.terms(Ls, Vl), lobe.terms(Cl, Vl)):
+                out.append((weight * jnp.einsum("n,np->p", qs.astype(a.dtype), a), c))
+            continue
         sigma = jnp.broadcast_to(jnp.maximum(lobe.reflected_width(), 1e-6), Vl.shape[:1]).astype(Vl.dtype)
         L, q = capquad.cap_nodes(R, Cl, radius, sigma, normal=N, n_radial=n_radial, n_azimuth=n_azimuth)
         nodes = lobe.terms(jnp.moveaxis(L, 0, 2), Vl)  # (A, Q, P): the pixel axis last, as the lobe's parameters
@@ -80,6 +82,16 @@ def _cap_rule_terms(lobes, Vl, fr, Cw, radius, rule: str):
         for (a, _), (_, c) in zip(nodes, lobe.terms(Cl, Vl)):
             out.append((weight * jnp.sum(qt * a, axis=(0, 1)), c))
     return out
+
+
+def _per_part(rule: str, n: int) -> list[str]:
+    """``rule`` (one name, or one per lobe part, comma-separated) as ``n`` names."""
+    rules = rule.split(",")
+    if len(rules) == 1:
+        rules = rules * n
+    if len(rules) != n or any(r not in ("nodes", "stroud") for r in rules):
+        raise ValueError(f"cap rule {rule!r}: 'nodes', 'stroud' or one of those for each of the {n} lobe parts")
+    return rules
 
 
 def _tabulated_norms(plan: Plan, mat: Material, px: Pixels, n: int = 128):
@@ -112,9 +124,12 @@ def _tabulated_norms(plan: Plan, mat: Material, px: Pixels, n: int = 128):
 
 
 def cap_rule_for(plan: Plan, env: Environment, px: Pixels) -> str:
-    """The cap rule the deterministic modes use for these pixels: ``"stroud"`` where every lobe in use is
-    at least :data:`~jkatana.light.capquad.STROUD_MIN_WIDTH` times wider than the largest cap, else
-    ``"nodes"``. Host-side, on concrete pixels (a static choice, as ``Plan.fresnel_rank``)."""
+    """The cap rule the deterministic modes use for these pixels, per lobe part (:func:`_parts` order):
+    ``"stroud"`` for a lobe at least :data:`~jkatana.light.capquad.STROUD_MIN_WIDTH` times wider than the
+    largest cap at every pixel it weighs on, else ``"nodes"``; one name when all parts agree, else one per
+    part, comma-separated. Each part keeps the error its rule states (:func:`_cap_rule_terms`): a frame's
+    narrow hiraji lobe is integrated by the nodes, its wide hamon lobe by 4 directions. Host-side, on
+    concrete pixels (a static choice, as ``Plan.fresnel_rank``)."""
     caps = _caps(env)
     if caps is None:
         return "nodes"
@@ -123,7 +138,8 @@ def cap_rule_for(plan: Plan, env: Environment, px: Pixels) -> str:
     if not widths:
         return "nodes"
     r_max = float(np.asarray(caps.radius).max())
-    return "stroud" if min(widths) >= capquad.STROUD_MIN_WIDTH * r_max else "nodes"
+    rules = ["stroud" if w >= capquad.STROUD_MIN_WIDTH * r_max else "nodes" for w in widths]
+    return rules[0] if len(set(rules)) == 1 else ",".join(rules)
 
 
 def _cap_offsets(plan: Plan, key, P, dtype, ids, K, stream: int = 0x53554E):

@@ -5,8 +5,10 @@ each call running :func:`jkatana.render.shading.shade` under
 ``jax.shard_map`` over a 1-D device mesh (on CPU, several host devices come
 from ``XLA_FLAGS=--xla_force_host_platform_device_count=N``, which the CLI
 sets to the core count). Fixed call shapes mean one compilation per
-(plan, chunk) whatever the view's coverage; JAX's asynchronous dispatch keeps
-both devices busy while Python queues the next call.
+(plan, chunk) whatever the view's coverage (a prefiltered frame's last call takes
+the smallest of a finer ladder of sizes that holds the remaining pixels: one
+program per size); JAX's asynchronous dispatch keeps both devices busy while
+Python queues the next call.
 """
 
 from __future__ import annotations
@@ -31,6 +33,9 @@ from jkatana.render.shading import (Environment, Light, Material, PixelIds, Pixe
 
 DEFAULT_CHUNK = 16384
 
+#: Per-device sizes of a prefiltered frame's last call (:func:`shade_pixels`): 1024 · 2^(k/2), rounded to 512.
+_TAIL_LADDER = (1024, 1536, 2048, 3072, 4096, 6144, 8192, 12288)
+
 
 def sample_map(maps: jax.Array, uv: jax.Array) -> jax.Array:
     """Bilinear lookup of a ``(H, W, C)`` reflectance map at UVs ``(P, 2)`` (clamped at the borders).
@@ -50,6 +55,9 @@ def sample_map(maps: jax.Array, uv: jax.Array) -> jax.Array:
     top = maps[y0, x0] * (1 - fx) + maps[y0, x1] * fx
     bot = maps[y1, x0] * (1 - fx) + maps[y1, x1] * fx
     return top * (1 - fy) + bot * fy
+
+
+_sample_map = jax.jit(sample_map)
 
 
 @dataclasses.dataclass
@@ -225,6 +233,45 @@ def _compiled_background_xyz(n_dev: int):
     return jax.jit(f), mesh
 
 
+def _camera_axes(camera: Camera, dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(fwd (3,), x·right (W, 3), y·up (H, 3))``: the terms of :meth:`Camera.rays` per column and row;
+    pixel ``(r, c)``'s direction is ``fwd + x_c·right + y_r·up`` normalised (``tests/test_render_derived.py``
+    holds the two to float32 rounding)."""
+    right, up, fwd = camera.frame()
+    tan_half = np.tan(np.radians(camera.fov_deg) / 2)
+    x = ((np.arange(camera.width) + 0.5) / camera.width * 2 - 1) * tan_half * (camera.width / camera.height)
+    y = (1 - (np.arange(camera.height) + 0.5) / camera.height * 2) * tan_half
+    return fwd.astype(dtype), (x[:, None] * right).astype(dtype), (y[:, None] * up).astype(dtype)
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled_background_camera(n_dev: int, width: int, height: int):
+    """The background along every camera ray, the rays made on the devices (each its own range of pixels)."""
+    mesh = jax.make_mesh((n_dev,), ("d",), devices=jax.local_devices()[:n_dev])
+    per = -(-width * height // n_dev)
+
+    def per_device(env, fwd, x_right, y_up):
+        i = jax.lax.axis_index("d").astype(jnp.int32) * per + jnp.arange(per, dtype=jnp.int32)
+        row, col = jnp.divmod(jnp.minimum(i, width * height - 1), width)
+        d = fwd + x_right[col] + y_up[row]
+        d = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
+        return background(env, d, jnp.eye(3, dtype=d.dtype))[0]
+
+    f = jax.shard_map(per_device, mesh=mesh, in_specs=(PS(), PS(), PS(), PS()), out_specs=PS("d"),
+                      check_vma=False)
+    return jax.jit(f), mesh
+
+
+def background_camera(env: Environment, camera: Camera, cmf, dtype, n_devices: int | None = None) -> jax.Array:
+    """:func:`background_all` along the camera's primary rays (:meth:`Camera.rays`), which the devices
+    make themselves from the camera's per-column and per-row terms (same directions to float32
+    rounding): the host neither builds nor sends the ``H × W`` rays."""
+    n_dev = n_devices or len(jax.local_devices())
+    f, mesh = _compiled_background_camera(n_dev, int(camera.width), int(camera.height))
+    env3 = jax.device_put(background_environment(env, np.asarray(cmf, dtype)), NamedSharding(mesh, PS()))
+    return f(env3, *jax.device_put(_camera_axes(camera, dtype), NamedSharding(mesh, PS())))
+
+
 def background_all(env: Environment, rays: np.ndarray, cmf, dtype, n_devices: int | None = None) -> jax.Array:
     """XYZ of the environment along camera ``rays (n, 3)`` (caps included), split across the local devices
     and dispatched asynchronously: a ``(n', 3)`` device array, ``n' ≥ n`` (padded to the devices).
@@ -240,6 +287,21 @@ def background_all(env: Environment, rays: np.ndarray, cmf, dtype, n_devices: in
         d = np.concatenate([d, np.tile(np.asarray([[0.0, 0.0, 1.0]], dtype), (pad, 1))])
     env3 = jax.device_put(background_environment(env, np.asarray(cmf, dtype)), NamedSharding(mesh, PS()))
     return f(env3, jax.device_put(d, NamedSharding(mesh, PS("d"))))
+
+
+#: The values padding pixels take (a lit, upward-facing, mid-width pixel: finite everywhere, then discarded).
+_PAD_PIXEL = ((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, 1.0), 1.0, 0.05, 0.05)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _split_calls(px: Pixels, counts: tuple):
+    """``px`` padded with :data:`_PAD_PIXEL` to ``sum(counts)`` rows and cut into calls of ``counts`` rows:
+    one dispatch for what would otherwise be a dozen eager operations per call."""
+    pad = sum(counts) - px.normal.shape[0]
+    full = Pixels(*(jnp.concatenate([a, jnp.broadcast_to(jnp.asarray(fill, a.dtype), (pad,) + a.shape[1:])])
+                    for a, fill in zip(px, _PAD_PIXEL)))
+    starts = np.cumsum((0,) + counts)
+    return [jax.tree.map(lambda a, s=s, n=n: a[s:s + n], full) for s, n in zip(starts[:-1], counts)]
 
 
 def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels,
@@ -277,7 +339,13 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     chunk = int(min(size, chunk))
     call = n_dev * chunk
     n_calls = max(1, -(-P // call))
-    pad = n_calls * call - P
+    sizes = [chunk] * n_calls  # per-device pixels of each call
+    if plan.mode == "prefiltered" and n_calls > 1:
+        # deterministic shading: the last call from a finer ladder (steps ≤ 1.5×), padding the remainder
+        # instead of a whole call; the sampling modes keep whole calls (their streams follow the call layout)
+        rest = -(-(P - (n_calls - 1) * call) // n_dev)
+        sizes[-1] = min(s for s in _TAIL_LADDER + (chunk,) if s >= min(rest, chunk))
+    pad = sum(sizes) * n_dev - P
     dtype = px.normal.dtype
 
     def padded(a, fill):
@@ -286,8 +354,7 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
         fill_arr = jnp.broadcast_to(jnp.asarray(fill, a.dtype), (pad,) + a.shape[1:])
         return jnp.concatenate([a, fill_arr])
 
-    px = Pixels(padded(px.position, 0.0), padded(px.normal, [0.0, 0.0, 1.0]), padded(px.view, [0.0, 0.0, 1.0]),
-                padded(px.w, 1.0), padded(px.mu0, 0.05), padded(px.mu1, 0.05))
+    calls = _split_calls(px, tuple(n_dev * s for s in sizes))
     if ids is not None and plan.subpixels > 1:
         ids = PixelIds(padded(jnp.asarray(ids.pixel, jnp.uint32), 0), padded(jnp.asarray(ids.subpixel, jnp.int32), 0))
     else:
@@ -299,8 +366,10 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     outs = []
     rays_f = _compiled_rays(plan, n_dev, chunk) if plan.visibility else None
     for i in range(n_calls):
-        sl = slice(i * call, (i + 1) * call)
-        chunk_px = jax.device_put(jax.tree.map(lambda a: a[sl], px), split)
+        sl = slice(i * call, i * call + n_dev * sizes[i])
+        if sizes[i] != chunk:
+            f = _compiled(plan, n_dev, sizes[i])[0]
+        chunk_px = jax.device_put(calls[i], split)
         chunk_ids = None if ids is None else jax.device_put(jax.tree.map(lambda a: a[sl], ids), split)
         ckey = jax.device_put(key if ids is not None else jax.random.fold_in(key, i), rep)
         vis = None
@@ -354,22 +423,22 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
 
     **Returns:** a :class:`Frame` at the camera's (subpixel) resolution.
     """
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     plan = resolve_plan(plan, mat)
     ss = int(supersample)
     if ss < 1:
         raise ValueError(f"supersample must be ≥ 1, got {supersample}")
     plan = dataclasses.replace(plan, subpixels=ss * ss)
     spectral_out = plan.spectral and not plan.factored
-    rays = bg_all = None
+    bg_all = None
     if not spectral_out:
         # every pixel's background, dispatched first: the devices look it up while the host casts the G-buffer
-        rays = gb.ray if gb is not None else camera.rays()[1]
-        bg_all = background_all(env, rays.reshape(-1, 3), cmf, dtype, n_devices)
+        if gb is not None:
+            bg_all = background_all(env, gb.ray.reshape(-1, 3), cmf, dtype, n_devices)
+        else:
+            bg_all = background_camera(env, camera, cmf, dtype, n_devices)
     if gb is None:
         gb = gbuffer(geometry, camera)
-        if rays is not None and isinstance(gb, GBuffer) and gb.rays is None:
-            gb.rays = rays
     rays0, cast0 = (occluders.rays_cast, occluders.cast_s) if occluders is not None else (0, 0.0)
     H, W = gb.mask.shape
     if H % ss or W % ss:
@@ -386,14 +455,14 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
         blocked = d_occ < d_obj
         m = m & ~blocked
         keep = ~blocked[gb.index]
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     sel = gb.index[keep]
     xyz = np.zeros((H * W, 3), np.float32)
     spectra = np.zeros((H * W, env.basis.shape[-1]), np.float32) if spectral_out else None
     key = jax.random.PRNGKey(seed)
     if len(sel):
         uv = jnp.asarray(gb.hit_uv[keep], dtype)
-        mp = sample_map(jnp.asarray(maps, dtype), uv)
+        mp = _sample_map(jnp.asarray(maps, dtype), uv)
         px = Pixels(jnp.asarray(gb.hit_position[keep], dtype), jnp.asarray(gb.hit_normal[keep], dtype),
                     jnp.asarray(gb.hit_view[keep], dtype), mp[:, 0], mp[:, 1], mp[:, 2])
         ids = None
@@ -406,7 +475,7 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
         xyz[sel] = x
         if spectra is not None and s is not None:
             spectra[sel] = s
-    t2 = time.perf_counter()
+    t2, c2 = time.perf_counter(), time.process_time()
     bg = ~m & ~blocked
     if bg_all is not None:
         xyz[bg] = np.asarray(bg_all)[:H * W][bg]
@@ -414,8 +483,10 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
         bx, bs = _compiled_background_spectral()(env, jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype), jnp.asarray(cmf, dtype))
         spectra[bg] = np.asarray(bs)
         xyz[bg] = np.asarray(bx)
-    t3 = time.perf_counter()
-    timing = {"gbuffer_s": t1 - t0, "shade_s": t2 - t1, "background_s": t3 - t2, "total_s": t3 - t0}
+    t3, c3 = time.perf_counter(), time.process_time()
+    # wall seconds per stage, and the process's CPU seconds over each (all threads: host and devices)
+    timing = {"gbuffer_s": t1 - t0, "shade_s": t2 - t1, "background_s": t3 - t2, "total_s": t3 - t0,
+              "gbuffer_cpu_s": c1 - c0, "shade_cpu_s": c2 - c1, "background_cpu_s": c3 - c2, "total_cpu_s": c3 - c0}
     if occluders is not None:
         timing["visibility_rays"] = occluders.rays_cast - rays0
         timing["visibility_cast_s"] = occluders.cast_s - cast0

@@ -129,6 +129,37 @@ def _any_hits(isect, o: np.ndarray, d: np.ndarray, chunk: int = RAY_CHUNK) -> np
                            for s in range(0, len(d), chunk)] or [np.zeros(0, bool)])
 
 
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot products of ``(n, 3)`` arrays (one pass; NumPy's reduction over a length-3 axis is slow)."""
+    return np.einsum("pc,pc->p", a, b)
+
+
+def _embree_first_hits(isect, origin: np.ndarray, d: np.ndarray):
+    """``(ray index, triangle index, barycentrics (m, 3))`` of the rays ``origin + t·d`` that hit, in ray order.
+
+    One Embree query (Wald et al. 2014) through trimesh's scene finds each ray's
+    triangle; the barycentrics ``(u, v)`` (the hit is ``(1 − u − v)·p₀ + u·p₁ + v·p₂``)
+    are then solved in float64 on that triangle (Möller & Trumbore 1997), where
+    Embree's own are float32 (off by up to ~1e-4 on the blade's long, thin triangles).
+    The hits are those of :func:`_first_hits`, without trimesh's re-intersection of each
+    ray with its triangle's plane and its barycentric solve.
+    """
+    o = np.broadcast_to(np.asarray(origin, np.float64), d.shape)
+    prim = np.asarray(isect._scene.run(o, np.asarray(d, np.float64)), np.int64)
+    idx_ray = np.flatnonzero(prim >= 0)
+    idx_tri = prim[idx_ray]
+    p = np.asarray(isect.mesh.vertices).view(np.ndarray)[np.asarray(isect.mesh.faces).view(np.ndarray)[idx_tri]]
+    dr = d[idx_ray]
+    e1, e2, tv = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], np.asarray(origin, np.float64) - p[:, 0]
+    pv = np.cross(dr, e2)
+    det = _dot(e1, pv)
+    ok = np.abs(det) > 1e-300
+    inv = 1.0 / np.where(ok, det, 1.0)
+    u = np.where(ok, _dot(tv, pv) * inv, 1.0 / 3.0)
+    v = np.where(ok, _dot(dr, np.cross(tv, e1)) * inv, 1.0 / 3.0)
+    return idx_ray, idx_tri, np.stack([1.0 - u - v, u, v], -1)
+
+
 #: Side (pixels) of the screen tiles :func:`candidate_pixels` marks.
 TILE = 8
 
@@ -156,11 +187,17 @@ def candidate_pixels(mesh: trimesh.Trimesh, camera: Camera, tile: int = TILE) ->
     # pixel coordinates in the convention of Camera.rays: column c's centre ray has x = ((c + ½)/W·2 − 1)·t·a
     col = ((rel @ right) / (z * tan_half * (W / H)) + 1.0) * 0.5 * W - 0.5
     row = (1.0 - (rel @ up) / (z * tan_half)) * 0.5 * H - 0.5
-    tri = np.asarray(mesh.faces)
-    c, r = col[tri], row[tri]
+    tri = np.asarray(mesh.faces).view(np.ndarray)
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+
+    def lo_hi(x):  # per triangle: min and max over its 3 corners (elementwise, not a reduction over a 3-axis)
+        xa, xb, xc = x[a], x[b], x[c]
+        return np.minimum(np.minimum(xa, xb), xc), np.maximum(np.maximum(xa, xb), xc)
+
     ntx, nty = -(-W // tile), -(-H // tile)
-    c0, c1 = np.floor((c.min(1) - 2.0) / tile), np.floor((c.max(1) + 2.0) / tile)
-    r0, r1 = np.floor((r.min(1) - 2.0) / tile), np.floor((r.max(1) + 2.0) / tile)
+    (cmin, cmax), (rmin, rmax) = lo_hi(col), lo_hi(row)
+    c0, c1 = np.floor((cmin - 2.0) / tile), np.floor((cmax + 2.0) / tile)
+    r0, r1 = np.floor((rmin - 2.0) / tile), np.floor((rmax + 2.0) / tile)
     on = (c1 >= 0) & (c0 < ntx) & (r1 >= 0) & (r0 < nty)
     c0, c1 = np.clip(c0[on], 0, ntx - 1).astype(np.int64), np.clip(c1[on], 0, ntx - 1).astype(np.int64)
     r0, r1 = np.clip(r0[on], 0, nty - 1).astype(np.int64), np.clip(r1[on], 0, nty - 1).astype(np.int64)
@@ -196,28 +233,32 @@ def gbuffer_mesh(mesh: trimesh.Trimesh, camera: Camera) -> GBuffer:
     cand = candidate_pixels(mesh, camera)
     cand = np.arange(H * W) if cand is None else cand
     origin, dc = camera.rays(cand)
-    isect, _ = _intersector(mesh)
-    loc, idx_ray, idx_tri = _first_hits(isect, np.broadcast_to(origin, dc.shape), dc)
-    order = np.argsort(idx_ray, kind="stable")  # ascending pixel order
-    loc, idx_ray, idx_tri = loc[order], idx_ray[order], idx_tri[order]
+    isect, engine = _intersector(mesh)
+    # plain arrays: trimesh's tracked arrays re-hash on every access
+    verts = np.asarray(mesh.vertices).view(np.ndarray)
+    if engine == "embree":
+        idx_ray, idx_tri, bary = _embree_first_hits(isect, origin, dc)
+    else:
+        loc, idx_ray, idx_tri = _first_hits(isect, np.broadcast_to(origin, dc.shape), dc)
+        order = np.argsort(idx_ray, kind="stable")  # ascending pixel order
+        idx_ray, idx_tri = idx_ray[order], idx_tri[order]
+        bary = trimesh.triangles.points_to_barycentric(verts[np.asarray(mesh.faces)[idx_tri]], loc[order])
     mask = np.zeros(H * W, bool)
     mask[cand[idx_ray]] = True
     n = len(idx_ray)
-    ns, T, uvp = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 2))
+    ns, T, uvp, loc = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 3))
     if n:
         d = dc[idx_ray]
-        # plain arrays: trimesh's tracked arrays re-hash on every access
-        verts = np.asarray(mesh.vertices).view(np.ndarray)
         tri = np.asarray(mesh.faces).view(np.ndarray)[idx_tri]
         corners = verts[tri]
-        bary = trimesh.triangles.points_to_barycentric(corners, loc)
+        loc = np.einsum("pk,pkc->pc", bary, corners)
         vn = np.asarray(mesh.vertex_normals).view(np.ndarray)[tri]
         ns = np.einsum("pk,pkc->pc", bary, vn)
         ng = np.asarray(mesh.face_normals).view(np.ndarray)[idx_tri]
-        ns = np.where(np.linalg.norm(ns, axis=-1, keepdims=True) > 1e-12, ns, ng)
-        ns /= np.linalg.norm(ns, axis=-1, keepdims=True)
+        ns = np.where(np.sqrt(_dot(ns, ns))[:, None] > 1e-12, ns, ng)
+        ns /= np.sqrt(_dot(ns, ns))[:, None]
         # face the camera (two-sided shading: the blade is seen from both flats)
-        flip = np.sum(ns * d, -1) > 0
+        flip = _dot(ns, d) > 0
         ns[flip] *= -1
         t_uv = np.asarray(uv_v)[tri]
         uvp = np.einsum("pk,pkc->pc", bary, t_uv)
@@ -228,8 +269,8 @@ def gbuffer_mesh(mesh: trimesh.Trimesh, camera: Camera) -> GBuffer:
         du2, dv2 = t_uv[:, 2, 0] - t_uv[:, 0, 0], t_uv[:, 2, 1] - t_uv[:, 0, 1]
         det = du1 * dv2 - du2 * dv1
         T = (e1 * dv2[:, None] - e2 * dv1[:, None]) / np.where(np.abs(det) > 1e-20, det, 1.0)[:, None]
-        T -= np.sum(T * ns, -1, keepdims=True) * ns
-        tl = np.linalg.norm(T, axis=-1, keepdims=True)
+        T -= _dot(T, ns)[:, None] * ns
+        tl = np.sqrt(_dot(T, T))[:, None]
         fallback = np.cross(ns, [0.0, 0.0, 1.0]) + 1e-9
         T = np.where(tl > 1e-12, T / np.maximum(tl, 1e-30), fallback / np.linalg.norm(fallback, axis=-1, keepdims=True))
     else:

@@ -80,7 +80,8 @@ class Plan:
       ``"nodes"`` (:func:`jkatana.light.capquad.cap_nodes`, 64 lobe evaluations per
       pixel and cap, any lobe width) or ``"stroud"``
       (:func:`jkatana.light.capquad.cap_disc_nodes`, 4, for lobes ≥ 8 cap radii
-      wide). ``None``: :func:`jkatana.render.frame.shade_pixels` picks it from the
+      wide), or one of those per lobe part, comma-separated (``"nodes,stroud"``).
+      ``None``: :func:`jkatana.render.frame.shade_pixels` picks it per lobe from the
       pixels' lobe widths (:func:`~jkatana.render.caps.cap_rule_for`);
       :func:`shade` called directly treats ``None`` as ``"nodes"``.
     """
@@ -101,7 +102,7 @@ class Plan:
     spectral: bool = False
     visibility: bool = False
     subpixels: int = 1
-    cap_rule: str | None = None  # "nodes" | "stroud" (split caps, prefiltered/paper modes); None: chosen per frame
+    cap_rule: str | None = None  # "nodes" | "stroud" | one per lobe part ("nodes,stroud"); None: chosen per frame
 
     @property
     def n_env(self) -> int:
