@@ -363,14 +363,6 @@ def solve(terms: Terms, y, w, p0, *, spec: ModelSpec, solver: str = "lm", max_st
                 grad_norm=jnp.max(jnp.abs(g)), steps=steps, solver_ok=solver_ok, jtj=jtj)
 
 
-@functools.partial(jax.jit, static_argnames=("spec", "solver", "max_steps", "rtol", "atol"))
-def solve_from_start(terms: Terms, y, w, *, spec: ModelSpec, solver: str = "lm", max_steps: int = 200,
-                     rtol: float | None = None, atol: float | None = None):
-    """:func:`solve` from :func:`start_vector`, as one compiled program (one dispatch per region fit)."""
-    return solve(terms, y, w, start_vector(terms, y, w, spec), spec=spec, solver=solver, max_steps=max_steps,
-                 rtol=rtol, atol=atol)
-
-
 def _decrement(jtj, g):
     """gᵀ(JᵀJ)⁻¹g, with JᵀJ scaled to unit diagonal and eigenvalues floored (never NaN)."""
     d = jnp.sqrt(jnp.maximum(jnp.diag(jtj), jnp.finfo(jtj.dtype).tiny))
@@ -463,5 +455,5 @@ def laplace(jtj, cost: float, n_eff: int, p, spec: ModelSpec, *, birge: bool = T
 
 
 __all__ = ["NoiseModel", "estimate_noise", "residuals", "closed_form_start", "grid_start", "two_level_start",
-           "moment_start", "start_vector", "solve", "solve_from_start",
+           "moment_start", "start_vector", "solve",
            "verdict", "laplace", "natural_intervals", "SOLVERS", "to_natural"]

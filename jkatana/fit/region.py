@@ -19,8 +19,8 @@ import numpy as np
 
 from jkatana.errors import InputError
 from jkatana.fit._model import MODELS, ModelSpec, Terms, from_natural, green, prepare, to_natural
-from jkatana.fit._solve import (NoiseModel, estimate_noise, grid_start, laplace, residuals, solve, solve_from_start,
-                                start_vector, verdict)
+from jkatana.fit._solve import (NoiseModel, estimate_noise, grid_start, laplace, residuals, solve, start_vector,
+                                verdict)
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
 
 DEFAULT_CAMERA = "Nikon 5100 (NPL)"
@@ -227,9 +227,6 @@ def fit_arrays(terms: Terms, y, w, spec: ModelSpec, *, start=None, solver: str =
                max_steps: int = 200, multistart: bool = False) -> dict:
     """Solve from a start (closed form by default) with an optional grid multi-start; numpy dict out."""
     dtype = y.dtype
-    if not multistart and (start is None or (isinstance(start, str) and start == "closed")):
-        out = solve_from_start(terms, y, w, spec=spec, solver=solver, max_steps=max_steps)
-        return {k: np.asarray(v) for k, v in out.items()}
     starts = [_start(start, terms, y, w, spec, dtype)]
     if multistart:
         starts.append(grid_start(terms, y, w, spec))
