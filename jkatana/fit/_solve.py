@@ -353,9 +353,8 @@ def solve(terms: Terms, y, w, p0, *, spec: ModelSpec, solver: str = "lm", max_st
         p = sol.value
         steps = sol.stats["num_steps"]
         solver_ok = sol.result == optx.RESULTS.successful
-    # p0 and p in one batch: the parameter-free geometry of the model is evaluated once for both
-    J, r = jax.vmap(lambda q: _jac_and_residuals(q, args))(jnp.stack([p0, p]))
-    r0, r, J = r[0], r[1], J[1]
+    r0 = residuals(p0, args)
+    J, r = _jac_and_residuals(p, args)
     g = J.T @ r
     jtj = J.T @ J
     dec = _decrement(jtj, g)
