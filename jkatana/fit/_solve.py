@@ -159,11 +159,12 @@ def _jac_and_residuals(p, args):
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
-def start_vector(terms: Terms, y, w, spec: ModelSpec):
-    """The default start: closed form for the paper's Gaussian models, :func:`moment_start` for other lobes."""
+def start_vector(terms: Terms, y, w, spec: ModelSpec, fallback=None):
+    """The default start: closed form for the paper's Gaussian models, :func:`moment_start` for other lobes
+    (`fallback`: see there)."""
     if spec.model in ("hiraji", "hamon"):
         return closed_form_start(terms, y, w, spec)
-    return moment_start(terms, y, w, spec)
+    return moment_start(terms, y, w, spec, fallback)
 
 
 #: Widths tried by :func:`moment_start`, as factors of the closed-form width (log-spaced, ×/÷ 3).
@@ -171,7 +172,7 @@ MOMENT_FACTORS = (1.0 / 3.0, 3.0, 5)
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
-def moment_start(terms: Terms, y, w, spec: ModelSpec):
+def moment_start(terms: Terms, y, w, spec: ModelSpec, fallback=None):
     """Start for a non-paper lobe from the data's peak width: 5 model evaluations instead of 21 over the whole width range.
 
     The log-quadratic closed form (:func:`closed_form_start`, amplitude 1) measures the data's peak as
@@ -182,7 +183,9 @@ def moment_start(terms: Terms, y, w, spec: ModelSpec):
     lobe's reflected width is its core's scale, so :func:`grid_start` then picks the best of
     :data:`MOMENT_FACTORS` around it (other shape parameters at their defaults, the scale linear).
     Where the closed form has no peak to measure (too few points above the noise, or no downward
-    curvature) the start is :func:`two_level_start`'s search over the whole width range.
+    curvature) the start is :func:`two_level_start`'s search over the whole width range, or `fallback`
+    when one is given (a batch of refits passes the full fit's optimum: under ``vmap`` a ``lax.cond``
+    becomes a select that compiles and runs both branches, so the batch keeps one branch).
     """
     from jkatana.models.lobes import Gaussian, Mixture
 
@@ -196,6 +199,8 @@ def moment_start(terms: Terms, y, w, spec: ModelSpec):
     factors = jnp.geomspace(lo, hi, n).astype(y.dtype)
     good = good & jnp.isfinite(width) & (width > 0)
     width = jnp.where(good, width, 1.0)
+    if fallback is not None:
+        return jnp.where(good, grid_start(terms, y, w, spec, mus=width * factors), jnp.asarray(fallback, y.dtype))
     return jax.lax.cond(good, lambda: grid_start(terms, y, w, spec, mus=width * factors),
                         lambda: two_level_start(terms, y, w, spec))
 
