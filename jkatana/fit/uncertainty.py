@@ -136,7 +136,7 @@ def sandwich(fit) -> dict:
 @functools.partial(jax.jit, static_argnames=("spec", "solver", "max_steps"))
 def _refits(terms, y, W, p_hat, *, spec, solver="lm", max_steps=200):
     def one(wk):
-        p0 = start_vector(terms, y, wk, spec)
+        p0 = start_vector(terms, y, wk, spec, p_hat)
         p0 = jnp.where(jnp.all(jnp.isfinite(p0)), p0, p_hat)
         return solve(terms, y, wk, p0, spec=spec, solver=solver, max_steps=max_steps)
 
