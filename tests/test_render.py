@@ -295,11 +295,14 @@ def test_spectral_output_of_a_mesh(tmp_path):
     its background are written, and the spectra integrate to the frame's XYZ."""
     from jkatana.render.renderer import prepare, render_view
 
-    text = SMALL.replace('name = "f"', 'name = "f"\nspectral = true').replace("sphere = {radius = 1.0}",
-                                                                          'mesh = "builtin:katana"')
+    text = (SMALL.replace('name = "f"', 'name = "f"\nspectral = true')
+            .replace("sphere = {radius = 1.0}", 'mesh = "builtin:katana"')
+            .replace("position = [0, 0, 4]", "position = [0.35, 0, 1.5]")    # the blade's centre, face on
+            .replace("look_at = [0, 0, 0]", "look_at = [0.35, 0, 0]"))
     frame = render_view(prepare(load_scene(_write(tmp_path, text))))
     assert frame.spectra is not None and frame.spectra.shape == (18, 24, GRID.size)
-    assert np.isfinite(frame.spectra).all() and frame.spectra.max() > 0
+    assert frame.mask.sum() > 0  # the blade covers pixels: its spectra, not only the background's
+    assert np.isfinite(frame.spectra).all() and frame.spectra[frame.mask].max() > 0
     np.testing.assert_allclose(frame.spectra @ CMF, frame.xyz, rtol=1e-4, atol=1e-6 * frame.xyz.max())
 
 

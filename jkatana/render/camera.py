@@ -75,20 +75,26 @@ class Camera:
         pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, up, -fwd, self.position
         return pose
 
-    def rays(self, index: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """``(origin (3,), directions (height, width, 3))`` unit world directions through pixel centres;
-        with ``index`` (flat pixel indices, row-major) only those pixels' directions ``(n, 3)``, the same
-        values as the full frame's."""
+    def pixel_axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(fwd (3,), x·right (width, 3), y·up (height, 3))``: the pinhole's terms per column and row;
+        pixel ``(r, c)``'s direction through its centre is ``fwd + x_c·right + y_r·up``, normalised."""
         right, up, fwd = self.frame()
         tan_half = math.tan(math.radians(self.fov_deg) / 2)
         aspect = self.width / self.height
         x = ((np.arange(self.width) + 0.5) / self.width * 2 - 1) * tan_half * aspect
         y = (1 - (np.arange(self.height) + 0.5) / self.height * 2) * tan_half
+        return fwd, x[:, None] * right, y[:, None] * up
+
+    def rays(self, index: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(origin (3,), directions (height, width, 3))`` unit world directions through pixel centres;
+        with ``index`` (flat pixel indices, row-major) only those pixels' directions ``(n, 3)``, the same
+        values as the full frame's."""
+        fwd, x_right, y_up = self.pixel_axes()
         if index is None:
-            d = fwd + x[None, :, None] * right + y[:, None, None] * up
+            d = fwd + x_right[None, :, :] + y_up[:, None, :]
         else:
             row, col = np.divmod(np.asarray(index, np.int64), self.width)
-            d = fwd + x[col, None] * right + y[row, None] * up
+            d = fwd + x_right[col] + y_up[row]
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         return np.asarray(self.position, np.float64), d
 

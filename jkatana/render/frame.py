@@ -234,14 +234,9 @@ def _compiled_background_xyz(n_dev: int):
 
 
 def _camera_axes(camera: Camera, dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(fwd (3,), x·right (W, 3), y·up (H, 3))``: the terms of :meth:`Camera.rays` per column and row;
-    pixel ``(r, c)``'s direction is ``fwd + x_c·right + y_r·up`` normalised (``tests/test_render_derived.py``
-    holds the two to float32 rounding)."""
-    right, up, fwd = camera.frame()
-    tan_half = np.tan(np.radians(camera.fov_deg) / 2)
-    x = ((np.arange(camera.width) + 0.5) / camera.width * 2 - 1) * tan_half * (camera.width / camera.height)
-    y = (1 - (np.arange(camera.height) + 0.5) / camera.height * 2) * tan_half
-    return fwd.astype(dtype), (x[:, None] * right).astype(dtype), (y[:, None] * up).astype(dtype)
+    """:meth:`Camera.pixel_axes` in ``dtype``: the devices make the rays from them (``tests/test_render_derived.py``
+    holds those rays to :meth:`Camera.rays`' to float32 rounding)."""
+    return tuple(a.astype(dtype) for a in camera.pixel_axes())
 
 
 @functools.lru_cache(maxsize=8)
