@@ -3,7 +3,7 @@ directory, or old:DIR for the committed glrender ($OLD_GLRENDER) with that direc
 
 usage: prof.py VARIANT_DIR[,VARIANT_DIR...] [--cfg k=v ...]
 Each variant is a shader directory (A/B in one process, alternated, min over rounds of the per-round median)."""
-import os, sys, time, json
+import os, sys, time
 import numpy as np
 from jkatana.interactive import glrender as G
 from jkatana.interactive import scene as S
