@@ -350,6 +350,12 @@ N_CHUNKS = 32
 SORT_SLABS = 4 * N_CHUNKS
 
 
+def _box_corners(lo, hi) -> np.ndarray:
+    """The 8 homogeneous corners ``(8, 4)`` of the axis-aligned box ``[lo, hi]``."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    return np.array([[(lo, hi)[i >> 2][0], (lo, hi)[(i >> 1) & 1][1], (lo, hi)[i & 1][2], 1.0] for i in range(8)])
+
+
 def mesh_chunks(primitive, n: int = N_CHUNKS) -> tuple[np.ndarray, np.ndarray]:
     """``(starts, corners)``: the primitive's triangles (in index-buffer order) cut into ``n`` consecutive
     runs, ``starts`` ``(n + 1,)`` the first triangle of each run (and the count), ``corners`` ``(n, 8, 4)`` the
@@ -362,11 +368,8 @@ def mesh_chunks(primitive, n: int = N_CHUNKS) -> tuple[np.ndarray, np.ndarray]:
     pos = np.asarray(primitive.positions, np.float64)
     n = max(1, min(n, len(tri)))
     starts = np.linspace(0, len(tri), n + 1).round().astype(np.int64)
-    corners = np.ones((n, 8, 4))
-    for k in range(n):
-        p = pos[tri[starts[k]:starts[k + 1]].ravel()]
-        lo, hi = p.min(0), p.max(0)
-        corners[k, :, :3] = [[(lo, hi)[i >> 2][0], (lo, hi)[(i >> 1) & 1][1], (lo, hi)[i & 1][2]] for i in range(8)]
+    corners = np.stack([_box_corners(p.min(0), p.max(0))
+                        for p in (pos[tri[starts[k]:starts[k + 1]].ravel()] for k in range(n))])
     primitive._jk_chunks = (starts, corners)
     return primitive._jk_chunks
 
@@ -379,9 +382,7 @@ def _visible_range(primitive, mvp: np.ndarray) -> tuple[int, int, np.ndarray]:
     from pyrender.constants import GLTF
 
     if primitive.indices is None or primitive.mode != GLTF.TRIANGLES or primitive.poses is not None:
-        lo, hi = primitive.bounds
-        c = np.array([[(lo, hi)[i >> 2][0], (lo, hi)[(i >> 1) & 1][1], (lo, hi)[i & 1][2], 1.0] for i in range(8)])
-        return 0, -1, (c @ mvp.T)[None]
+        return 0, -1, (_box_corners(*primitive.bounds) @ mvp.T)[None]
     starts, corners = mesh_chunks(primitive)
     clip = corners @ mvp.T                                        # (n, 8, 4)
     xyz, w = clip[..., :3], clip[..., 3:]
