@@ -97,3 +97,26 @@ def test_dense_views_zero_outside_mask():
     assert g.position.shape == (24, 32, 3) and g.uv.shape == (24, 32, 2)
     assert not g.normal[~g.mask].any() and np.allclose(np.linalg.norm(g.normal[g.mask], axis=-1), 1.0)
     np.testing.assert_array_equal(g.view[g.mask], -g.ray[g.mask])
+
+
+def test_face_table_follows_the_mesh_and_its_uvs():
+    """The per-triangle table the G-buffer interpolates from is cached with the mesh: new UVs or moved
+    vertices give the G-buffer of a fresh mesh with the same data, not the cached one's."""
+    pytest.importorskip("embreex")
+    cam = Camera(position=(0.0, 0.3, 2.0), fov_deg=40.0, width=40, height=30)
+
+    def fresh(mesh):
+        m = trimesh.Trimesh(np.array(mesh.vertices), np.array(mesh.faces), process=False)
+        m.visual = trimesh.visual.TextureVisuals(uv=np.array(mesh.visual.uv))
+        return gb.gbuffer_mesh(m, cam)
+
+    mesh = _uv_sphere()
+    first = gb.gbuffer_mesh(mesh, cam)
+    mesh.visual.uv = 0.5 * np.asarray(mesh.visual.uv)
+    again = gb.gbuffer_mesh(mesh, cam)
+    np.testing.assert_allclose(again.hit_uv, 0.5 * first.hit_uv, rtol=1e-12, atol=1e-15)
+    mesh.vertices = np.asarray(mesh.vertices) * 1.2
+    moved, want = gb.gbuffer_mesh(mesh, cam), fresh(mesh)
+    assert moved.mask.sum() > first.mask.sum()
+    for name in ("index", "hit_position", "hit_normal", "hit_tangent", "hit_uv"):
+        np.testing.assert_array_equal(getattr(moved, name), getattr(want, name), err_msg=name)

@@ -134,8 +134,56 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("pc,pc->p", a, b)
 
 
-def _embree_first_hits(isect, origin: np.ndarray, d: np.ndarray):
-    """``(ray index, triangle index, barycentrics (m, 3))`` of the rays ``origin + t·d`` that hit, in ray order.
+def _face_table(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Per triangle, one column of a ``(30, F)`` float64 table (one gather per hit fetches all; attributes
+    as rows, so that the per-hit arithmetic runs on contiguous rows): the first corner p₀ and the edges
+    e₁ = p₁ − p₀, e₂ = p₂ − p₀ (rows :data:`_P0`, :data:`_E1`, :data:`_E2`), the three vertex normals
+    (:data:`_VN`), the three UVs (:data:`_UV`), the face normal (:data:`_NG`) and the tangent ∂P/∂u
+    (:data:`_TU`: from the UV derivatives, dP = T du + B dv, solved on the triangle; constant over it).
+
+    Kept in the mesh's own cache (cleared by trimesh when the vertices or faces change), with the hash
+    of its visual (the UVs), so a fixed mesh pays for it once and not per frame.
+    """
+    key = "jkatana_gbuffer_faces"
+    uv_hash = hash(mesh.visual)
+    cache = mesh._cache  # trimesh's per-mesh cache: verified against the mesh's data on access
+    hit = cache[key] if key in cache else None
+    if hit is not None and hit[0] == uv_hash:
+        return hit[1]
+    verts = np.asarray(mesh.vertices).view(np.ndarray)
+    tri = np.asarray(mesh.faces).view(np.ndarray)
+    corners = verts[tri]
+    p0, e1, e2 = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    t_uv = np.asarray(mesh.visual.uv, np.float64)[tri]
+    du1, dv1 = t_uv[:, 1, 0] - t_uv[:, 0, 0], t_uv[:, 1, 1] - t_uv[:, 0, 1]
+    du2, dv2 = t_uv[:, 2, 0] - t_uv[:, 0, 0], t_uv[:, 2, 1] - t_uv[:, 0, 1]
+    det = du1 * dv2 - du2 * dv1
+    tu = (e1 * dv2[:, None] - e2 * dv1[:, None]) / np.where(np.abs(det) > 1e-20, det, 1.0)[:, None]
+    vn = np.asarray(mesh.vertex_normals).view(np.ndarray)[tri].reshape(-1, 9)
+    ng = np.asarray(mesh.face_normals).view(np.ndarray)
+    table = np.ascontiguousarray(np.concatenate([p0, e1, e2, vn, t_uv.reshape(-1, 6), ng, tu], -1).T, np.float64)
+    cache[key] = (uv_hash, table)
+    return table
+
+
+#: Row slices of :func:`_face_table`.
+_P0, _E1, _E2, _VN, _UV, _NG, _TU = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 18), slice(18, 24),
+                                     slice(24, 27), slice(27, 30))
+
+
+def _rdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dot products of the columns of ``(3, n)`` arrays."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _rcross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products of the columns of ``(3, n)`` arrays."""
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def _embree_first_hits(isect, origin: np.ndarray, d: np.ndarray, faces: np.ndarray):
+    """``(ray index, triangle index, u, v, the hit triangles' columns of faces)`` of the rays ``origin + t·d``
+    that hit, in ray order (``faces``: :func:`_face_table`).
 
     One Embree query (Wald et al. 2014) through trimesh's scene finds each ray's
     triangle; the barycentrics ``(u, v)`` (the hit is ``(1 − u − v)·p₀ + u·p₁ + v·p₂``)
@@ -148,16 +196,16 @@ def _embree_first_hits(isect, origin: np.ndarray, d: np.ndarray):
     prim = np.asarray(isect._scene.run(o, np.asarray(d, np.float64)), np.int64)
     idx_ray = np.flatnonzero(prim >= 0)
     idx_tri = prim[idx_ray]
-    p = np.asarray(isect.mesh.vertices).view(np.ndarray)[np.asarray(isect.mesh.faces).view(np.ndarray)[idx_tri]]
-    dr = d[idx_ray]
-    e1, e2, tv = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], np.asarray(origin, np.float64) - p[:, 0]
-    pv = np.cross(dr, e2)
-    det = _dot(e1, pv)
+    f = np.take(faces, idx_tri, axis=1)
+    dr = np.ascontiguousarray(d[idx_ray].T)
+    e1, e2, tv = f[_E1], f[_E2], np.asarray(origin, np.float64)[:, None] - f[_P0]
+    pv = _rcross(dr, e2)
+    det = _rdot(e1, pv)
     ok = np.abs(det) > 1e-300
     inv = 1.0 / np.where(ok, det, 1.0)
-    u = np.where(ok, _dot(tv, pv) * inv, 1.0 / 3.0)
-    v = np.where(ok, _dot(dr, np.cross(tv, e1)) * inv, 1.0 / 3.0)
-    return idx_ray, idx_tri, np.stack([1.0 - u - v, u, v], -1)
+    u = np.where(ok, _rdot(tv, pv) * inv, 1.0 / 3.0)
+    v = np.where(ok, _rdot(dr, _rcross(tv, e1)) * inv, 1.0 / 3.0)
+    return idx_ray, idx_tri, u, v, f
 
 
 #: Side (pixels) of the screen tiles :func:`candidate_pixels` marks.
@@ -234,49 +282,52 @@ def gbuffer_mesh(mesh: trimesh.Trimesh, camera: Camera) -> GBuffer:
     cand = np.arange(H * W) if cand is None else cand
     origin, dc = camera.rays(cand)
     isect, engine = _intersector(mesh)
-    # plain arrays: trimesh's tracked arrays re-hash on every access
-    verts = np.asarray(mesh.vertices).view(np.ndarray)
+    faces = _face_table(mesh)
     if engine == "embree":
-        idx_ray, idx_tri, bary = _embree_first_hits(isect, origin, dc)
+        idx_ray, idx_tri, u, v, f = _embree_first_hits(isect, origin, dc, faces)
     else:
         loc, idx_ray, idx_tri = _first_hits(isect, np.broadcast_to(origin, dc.shape), dc)
         order = np.argsort(idx_ray, kind="stable")  # ascending pixel order
         idx_ray, idx_tri = idx_ray[order], idx_tri[order]
+        verts = np.asarray(mesh.vertices).view(np.ndarray)  # plain arrays: trimesh's tracked arrays re-hash
         bary = trimesh.triangles.points_to_barycentric(verts[np.asarray(mesh.faces)[idx_tri]], loc[order])
+        u, v, f = bary[:, 1], bary[:, 2], np.take(faces, idx_tri, axis=1)
     mask = np.zeros(H * W, bool)
     mask[cand[idx_ray]] = True
-    n = len(idx_ray)
-    ns, T, uvp, loc = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 3))
-    if n:
-        d = dc[idx_ray]
-        tri = np.asarray(mesh.faces).view(np.ndarray)[idx_tri]
-        corners = verts[tri]
-        loc = np.einsum("pk,pkc->pc", bary, corners)
-        vn = np.asarray(mesh.vertex_normals).view(np.ndarray)[tri]
-        ns = np.einsum("pk,pkc->pc", bary, vn)
-        ng = np.asarray(mesh.face_normals).view(np.ndarray)[idx_tri]
-        ns = np.where(np.sqrt(_dot(ns, ns))[:, None] > 1e-12, ns, ng)
-        ns /= np.sqrt(_dot(ns, ns))[:, None]
-        # face the camera (two-sided shading: the blade is seen from both flats)
-        flip = _dot(ns, d) > 0
-        ns[flip] *= -1
-        t_uv = np.asarray(uv_v)[tri]
-        uvp = np.einsum("pk,pkc->pc", bary, t_uv)
-        # tangent from UV derivatives: dP = T du + B dv
-        p0, p1, p2 = corners[:, 0], corners[:, 1], corners[:, 2]
-        e1, e2 = p1 - p0, p2 - p0
-        du1, dv1 = t_uv[:, 1, 0] - t_uv[:, 0, 0], t_uv[:, 1, 1] - t_uv[:, 0, 1]
-        du2, dv2 = t_uv[:, 2, 0] - t_uv[:, 0, 0], t_uv[:, 2, 1] - t_uv[:, 0, 1]
-        det = du1 * dv2 - du2 * dv1
-        T = (e1 * dv2[:, None] - e2 * dv1[:, None]) / np.where(np.abs(det) > 1e-20, det, 1.0)[:, None]
-        T -= _dot(T, ns)[:, None] * ns
-        tl = np.sqrt(_dot(T, T))[:, None]
-        fallback = np.cross(ns, [0.0, 0.0, 1.0]) + 1e-9
-        T = np.where(tl > 1e-12, T / np.maximum(tl, 1e-30), fallback / np.linalg.norm(fallback, axis=-1, keepdims=True))
-    else:
-        d = np.zeros((0, 3))
-    return GBuffer(mask.reshape(H, W), cand[idx_ray], np.asarray(loc, np.float64).reshape(n, 3), ns, T, uvp, -d,
-                   camera)
+    d = dc[idx_ray]
+    loc, ns, T, uvp = _interpolate(f, u, v, d)
+    return GBuffer(mask.reshape(H, W), cand[idx_ray], loc, ns, T, uvp, -d, camera)
+
+
+def _interpolate(f: np.ndarray, u: np.ndarray, v: np.ndarray, d: np.ndarray):
+    """``(position, shading normal, tangent, uv)``, ``(n, 3|2)`` each, at barycentrics ``(u, v)`` of the hit
+    triangles' columns ``f`` of :func:`_face_table`, seen along ``d (n, 3)``.
+
+    The shading normal is the vertex normals interpolated (the face normal where they cancel), unit, turned
+    to face the camera (two-sided shading: the blade is seen from both flats); the tangent is the face's
+    ∂P/∂u Gram–Schmidt-orthogonalised against it (a perpendicular of the normal where ∂P/∂u is degenerate).
+    """
+    w = 1.0 - u - v
+    loc = f[_P0] + u * f[_E1] + v * f[_E2]
+    vn = f[_VN]
+    ns = w * vn[0:3] + u * vn[3:6] + v * vn[6:9]
+    ln = np.sqrt(_rdot(ns, ns))
+    good = ln > 1e-12
+    ns = np.where(good, ns / np.where(good, ln, 1.0), f[_NG])
+    if not good.all():
+        ns /= np.sqrt(_rdot(ns, ns))
+    ns *= np.where(_rdot(ns, d.T) > 0, -1.0, 1.0)
+    t_uv = f[_UV]
+    uvp = w * t_uv[0:2] + u * t_uv[2:4] + v * t_uv[4:6]
+    T = f[_TU] - _rdot(f[_TU], ns) * ns
+    tl = np.sqrt(_rdot(T, T))
+    ok = tl > 1e-12
+    T = T / np.where(ok, tl, 1.0)
+    T, ns = np.ascontiguousarray(T.T), np.ascontiguousarray(ns.T)
+    if not ok.all():
+        fallback = np.cross(ns[~ok], [0.0, 0.0, 1.0]) + 1e-9
+        T[~ok] = fallback / np.linalg.norm(fallback, axis=-1, keepdims=True)
+    return np.ascontiguousarray(loc.T), ns, T, np.ascontiguousarray(uvp.T)
 
 
 def gbuffer_sphere(camera: Camera, center=(0.0, 0.0, 0.0), radius: float = 1.0) -> GBuffer:
