@@ -354,3 +354,60 @@ def test_cap_rule_per_lobe_keeps_each_lobes_rule():
     assert not np.array_equal(np.asarray(nodes[0][0]), np.asarray(stroud[0][0]))  # the two rules differ there
     with pytest.raises(ValueError, match="lobe parts"):
         _cap_rule_terms(lobes, Vl, fr, C, jnp.asarray(r, f32), "nodes,stroud,nodes")
+
+
+def test_cap_pixels_leave_out_only_pixels_the_cap_cannot_reach():
+    """:func:`cap_pixels` keeps a pixel iff its mirror direction lies within ``r + 6σ`` of the cap's centre
+    (σ the widest lobe part the pixel weighs on), and every pixel it leaves out has a cap term (the 64-node
+    rule) below 1e-7 of the glint's peak; a lobe part of weight 0 does not widen the reach."""
+    from jkatana.models.microfacet import gaussian_normalisation
+    from jkatana.render.caps import CAP_REACH, _cap_rule_terms, cap_pixels
+
+    f32 = jnp.float32
+    r, mu0, mu1 = math.radians(0.5), 0.02, 0.2
+    env, _, _ = build_environment(np.ones((16, 32, GRID.size)), grid=GRID)
+    env = dataclasses.replace(env, caps=Caps(jnp.asarray([[0.0, 0.0, 1.0]], f32), jnp.asarray([r], f32),
+                                             jnp.ones((1, env.channels.shape[-1]), f32)))
+    # normal +z, views in the xz plane: the mirror direction lies ψ = |θ_V| from the cap at the zenith
+    psi = np.linspace(0.0, 0.9, 721)
+    P = len(psi)
+    V = np.stack([np.sin(psi), 0 * psi, np.cos(psi)], -1)
+    px = Pixels(jnp.zeros((P, 3), f32), jnp.tile(jnp.asarray([[0.0, 0.0, 1.0]], f32), (P, 1)), jnp.asarray(V, f32),
+                jnp.ones((P,), f32), jnp.full((P,), mu0, f32), jnp.full((P,), mu1, f32))
+    plan = Plan(mode="prefiltered", samples=1, hiraji=True, hamon=True)
+    near = np.asarray(cap_pixels(plan, env, px))  # w = 1: the hamon part weighs nothing
+    reach = r + CAP_REACH * mu0 * math.sqrt(2.0 / math.log(2.0))
+    assert near[psi < reach - 1e-4].all() and not near[psi > reach + 1e-4].any()
+    assert not near.all() and near.any()
+    wide = np.asarray(cap_pixels(plan, env, px._replace(w=jnp.full((P,), 0.5, f32))))
+    assert wide.all()  # the hamon part (σ = 0.34) reaches every pixel of the sweep
+    fr = tuple(jnp.tile(jnp.asarray(e, f32), (P, 1)) for e in np.eye(3))
+    lobe = Gaussian(px.mu0, gaussian_normalisation(px.mu0))
+    (a, _), = _cap_rule_terms([(lobe, px.w, None)], px.view, fr, jnp.asarray([0.0, 0.0, 1.0], f32),
+                              jnp.asarray(r, f32), "nodes")
+    a = np.asarray(a, np.float64)
+    assert a.max() > 0 and a[~near].max() <= 1e-7 * a.max()
+    assert a[near].min() > 0  # inside the reach the tail is still there
+
+
+def test_caps_on_their_own_pass_equal_the_one_pass(sun_map, monkeypatch):
+    """A prefiltered frame whose caps are shaded on their own pass over the pixels :func:`cap_pixels` keeps
+    (a narrow lobe on a sphere: a few of them) equals the frame shading them in the one pass with the
+    environment, to float32 rounding."""
+    from jkatana.render import frame
+    from jkatana.render.caps import cap_pixels
+
+    env, fac, _ = build_environment(sun_map, grid=GRID, split_sun=True, prefilter_mus=(0.02, 0.1))
+    plan = Plan(mode="prefiltered", samples=1, hiraji=True, hamon=False, factored=fac)
+    mat, maps = _iron(), _maps(1.0, 0.03, 0.15)
+    px = _sphere_pixels()
+    narrow = px._replace(w=jnp.ones_like(px.w), mu0=jnp.full_like(px.w, 0.03))  # the maps' pixels
+    share = float(np.asarray(cap_pixels(plan, env, narrow)).mean())
+    assert 0.0 < share < 0.5
+    monkeypatch.setattr(frame, "CAP_PASS_MAX", 1.0)
+    apart = render_frame(plan, mat, env, None, SPHERE, CAM, maps, CMF)
+    monkeypatch.setattr(frame, "CAP_PASS_MAX", -1.0)
+    one = render_frame(plan, mat, env, None, SPHERE, CAM, maps, CMF)
+    m = one.mask
+    assert np.asarray(one.xyz[m][:, 1]).max() > 10 * np.median(one.xyz[m][:, 1])  # the glint is in the frame
+    np.testing.assert_allclose(apart.xyz, one.xyz, rtol=2e-6, atol=2e-6 * float(one.xyz.max()))

@@ -6,7 +6,9 @@ cap against each lobe by a fixed rule (:func:`jkatana.light.capquad.cap_nodes`, 
 Stroud's 4-point disc rule, Stroud 1971, for lobes much wider than the cap), and
 the sampling modes draw one direction per cap, uniform in its cone, combined with
 the other strategies by the balance heuristic (Veach & Guibas 1995). Without caps
-none of this is traced.
+none of this is traced. :func:`cap_pixels` bounds where a cap's term can matter (the
+pixels whose mirror direction lies within a few lobe widths of it), so that a frame
+can shade the caps on those pixels only.
 """
 
 from __future__ import annotations
@@ -14,10 +16,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Bool
 
 from jkatana.light import capquad
 from jkatana.models.geometry import tangent_frame, to_local
-from jkatana.models.lobes import Mixture
+from jkatana.models.lobes import Gaussian, GaussianVCavity, Mixture
 from jkatana.models.microfacet import gaussian_normalisation
 from jkatana.render.environment import Caps, Environment
 from jkatana.render.fresnel_fold import Material
@@ -140,6 +143,50 @@ def cap_rule_for(plan: Plan, env: Environment, px: Pixels) -> str:
     r_max = float(np.asarray(caps.radius).max())
     rules = ["stroud" if w >= capquad.STROUD_MIN_WIDTH * r_max else "nodes" for w in widths]
     return rules[0] if len(set(rules)) == 1 else ",".join(rules)
+
+
+#: Widths past a cap's edge beyond which :func:`cap_pixels` leaves a pixel's cap term out: there the
+#: lobes' facet term is at most ``exp(−CAP_REACH²/2)`` (1.5e-8) of its peak.
+CAP_REACH = 6.0
+
+
+def cap_pixels(plan: Plan, env: Environment, px: Pixels, reach: float = CAP_REACH) -> Bool[Array, "P"]:
+    """The pixels whose cap term (:func:`_cap_rule_terms`, and a mirror hiraji's view of a cap) can matter:
+    those whose mirror direction R lies within ``r_k + reach·σ`` of a cap's centre ``C_k``, σ the
+    largest :meth:`~jkatana.models.lobes.Lobe.reflected_width` of the lobe parts the pixel weighs on.
+
+    The bound, for the paper's lobes (:class:`~jkatana.models.lobes.Gaussian`,
+    :class:`~jkatana.models.lobes.GaussianVCavity`), whose facet term is
+    ``D = exp(−ln2 φ²/μ²)`` (Mochizuki et al., eq. 1) and σ = μ √(2/ln2): a light
+    direction L reflects V about its half vector H, and the two reflections about H
+    and about N differ by a rotation through ``2∠(H, N)`` (two reflections compose
+    to a rotation by twice the angle between their planes), so ``∠(L, R) ≤ 2φ``.
+    Every L of cap k has ``∠(L, R) ≥ ψ − r_k`` (ψ = ∠(R, C_k)), hence
+    ``φ ≥ (ψ − r_k)/2`` and ``D ≤ exp(−(ψ − r_k)²/(2σ²))``: on a pixel left out,
+    every cap direction's facet term is below ``exp(−reach²/2)`` of its peak (1.5e-8
+    at the default 6), and so is the cap term, against what it would be with the
+    facet term at its peak. For other lobes (GGX's and GTR's tails are not
+    Gaussian) every pixel is kept. Pure JAX, exact in the chord form
+    ``|R − C| ≤ 2 sin(min(ψ_max, π)/2)``.
+    """
+    caps = _caps(env)
+    P = px.normal.shape[0]
+    if caps is None:
+        return jnp.zeros((P,), bool)
+    parts = _parts(_lobes(plan, px, (1.0, 1.0)))
+    if not all(isinstance(lobe, (Gaussian, GaussianVCavity)) for lobe, _, _ in parts):
+        return jnp.ones((P,), bool)
+    dtype = px.normal.dtype
+    sigma = jnp.zeros((P,), dtype)
+    for lobe, weight, _ in parts:
+        s = jnp.broadcast_to(lobe.reflected_width(), (P,)).astype(dtype)
+        sigma = jnp.maximum(sigma, jnp.where(jnp.broadcast_to(weight, (P,)) > 0, s, 0.0))
+    N, V = px.normal, px.view
+    R = 2.0 * jnp.sum(N * V, -1, keepdims=True) * N - V  # the mirror direction (world)
+    Cw = caps.world(env.rotation).astype(dtype)  # (K, 3)
+    chord = jnp.linalg.norm(R[:, None, :] - Cw[None], axis=-1)  # (P, K): 2 sin(ψ/2)
+    psi_max = jnp.minimum(caps.radius.astype(dtype)[None] + reach * sigma[:, None], jnp.pi)
+    return jnp.any(chord <= 2.0 * jnp.sin(0.5 * psi_max) + 1e-6, axis=-1)
 
 
 def _cap_offsets(plan: Plan, key, P, dtype, ids, K, stream: int = 0x53554E):

@@ -8,7 +8,9 @@ sets to the core count). Fixed call shapes mean one compilation per
 (plan, chunk) whatever the view's coverage (a prefiltered frame's last call takes
 the smallest of a finer ladder of sizes that holds the remaining pixels: one
 program per size); JAX's asynchronous dispatch keeps both devices busy while
-Python queues the next call.
+Python queues the next call. A prefiltered frame's split caps (a sun) get a pass
+of their own over the pixels they can reach (:func:`~jkatana.render.caps.cap_pixels`)
+when those are few (:data:`CAP_PASS_MAX`).
 """
 
 from __future__ import annotations
@@ -28,10 +30,16 @@ from jax.sharding import NamedSharding, PartitionSpec as PS
 from jkatana.render.camera import Camera
 from jkatana.render.environment import xyz_environment
 from jkatana.render.gbuffer import GBuffer, gbuffer_mesh, gbuffer_sphere
+from jkatana.render.caps import _caps, cap_pixels
 from jkatana.render.shading import (Environment, Light, Material, PixelIds, Pixels, Plan, Visibility, background,
-                                    cap_rule_for, fold_fresnel, fresnel_rank_for, ray_directions, shade)
+                                    cap_rule_for, fold_fresnel, fresnel_rank_for, ray_directions, shade, shade_caps)
 
 DEFAULT_CHUNK = 16384
+
+#: Largest share of a prefiltered frame's pixels that :func:`~jkatana.render.caps.cap_pixels` may keep for the
+#: split caps to get a pass of their own (:func:`shade_pixels`): a pass costs one more dispatch and repeats
+#: the pixel's frame, while the cap rule's cost is per pixel.
+CAP_PASS_MAX = 0.6
 
 #: Per-device sizes of a prefiltered frame's last call (:func:`shade_pixels`): 1024 · 2^(k/2), rounded to 512.
 _TAIL_LADDER = (1024, 1536, 2048, 3072, 4096, 6144, 8192, 12288)
@@ -76,10 +84,14 @@ def devices():
 
 
 @functools.lru_cache(maxsize=32)
-def _compiled(plan: Plan, n_dev: int, chunk: int):
+def _compiled(plan: Plan, n_dev: int, chunk: int, caps_only: bool = False):
+    """:func:`~jkatana.render.shading.shade` (or, ``caps_only``, :func:`~jkatana.render.shading.shade_caps`)
+    jitted over ``n_dev`` devices, ``chunk`` pixels each: ``(function, mesh)``."""
     mesh = jax.make_mesh((n_dev,), ("d",), devices=jax.local_devices()[:n_dev])
 
     def per_device(mat, env, lights, px, vis, cmf, key, ids):
+        if caps_only:
+            return shade_caps(plan, mat, env, px, cmf, vis)
         if ids is None:  # with pixel ids the scramble comes from the frame key and the pixel index
             key = jax.random.fold_in(key, jax.lax.axis_index("d"))
         return shade(plan, mat, env, lights, px, cmf, key, vis, ids)
@@ -324,9 +336,46 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
         mat, env = folded(plan.fresnel_rank, mat, env, jnp.asarray(cmf, px.normal.dtype),
                           jnp.asarray(vt[:plan.fresnel_rank], px.normal.dtype))
     n_dev = n_devices or len(jax.local_devices())
-    P = px.normal.shape[0]
-    # call shapes from a fixed ladder (1024 · 4^k, capped at `chunk`), so that views with
-    # different coverage reuse one compiled program instead of compiling per pixel count
+    if not (plan.mode == "prefiltered" and _caps(env) is not None and not plan.visibility):
+        return _collect(_dispatch(plan, mat, env, lights, px, cmf, key, n_dev, chunk, occluders, ids), px)
+    # the caps on their own pass over the pixels where they can matter (cap_pixels), when those are few
+    # enough to pay for the pass; else in the one pass, as every other term
+    near = np.flatnonzero(np.asarray(_compiled_cap_pixels(plan)(env, px)))
+    if len(near) > CAP_PASS_MAX * px.normal.shape[0]:
+        return _collect(_dispatch(plan, mat, env, lights, px, cmf, key, n_dev, chunk, occluders, ids), px)
+    no_caps = eqx.tree_at(lambda e: e.caps, env, None)
+    rest = _dispatch(plan, mat, no_caps, lights, px, cmf, key, n_dev, chunk, occluders, ids)
+    on_caps = None
+    if len(near):
+        take = np.full(_bucket(plan, len(near), n_dev, chunk), near[-1])
+        take[:len(near)] = near
+        on_caps = _dispatch(plan, mat, env, lights, _take(px, jnp.asarray(take, jnp.int32)), cmf, key, n_dev, chunk,
+                            occluders, None, caps_only=True)
+    xyz, spec = _collect(rest, px)
+    if on_caps is not None:
+        cx, cs = _collect(on_caps, px, len(near))
+        xyz[near] += cx
+        if spec is not None and cs is not None:
+            spec[near] += cs
+    return xyz, spec
+
+
+@functools.lru_cache(maxsize=32)
+def _compiled_cap_pixels(plan: Plan):
+    return jax.jit(lambda env, px: cap_pixels(plan, env, px))
+
+
+@jax.jit
+def _take(px: Pixels, idx: jax.Array) -> Pixels:
+    return jax.tree.map(lambda a: a[idx], px)
+
+
+def _call_sizes(plan: Plan, P: int, n_dev: int, chunk: int) -> tuple[int, list[int]]:
+    """``(chunk, per-device pixels of each call)`` for ``P`` pixels: calls of ``chunk`` from a fixed ladder
+    (1024 · 4^k, capped at ``chunk``), so that views with different coverage reuse one compiled program
+    instead of compiling per pixel count; a prefiltered frame's last call from the finer
+    :data:`_TAIL_LADDER` (steps ≤ 1.5×), padding the remainder instead of a whole call (the sampling modes
+    keep whole calls: their streams follow the call layout)."""
     need = -(-P // n_dev)
     size = 1024
     while size < need and size < chunk:
@@ -334,12 +383,26 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     chunk = int(min(size, chunk))
     call = n_dev * chunk
     n_calls = max(1, -(-P // call))
-    sizes = [chunk] * n_calls  # per-device pixels of each call
-    if plan.mode == "prefiltered" and n_calls > 1:
-        # deterministic shading: the last call from a finer ladder (steps ≤ 1.5×), padding the remainder
-        # instead of a whole call; the sampling modes keep whole calls (their streams follow the call layout)
+    sizes = [chunk] * n_calls
+    if plan.mode == "prefiltered":
         rest = -(-(P - (n_calls - 1) * call) // n_dev)
         sizes[-1] = min(s for s in _TAIL_LADDER + (chunk,) if s >= min(rest, chunk))
+    return chunk, sizes
+
+
+def _bucket(plan: Plan, n: int, n_dev: int, chunk: int) -> int:
+    """The pixel count :func:`_call_sizes` pads ``n`` pixels of a prefiltered ``plan`` to: a subset gathered at
+    that size adds no padding of its own, and its programs are one per size of the ladder."""
+    return n_dev * sum(_call_sizes(plan, n, n_dev, chunk)[1])
+
+
+def _dispatch(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels, cmf, key, n_dev: int,
+              chunk: int, occluders, ids: PixelIds | None, caps_only: bool = False) -> list:
+    """:func:`shade_pixels`' sharded calls over ``px``, dispatched (asynchronous): their outputs."""
+    P = px.normal.shape[0]
+    chunk, sizes = _call_sizes(plan, P, n_dev, chunk)
+    call = n_dev * chunk
+    n_calls = len(sizes)
     pad = sum(sizes) * n_dev - P
     dtype = px.normal.dtype
 
@@ -354,7 +417,7 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
         ids = PixelIds(padded(jnp.asarray(ids.pixel, jnp.uint32), 0), padded(jnp.asarray(ids.subpixel, jnp.int32), 0))
     else:
         ids = None
-    f, mesh = _compiled(plan, n_dev, chunk)
+    f, mesh = _compiled(plan, n_dev, chunk, caps_only)
     rep = NamedSharding(mesh, PS())
     split = NamedSharding(mesh, PS("d"))
     mat, env, lights, cmf = jax.device_put((mat, env, lights, jnp.asarray(cmf, dtype)), rep)
@@ -363,7 +426,7 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     for i in range(n_calls):
         sl = slice(i * call, i * call + n_dev * sizes[i])
         if sizes[i] != chunk:
-            f = _compiled(plan, n_dev, sizes[i])[0]
+            f = _compiled(plan, n_dev, sizes[i], caps_only)[0]
         chunk_px = jax.device_put(calls[i], split)
         chunk_ids = None if ids is None else jax.device_put(jax.tree.map(lambda a: a[sl], ids), split)
         ckey = jax.device_put(key if ids is not None else jax.random.fold_in(key, i), rep)
@@ -374,6 +437,13 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
                                               visibility(occluders, rays, np.asarray(chunk_px.position),
                                                          np.asarray(chunk_px.normal))), split)
         outs.append(f(mat, env, lights, chunk_px, vis, cmf, ckey, chunk_ids))
+    return outs
+
+
+def _collect(outs: list, px: Pixels, P: int | None = None):
+    """The first ``P`` (default: all of ``px``'s) rows of :func:`_dispatch`'s outputs as NumPy
+    ``(xyz, spectra or None)``."""
+    P = px.normal.shape[0] if P is None else P
     xyz = np.concatenate([np.asarray(o[0]) for o in outs])[:P]
     spec = None
     if outs[0][1] is not None:
@@ -452,9 +522,9 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
         keep = ~blocked[gb.index]
     t1, c1 = time.perf_counter(), time.process_time()
     sel = gb.index[keep]
-    xyz = np.zeros((H * W, 3), np.float32)
     spectra = np.zeros((H * W, env.basis.shape[-1]), np.float32) if spectral_out else None
     key = jax.random.PRNGKey(seed)
+    x = None
     if len(sel):
         uv = jnp.asarray(gb.hit_uv[keep], dtype)
         mp = _sample_map(jnp.asarray(maps, dtype), uv)
@@ -467,17 +537,24 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
                            ((row % ss) * ss + col % ss).astype(np.int32))
         x, s = shade_pixels(plan, mat, env, lights, px, cmf, key, n_devices=n_devices, chunk=chunk,
                             occluders=occluders, ids=ids)
-        xyz[sel] = x
         if spectra is not None and s is not None:
             spectra[sel] = s
     t2, c2 = time.perf_counter(), time.process_time()
     bg = ~m & ~blocked
     if bg_all is not None:
-        xyz[bg] = np.asarray(bg_all)[:H * W][bg]
-    elif bg.any():
-        bx, bs = _compiled_background_spectral()(env, jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype), jnp.asarray(cmf, dtype))
-        spectra[bg] = np.asarray(bs)
-        xyz[bg] = np.asarray(bx)
+        # every pixel's background, then the shaded pixels over it and the occluded ones black (the hit
+        # pixels are the shaded and the occluded ones): one copy, not a gather and a scatter of the sky
+        xyz = np.array(np.asarray(bg_all)[:H * W], np.float32)
+        xyz[blocked] = 0.0
+    else:
+        xyz = np.zeros((H * W, 3), np.float32)
+        if bg.any():
+            bx, bs = _compiled_background_spectral()(env, jnp.asarray(gb.ray.reshape(-1, 3)[bg], dtype),
+                                                      jnp.asarray(cmf, dtype))
+            spectra[bg] = np.asarray(bs)
+            xyz[bg] = np.asarray(bx)
+    if x is not None:
+        xyz[sel] = x
     t3, c3 = time.perf_counter(), time.process_time()
     # wall seconds per stage, and the process's CPU seconds over each (all threads: host and devices)
     timing = {"gbuffer_s": t1 - t0, "shade_s": t2 - t1, "background_s": t3 - t2, "total_s": t3 - t0,

@@ -226,6 +226,97 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
     return Rays(mirror, lobe, envd, ldir, ldist)
 
 
+def _accumulator(plan: Plan, mat: Material, env: Environment, cmf, P: int, dtype):
+    """``(zero accumulator, combine)`` of :func:`shade`: ``combine(cos, E)`` is F(cos)·E in the accumulator's
+    space: XYZ from ``3R`` folded channels (``Plan.fresnel_rank``, :func:`fold_fresnel`), XYZ from the basis's
+    channels (``Plan.factored``: Fresnel, basis spectra and CMFs in one ``(T, J, 3)`` table), else the
+    environment's channels (full spectra)."""
+    if is_folded(plan):
+        R = plan.fresnel_rank
+        if plan.lights or plan.spectral or mat.ftable.shape[-1] != R or env.channels.shape[-1] != 3 * R:
+            raise ValueError("Plan(fresnel_rank=R) needs fold_fresnel's material and environment, "
+                             "and no lights or spectral output")
+
+        def combine(cos, E):
+            return jnp.einsum("pr,prc->pc", table_lookup(mat.ftable, cos), E.reshape(E.shape[0], -1, 3))
+
+        return jnp.zeros((P, 3), dtype), combine
+    if plan.factored:
+        xtable = jnp.einsum("tl,jl,lc->tjc", mat.ftable, env.basis, cmf)  # (T, J, 3)
+        return jnp.zeros((P, 3), dtype), lambda cos, E: jnp.einsum("pjc,pj->pc", table_lookup(xtable, cos), E)
+    return jnp.zeros((P, env.channels.shape[-1]), dtype), lambda cos, E: table_lookup(mat.ftable, cos) * E
+
+
+def _output(plan: Plan, env: Environment, cmf, acc) -> tuple[Array, Array | None]:
+    """:func:`shade`'s ``(XYZ, spectra or None)`` from its accumulator."""
+    if plan.factored or is_folded(plan):
+        return acc, None
+    spectra = acc @ env.basis  # identity when not factored
+    return spectra @ cmf, (spectra if plan.spectral else None)
+
+
+def _add_mirror_like(acc, weight, E, cos, Vl, vis: Visibility | None, combine):
+    """``acc`` plus ``weight·F(cos)·E`` where the view is above the surface (times the mirror ray's visibility)."""
+    wv = jnp.where(Vl[:, 2] > 0, weight, 0.0)
+    if vis is not None:
+        wv = wv * vis.mirror
+    return acc + wv[:, None] * combine(cos, E)
+
+
+def _add_mirror_caps(plan: Plan, px: Pixels, Vl, fr, env: Environment, caps: Caps, Ecap, vis, combine, acc):
+    """A perfect-mirror hiraji sees a cap where its mirror ray falls inside it."""
+    if not (plan.hiraji and plan.mirror):
+        return acc
+    _, Rw = _mirror_ray(Vl, fr)
+    ins = caps.inside(Rw, env.rotation).astype(Vl.dtype)
+    for k in range(caps.count):
+        acc = _add_mirror_like(acc, px.w * ins[:, k], Ecap[k], jnp.clip(Vl[:, 2], 0.0, 1.0), Vl, vis, combine)
+    return acc
+
+
+def _add_cap_rule(plan: Plan, mat: Material, px: Pixels, Vl, fr, caps: Caps, Cw, Ecap, cap_vis, lobes, combine, acc):
+    """The deterministic modes: ``acc`` plus each cap integrated against each lobe by ``plan.cap_rule``
+    (:func:`~jkatana.render.caps._cap_rule_terms`; ``None``: ``"nodes"``). ``lobes``: :func:`shade`'s, or ``None``
+    (made here); the prefiltered mode's own, with N(μ) tabulated."""
+    rule = plan.cap_rule or "nodes"
+    # the prefiltered mode evaluates no lobe but the cap's: N(μ) from a table, not a quadrature per pixel
+    if plan.mode == "prefiltered" or lobes is None:
+        tabulated = plan.mode == "prefiltered"
+        lobes = _lobes(plan, px, _tabulated_norms(plan, mat, px) if tabulated else _norms(plan, mat, px))
+    for k in range(caps.count):
+        for a, c in _cap_rule_terms(lobes, Vl, fr, Cw[k], caps.radius[k].astype(Vl.dtype), rule):
+            wgt = a if cap_vis[k] is None else a * cap_vis[k]
+            acc = acc + wgt[:, None] * combine(c, Ecap[k])
+    return acc
+
+
+def shade_caps(plan: Plan, mat: Material, env: Environment, px: Pixels, cmf: Float[Array, "wl 3"],
+               vis: Visibility | None = None) -> tuple[Array, Array | None]:
+    """The split caps' share of :func:`shade` in the deterministic modes (``"prefiltered"``, ``"paper"``):
+    each cap by the cap rule, and a perfect-mirror hiraji's view of it; ``(XYZ (P, 3), spectra or None)``.
+
+    :func:`shade` with ``env``'s caps removed plus this is :func:`shade` (to float32 rounding: the
+    terms are summed in another order), so a frame can shade the caps on its own subset of pixels
+    (:func:`jkatana.render.caps.cap_pixels`). Pure JAX; jit with ``plan`` static.
+    """
+    if plan.mode not in ("prefiltered", "paper"):
+        raise ValueError(f"shade_caps: the cap rule of the prefiltered and paper modes, not {plan.mode!r}")
+    caps = _caps(env)
+    dtype, P = px.normal.dtype, px.normal.shape[0]
+    acc, combine = _accumulator(plan, mat, env, cmf, P, dtype)
+    if caps is None:
+        return _output(plan, env, cmf, acc)
+    vis = vis if plan.visibility else None
+    fr, Vl = _frame(px)
+    Cw = caps.world(env.rotation).astype(dtype)
+    Ecap = [jnp.broadcast_to(c.astype(dtype), (P, c.shape[-1])) for c in caps.channels]
+    cap_vis = [None if vis is None else vis.lights[:, plan.lights + k] for k in range(caps.count)]
+    acc = _add_mirror_caps(plan, px, Vl, fr, env, caps, Ecap, vis, combine, acc)
+    if _has_lobe(plan):
+        acc = _add_cap_rule(plan, mat, px, Vl, fr, caps, Cw, Ecap, cap_vis, None, combine, acc)
+    return _output(plan, env, cmf, acc)
+
+
 def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px: Pixels,
           cmf: Float[Array, "wl 3"], key, vis: Visibility | None = None,
           ids: PixelIds | None = None) -> tuple[Array, Array | None]:
@@ -251,30 +342,10 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     P = px.normal.shape[0]
     fr, Vl = _frame(px)
     factored = plan.factored
-    folded = is_folded(plan)
     norms = _norms(plan, mat, px)
     lobes = _lobes(plan, px, norms)
     sampler = _sampler(lobes) if lobes else None
-    if folded:
-        R = plan.fresnel_rank
-        if plan.lights or plan.spectral or mat.ftable.shape[-1] != R or env.channels.shape[-1] != 3 * R:
-            raise ValueError("Plan(fresnel_rank=R) needs fold_fresnel's material and environment, "
-                             "and no lights or spectral output")
-        acc = jnp.zeros((P, 3), dtype)
-    elif factored:
-        # (T, J, 3): Fresnel folded with the basis spectra and the CMFs
-        xtable = jnp.einsum("tl,jl,lc->tjc", mat.ftable, env.basis, cmf)
-        acc = jnp.zeros((P, 3), dtype)
-    else:
-        acc = jnp.zeros((P, env.channels.shape[-1]), dtype)
-
-    def combine(cos, E):
-        """F(cos)·E in the accumulator's space."""
-        if folded:
-            return jnp.einsum("pr,prc->pc", table_lookup(mat.ftable, cos), E.reshape(E.shape[0], -1, 3))
-        if factored:
-            return jnp.einsum("pjc,pj->pc", table_lookup(xtable, cos), E)
-        return table_lookup(mat.ftable, cos) * E
+    acc, combine = _accumulator(plan, mat, env, cmf, P, dtype)
 
     def radiance_terms(Ll, Lw, weight, uv=None, E=None):
         """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space (``uv``: map coordinates of Lw;
@@ -288,10 +359,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         return total
 
     def add_mirror_like(acc, weight, E, cos):
-        wv = jnp.where(Vl[:, 2] > 0, weight, 0.0)
-        if vis is not None:
-            wv = wv * vis.mirror
-        return acc + wv[:, None] * combine(cos, E)
+        return _add_mirror_like(acc, weight, E, cos, Vl, vis, combine)
 
     # --- mirror hiraji: one deterministic lookup
     if plan.hiraji and plan.mirror:
@@ -303,29 +371,16 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     if caps is not None:
         if plan.mode == "paper-published":
             raise ValueError("the paper-published mode shades the whole map: build its environment without split_sun")
-        K = caps.count
         Cw = caps.world(env.rotation).astype(dtype)
         p_cap = (1.0 / caps.solid_angle()).astype(dtype)
-        Ecap = [jnp.broadcast_to(caps.channels[k].astype(dtype), (P, caps.channels.shape[-1])) for k in range(K)]
-        cap_vis = [None if vis is None else vis.lights[:, plan.lights + k] for k in range(K)]
-        rule = plan.cap_rule or "nodes"
-
-        # the prefiltered mode evaluates no lobe but the cap's: N(μ) from a table, not a quadrature per pixel
-        cap_lobes = _lobes(plan, px, _tabulated_norms(plan, mat, px)) if plan.mode == "prefiltered" else lobes
+        Ecap = [jnp.broadcast_to(c.astype(dtype), (P, c.shape[-1])) for c in caps.channels]
+        cap_vis = [None if vis is None else vis.lights[:, plan.lights + k] for k in range(caps.count)]
 
         def add_cap_rule(acc):
             """The deterministic modes: each cap integrated against each lobe by the cap rule."""
-            for k in range(K):
-                for a, c in _cap_rule_terms(cap_lobes, Vl, fr, Cw[k], caps.radius[k].astype(dtype), rule):
-                    wgt = a if cap_vis[k] is None else a * cap_vis[k]
-                    acc = acc + wgt[:, None] * combine(c, Ecap[k])
-            return acc
+            return _add_cap_rule(plan, mat, px, Vl, fr, caps, Cw, Ecap, cap_vis, lobes, combine, acc)
 
-        if plan.hiraji and plan.mirror:  # a perfect mirror sees a cap where its mirror ray falls inside it
-            _, Rw = _mirror_ray(Vl, fr)
-            ins = caps.inside(Rw, env.rotation).astype(dtype)
-            for k in range(K):
-                acc = add_mirror_like(acc, px.w * ins[:, k], Ecap[k], jnp.clip(Vl[:, 2], 0.0, 1.0))
+        acc = _add_mirror_caps(plan, px, Vl, fr, env, caps, Ecap, vis, combine, acc)
 
     S = plan.samples
     ks = jnp.arange(S)
@@ -436,13 +491,10 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
                     acc = acc + (a * falloff)[:, None] * (Fs @ cmf)
                 else:
                     acc = acc + (a * falloff)[:, None] * Fs @ unbasis(env)
-    if factored or folded:
-        return acc, None
-    spectra = acc @ env.basis  # identity when not factored
-    return spectra @ cmf, (spectra if plan.spectral else None)
+    return _output(plan, env, cmf, acc)
 
 
 __all__ = ["MIRROR_MU", "MODES", "FRESNEL_RANK_TOL", "FRESNEL_TABLE", "Caps", "Environment", "Light", "Material", "PixelIds",
            "Pixels", "Plan", "Rays", "Visibility", "background", "bilinear_equirect", "bilinear_equirect_uv",
            "build_environment", "env_basis", "env_lookup", "env_uv", "fold_fresnel", "fresnel_rank_for",
-           "fresnel_table", "ray_directions", "sample_points", "shade"]
+           "fresnel_table", "ray_directions", "sample_points", "shade", "shade_caps"]
