@@ -329,6 +329,9 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     if plan.visibility and occluders is None:
         raise ValueError("plan.visibility needs occluders")
     plan = resolve_plan(plan, mat)
+    split_caps = plan.mode == "prefiltered" and _caps(env) is not None and not plan.visibility
+    # the pixels the caps can reach (cap_pixels), dispatched first: computed while the host picks the rule
+    near = _compiled_cap_pixels(dataclasses.replace(plan, cap_rule=None))(env, px) if split_caps else None
     if plan.cap_rule is None and env.caps is not None and plan.mode in ("prefiltered", "paper"):
         plan = dataclasses.replace(plan, cap_rule=cap_rule_for(plan, env, px))
     if plan.fresnel_rank and not plan.factored:  # once per frame: F·E·CMF folded into a 3R-channel map
@@ -336,11 +339,11 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
         mat, env = folded(plan.fresnel_rank, mat, env, jnp.asarray(cmf, px.normal.dtype),
                           jnp.asarray(vt[:plan.fresnel_rank], px.normal.dtype))
     n_dev = n_devices or len(jax.local_devices())
-    if not (plan.mode == "prefiltered" and _caps(env) is not None and not plan.visibility):
+    if not split_caps:
         return _collect(_dispatch(plan, mat, env, lights, px, cmf, key, n_dev, chunk, occluders, ids), px)
-    # the caps on their own pass over the pixels where they can matter (cap_pixels), when those are few
-    # enough to pay for the pass; else in the one pass, as every other term
-    near = np.flatnonzero(np.asarray(_compiled_cap_pixels(plan)(env, px)))
+    # the caps on their own pass over the pixels where they can matter, when those are few enough to pay
+    # for the pass; else in the one pass, as every other term
+    near = np.flatnonzero(np.asarray(near))
     if len(near) > CAP_PASS_MAX * px.normal.shape[0]:
         return _collect(_dispatch(plan, mat, env, lights, px, cmf, key, n_dev, chunk, occluders, ids), px)
     no_caps = eqx.tree_at(lambda e: e.caps, env, None)
