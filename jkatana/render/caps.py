@@ -20,7 +20,7 @@ from jaxtyping import Array, Bool
 
 from jkatana.light import capquad
 from jkatana.models.geometry import tangent_frame, to_local
-from jkatana.models.lobes import Gaussian, GaussianVCavity, Mixture
+from jkatana.models.lobes import Gaussian, GaussianVCavity, Mixture, reflect
 from jkatana.models.microfacet import gaussian_normalisation
 from jkatana.render.environment import Caps, Environment
 from jkatana.render.fresnel_fold import Material
@@ -158,9 +158,9 @@ def cap_pixels(plan: Plan, env: Environment, px: Pixels, reach: float = CAP_REAC
     The bound, for the paper's lobes (:class:`~jkatana.models.lobes.Gaussian`,
     :class:`~jkatana.models.lobes.GaussianVCavity`), whose facet term is
     ``D = exp(−ln2 φ²/μ²)`` (Mochizuki et al., eq. 1) and σ = μ √(2/ln2): a light
-    direction L reflects V about its half vector H, and the two reflections about H
-    and about N differ by a rotation through ``2∠(H, N)`` (two reflections compose
-    to a rotation by twice the angle between their planes), so ``∠(L, R) ≤ 2φ``.
+    direction L is V turned half a turn about its half vector H (L = 2(V·H)H − V) and
+    R is V turned half a turn about N; two half-turns, about H and about N, compose to
+    a rotation through twice the angle between the axes, so ``∠(L, R) ≤ 2φ``.
     Every L of cap k has ``∠(L, R) ≥ ψ − r_k`` (ψ = ∠(R, C_k)), hence
     ``φ ≥ (ψ − r_k)/2`` and ``D ≤ exp(−(ψ − r_k)²/(2σ²))``: on a pixel left out,
     every cap direction's facet term is below ``exp(−reach²/2)`` of its peak (1.5e-8
@@ -181,8 +181,7 @@ def cap_pixels(plan: Plan, env: Environment, px: Pixels, reach: float = CAP_REAC
     for lobe, weight, _ in parts:
         s = jnp.broadcast_to(lobe.reflected_width(), (P,)).astype(dtype)
         sigma = jnp.maximum(sigma, jnp.where(jnp.broadcast_to(weight, (P,)) > 0, s, 0.0))
-    N, V = px.normal, px.view
-    R = 2.0 * jnp.sum(N * V, -1, keepdims=True) * N - V  # the mirror direction (world)
+    R = reflect(px.view, px.normal)  # the mirror direction (world)
     Cw = caps.world(env.rotation).astype(dtype)  # (K, 3)
     chord = jnp.linalg.norm(R[:, None, :] - Cw[None], axis=-1)  # (P, K): 2 sin(ψ/2)
     psi_max = jnp.minimum(caps.radius.astype(dtype)[None] + reach * sigma[:, None], jnp.pi)

@@ -28,9 +28,9 @@ import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec as PS
 
 from jkatana.render.camera import Camera
+from jkatana.render.caps import _caps, cap_pixels
 from jkatana.render.environment import xyz_environment
 from jkatana.render.gbuffer import GBuffer, gbuffer_mesh, gbuffer_sphere
-from jkatana.render.caps import _caps, cap_pixels
 from jkatana.render.shading import (Environment, Light, Material, PixelIds, Pixels, Plan, Visibility, background,
                                     cap_rule_for, fold_fresnel, fresnel_rank_for, ray_directions, shade, shade_caps)
 
@@ -365,11 +365,13 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
 
 @functools.lru_cache(maxsize=32)
 def _compiled_cap_pixels(plan: Plan):
+    """:func:`~jkatana.render.caps.cap_pixels` of ``plan``, jitted."""
     return jax.jit(lambda env, px: cap_pixels(plan, env, px))
 
 
 @jax.jit
 def _take(px: Pixels, idx: jax.Array) -> Pixels:
+    """The pixels ``idx`` of ``px`` (one dispatch)."""
     return jax.tree.map(lambda a: a[idx], px)
 
 

@@ -54,6 +54,9 @@ of its own:
   camera rays see the caps in the background.
 
 Without caps (none found, or not split) none of this is traced.
+:func:`shade_caps` is the deterministic modes' cap terms alone: a prefiltered
+frame shades them on the pixels a cap can reach
+(:func:`jkatana.render.caps.cap_pixels`, :func:`jkatana.render.frame.shade_pixels`).
 
 Sampling design of the MIS modes:
 
