@@ -342,3 +342,35 @@ def test_heavy_tailed_lobes_have_no_moment_width_and_sigma_is_their_core(gamma):
         assert sigma_c == pytest.approx(alpha * np.sqrt(2.0 / gamma), rel=1e-3)
         assert sigma == pytest.approx(np.sqrt(gamma) * sigma_c, rel=1e-3)
     assert ratios[0] > ratios[1] > 1.5, ratios  # no finite moment to match: wider the narrower the core
+
+
+@pytest.mark.parametrize("kind", ["beckmann", "ggx", "gtr"])
+def test_microfacet_value_from_tan_equals_value_from_facet_angle(kind):
+    """The microfacet lobes take tan φ from L + V (no atan2): the same D as the facet-angle form
+    (float64, to rounding), narrow lobes included in float32 (tan φ ≈ φ where 1 − cos φ rounds to 0),
+    and 0 for facet normals at or beyond 90°."""
+    from jkatana.models.geometry import half_vector_tan_terms, half_vector_terms
+
+    rng = np.random.default_rng(3)
+    for width, dtype, rtol in ((0.2, jnp.float64, 1e-12), (0.3, jnp.float32, 2e-5), (1e-4, jnp.float32, 2e-5)):
+        lobe = make(kind, width, dtype)
+        V = jnp.asarray([np.sin(0.5), 0.0, np.cos(0.5)], dtype)
+        # facet normals within a few widths of N (φ ≤ 3 widths), reflected about them
+        phi = np.abs(rng.normal(size=256)) * width
+        az = rng.uniform(0, 2 * np.pi, 256)
+        h = np.stack([np.sin(phi) * np.cos(az), np.sin(phi) * np.sin(az), np.cos(phi)], -1)
+        L = reflect(V, jnp.asarray(h, dtype))
+        t, c, _, ok_t = half_vector_tan_terms(L, V)
+        p, c2, _, ok_p = half_vector_terms(L, V)
+        np.testing.assert_array_equal(np.asarray(ok_t), np.asarray(ok_p))
+        np.testing.assert_allclose(np.asarray(c), np.asarray(c2), rtol=0, atol=0)
+        got, want = np.asarray(lobe.D_tan(t, c)), np.asarray(lobe.D(p, c2))
+        assert np.all(want > 0)
+        np.testing.assert_allclose(got, want, rtol=rtol)
+        np.testing.assert_allclose(np.asarray(t), np.tan(np.asarray(p, np.float64)), rtol=rtol)
+    # φ ≥ 90°: L + V points below the surface
+    L = jnp.asarray([[0.0, 0.0, -1.0]])
+    V = jnp.asarray([[0.6, 0.0, 0.8]])
+    t, c, _, ok = half_vector_tan_terms(L, V)
+    assert bool(ok[0]) and float(c[0]) < 0 and float(t[0]) == 0.0
+    assert float(make(kind, 0.2).D_tan(t, c)[0]) == 0.0

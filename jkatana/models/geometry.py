@@ -54,6 +54,30 @@ def half_vector_terms(L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b 3"]
     return phi, cos_phi, cos_theta_h, valid
 
 
+def half_vector_tan_terms(L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b 3"]):
+    """``(tan φ, cos φ, cos θH, valid)``: :func:`half_vector_terms` with tan φ in place of φ.
+
+    tan φ = |N × (L+V)| / N·(L+V): as exact for small angles as the ``atan2`` form
+    (both read the same components of L + V) and free of transcendental calls, for
+    the distributions of normals that depend on φ through tan φ and cos φ only
+    (Beckmann, GGX, GTR). Where N·(L+V) ≤ 0 (φ ≥ π/2) tan φ is returned as 0 and
+    cos φ ≤ 0, which those distributions read as D = 0; where |L + V| is below
+    the dtype's eps every output is 0 with ``valid`` False, as in
+    :func:`half_vector_terms` ("double where": finite values and gradients).
+    """
+    s = L + V
+    dtype = jnp.result_type(s)
+    length = norm(s)
+    valid = length > _cut(dtype)
+    s_safe = jnp.where(valid[..., None], s, jnp.asarray([0.0, 0.0, 1.0], dtype))
+    length_safe = jnp.where(valid, length, 1.0)
+    up = valid & (s_safe[..., 2] > 0)
+    tan_phi = jnp.where(up, norm(s_safe[..., :2]) / jnp.where(up, s_safe[..., 2], 1.0), 0.0)
+    cos_phi = jnp.where(valid, s_safe[..., 2] / length_safe, 0.0)
+    cos_theta_h = jnp.where(valid, jnp.clip(0.5 * length_safe, 0.0, 1.0), 0.0)
+    return tan_phi, cos_phi, cos_theta_h, valid
+
+
 def facet_angle(L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*#b"]:
     """φ = ∠(N, H) via atan2(|N × (L+V)|, N·(L+V)), N = +z. 0 where L = −V.
 

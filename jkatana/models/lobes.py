@@ -67,8 +67,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jkatana.models._safe import safe_div, safe_sqrt
-from jkatana.models.geometry import half_vector_terms
-from jkatana.models.microfacet import (LN2, beckmann_phi, gaussian_facet, gaussian_normalisation,
+from jkatana.models.geometry import half_vector_tan_terms, half_vector_terms
+from jkatana.models.microfacet import (LN2, beckmann_tan, gaussian_facet, gaussian_normalisation,
                                        smith_beckmann, vcavity_over_cos)
 
 #: Largest uniform used by the inverse-CDF warps (keeps log(1 − u) finite in float32).
@@ -308,12 +308,23 @@ class GaussianVCavity(_GaussianBase):
 
 
 class _Microfacet(Lobe):
-    """f_r cos θi = D(h) G1(V) G1(L) / (4 cos θr), Fresnel at θH; sampled by D(h) cos φ."""
+    """f_r cos θi = D(h) G1(V) G1(L) / (4 cos θr), Fresnel at θH; sampled by D(h) cos φ.
+
+    D depends on the facet normal through tan φ and cos φ only (:meth:`D_tan`);
+    value and pdf take tan φ straight from L + V
+    (:func:`~jkatana.models.geometry.half_vector_tan_terms`, no ``atan2``).
+    """
 
     widths: ClassVar[tuple[str, ...]] = ("alpha",)
 
-    def D(self, phi, cos_phi):
+    def D_tan(self, tan_phi, cos_phi):
+        """The distribution of normals from tan φ and cos φ (0 where cos φ ≤ 0)."""
         raise NotImplementedError
+
+    def D(self, phi, cos_phi):
+        """The distribution of normals at facet angle φ (:meth:`D_tan` with tan φ from φ)."""
+        c = jnp.cos(phi)
+        return self.D_tan(jnp.tan(jnp.where(c > 0, phi, 0.0)), c)
 
     def G(self, cos_r, cos_i):
         raise NotImplementedError
@@ -323,16 +334,16 @@ class _Microfacet(Lobe):
 
     def terms(self, L, V):
         cos_i, cos_r = L[..., 2], V[..., 2]
-        phi, cos_nh, cos_th, valid = half_vector_terms(L, V)
+        tan_nh, cos_nh, cos_th, valid = half_vector_tan_terms(L, V)
         ok = valid & (cos_i > 0) & (cos_r > 0)
-        d = self.D(phi, cos_nh)
+        d = self.D_tan(tan_nh, cos_nh)
         g = self.G(cos_r, cos_i)
         return ((jnp.where(ok, d * g / (4.0 * jnp.maximum(cos_r, COS_FLOOR)), 0.0), cos_th),)
 
     def pdf(self, L, V):
-        phi, cos_nh, cos_th, valid = half_vector_terms(L, V)
+        tan_nh, cos_nh, cos_th, valid = half_vector_tan_terms(L, V)
         return jnp.where(valid & (cos_th > 0),
-                         self.D(phi, cos_nh) * cos_nh / (4.0 * jnp.maximum(cos_th, COS_FLOOR)), 0.0)
+                         self.D_tan(tan_nh, cos_nh) * cos_nh / (4.0 * jnp.maximum(cos_th, COS_FLOOR)), 0.0)
 
     def pdf_h(self, phi, cos_phi):
         """Density per steradian of sampled facet normals: D cos φ."""
@@ -360,12 +371,6 @@ class _Microfacet(Lobe):
         return _sampled(self, V, self.sample_h(u))
 
 
-def _tan2_from_phi(phi):
-    c = jnp.cos(phi)
-    t = jnp.tan(jnp.where(c > 0, phi, 0.0))
-    return t * t, c
-
-
 class Beckmann(_Microfacet):
     """Cook–Torrance with the Beckmann distribution and separable Smith shadowing.
 
@@ -373,16 +378,16 @@ class Beckmann(_Microfacet):
     Walter et al. 2007, eq. 25), G1 by Walter et al.'s rational approximation
     (eq. 27); the combination Mitsuba 3's ``roughconductor`` (``beckmann``,
     ``sample_visible = false``) uses. Sampled by D: tan²φ = −α² ln(1 − u)
-    (Walter et al., eq. 28). α = RMS slope. D is evaluated from φ
-    (:func:`~jkatana.models.microfacet.beckmann_phi`) and sin φ = tan φ cos φ,
-    so narrow lobes keep their shape in float32.
+    (Walter et al., eq. 28). α = RMS slope. D is evaluated from tan φ
+    (:func:`~jkatana.models.microfacet.beckmann_tan`), not from cos φ, so narrow
+    lobes keep their shape in float32.
     """
 
     alpha: Float[Array, "*p"]
     name: ClassVar[str] = "beckmann"
 
-    def D(self, phi, cos_phi):
-        return beckmann_phi(phi, self.alpha)
+    def D_tan(self, tan_phi, cos_phi):
+        return beckmann_tan(tan_phi, cos_phi, self.alpha)
 
     def G(self, cos_r, cos_i):
         return smith_beckmann(cos_r, cos_i, self.alpha)
@@ -406,17 +411,16 @@ class GGX(_Microfacet):
 
     D = α² / (π cos⁴φ (α² + tan²φ)²) (Trowbridge & Reitz 1975; Walter et al. 2007,
     eq. 33), G1 = 2/(1 + √(1 + α² tan²θ)) (eq. 34). Sampled by D (not the visible
-    normals): tan²φ = α² u/(1 − u) (eq. 35). tan φ is taken from φ, not from
+    normals): tan²φ = α² u/(1 − u) (eq. 35). tan φ is taken from L + V, not from
     cos φ, so narrow lobes keep their shape in float32.
     """
 
     alpha: Float[Array, "*p"]
     name: ClassVar[str] = "ggx"
 
-    def D(self, phi, cos_phi):
+    def D_tan(self, tan_phi, cos_phi):
         a = jnp.maximum(self.alpha, WIDTH_MIN)
-        c = jnp.cos(phi)
-        t = jnp.tan(jnp.where(c > 0, phi, 0.0))
+        c, t = cos_phi, tan_phi
         live = (c > 0) & (t < 3e7 * a)
         q = jnp.where(live, t, 0.0) / a  # tan φ / α: O(1) in the lobe, keeps float32 gradients in range
         c2 = jnp.where(live, c * c, 1.0)
@@ -482,10 +486,10 @@ class GTR(_Microfacet):
         a = jnp.clip(self.alpha, WIDTH_MIN, 1.0)
         return a, 2.0 * jnp.log(a)
 
-    def D(self, phi, cos_phi):
+    def D_tan(self, tan_phi, cos_phi):
         a, l = self._a()
         g = self.gamma
-        t2, c = _tan2_from_phi(phi)
+        t2, c = tan_phi * tan_phi, cos_phi
         live = c > 0
         c_s = jnp.where(live, c, 1.0)
         t2_s = jnp.where(live, t2, 0.0)

@@ -135,11 +135,22 @@ def beckmann_phi(phi, alpha):
     0 for φ ≥ π/2 and where the exponential underflows; finite gradients.
     """
     phi = jnp.asarray(phi)
-    alpha = jnp.asarray(alpha)
-    dtype = jnp.result_type(phi, alpha)
-    x_max = _exp_cutoff(dtype) * 0.5
     c = jnp.cos(phi)
-    t = jnp.tan(jnp.where(c > 0, phi, 0.0))
+    return beckmann_tan(jnp.tan(jnp.where(c > 0, phi, 0.0)), c, alpha)
+
+
+def beckmann_tan(tan_phi, cos_phi, alpha):
+    """Beckmann D = exp(−tan²φ/α²)/(π α² cos⁴φ) from tan φ and cos φ of the facet normal.
+
+    The form behind :func:`beckmann_phi`, for callers that have tan φ without
+    φ (:func:`~jkatana.models.geometry.half_vector_tan_terms`, no ``atan2``).
+    0 for cos φ ≤ 0 and where the exponential underflows; finite gradients.
+    """
+    t = jnp.asarray(tan_phi)
+    c = jnp.asarray(cos_phi)
+    alpha = jnp.asarray(alpha)
+    dtype = jnp.result_type(t, c, alpha)
+    x_max = _exp_cutoff(dtype) * 0.5
     live = (c > 0) & (jnp.abs(t) < jnp.sqrt(x_max) * jnp.abs(alpha))
     a = jnp.where(live, alpha, 1.0)
     q = jnp.where(live, t, 0.0) / a  # tan φ / α: O(1) in the lobe, keeps float32 gradients in range
