@@ -17,6 +17,12 @@ API of every lobe:
   hiraji lobe, cos θH for microfacet lobes); a :class:`Mixture` has the terms
   of both parts, weighted. Keeping F outside lets a renderer take it from a
   table or fold it into the environment.
+- ``terms_at(g)``: the same terms from the directions' precomputed
+  :class:`Geometry` (``terms(L, V)`` is ``terms_at(Geometry.of(L, V))``: one
+  formula). A caller that evaluates many parameter sets on the same
+  directions (a fitter, once per solver step) computes the half vector once;
+  a returned Fresnel cosine is then one of ``g``'s own arrays, so such a
+  caller can tabulate F at it once as well.
 - ``f_cos(L, V)``: Σ a_j — the value with F ≡ 1 (white furnace).
 - ``brdf_cos(L, V, conductor)``: Σ a_j F(cos_F_j, λ) → ``(*b, wl)``.
 - ``sample(V, u, uc=None) -> (L, pdf)``: an incident direction from uniforms
@@ -64,11 +70,11 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from jkatana.models._safe import safe_div, safe_sqrt
 from jkatana.models.geometry import half_vector_terms
-from jkatana.models.microfacet import (LN2, beckmann_phi, gaussian_facet, gaussian_normalisation,
+from jkatana.models.microfacet import (LN2, beckmann_trig, facet_trig, gaussian_facet, gaussian_normalisation,
                                        smith_beckmann, vcavity_over_cos)
 
 #: Largest uniform used by the inverse-CDF warps (keeps log(1 − u) finite in float32).
@@ -93,8 +99,37 @@ def _split(u):
     return u[..., 0], u[..., 1]
 
 
+class Geometry(eqx.Module):
+    """The parameter-free geometry of direction pairs (L, V) that every lobe's value is a function of.
+
+    ``cos_i`` = N·L, ``cos_r`` = N·V and :func:`~jkatana.models.geometry.half_vector_terms`'s facet angle
+    ``phi``, ``cos_phi`` = N·H, ``cos_th`` = L·H and ``valid`` (False where L = −V), and ``trig_cos``,
+    ``trig_tan`` = :func:`~jkatana.models.microfacet.facet_trig` of φ (what the microfacet distributions
+    take), all broadcast to one batch shape. :meth:`Lobe.terms_at` evaluates a lobe from it, so directions
+    that are evaluated with many parameter values (a fitter's solver steps) pay for the half vector and the
+    trigonometry of φ once.
+    """
+
+    cos_i: Float[Array, "*b"]
+    cos_r: Float[Array, "*b"]
+    phi: Float[Array, "*b"]
+    cos_phi: Float[Array, "*b"]
+    cos_th: Float[Array, "*b"]
+    valid: Bool[Array, "*b"]
+    trig_cos: Float[Array, "*b"]
+    trig_tan: Float[Array, "*b"]
+
+    @classmethod
+    def of(cls, L: Float[Array, "*#b 3"], V: Float[Array, "*#b 3"]) -> "Geometry":
+        """The geometry of unit directions ``L``, ``V`` (local frame, N = +z; batch shapes broadcast)."""
+        phi, cos_phi, cos_th, valid = half_vector_terms(L, V)
+        shape = phi.shape
+        return cls(jnp.broadcast_to(L[..., 2], shape), jnp.broadcast_to(V[..., 2], shape), phi, cos_phi, cos_th,
+                   valid, *facet_trig(phi))
+
+
 class Lobe(eqx.Module):
-    """Base class: subclasses define ``terms``, ``sample``, ``pdf`` and the class attribute ``name``.
+    """Base class: subclasses define ``terms_at``, ``sample``, ``pdf`` and the class attribute ``name``.
 
     ``widths`` names the fields that set the lobe's angular width (μ of the
     Gaussian lobes, α of the microfacet ones): :func:`lobe_shape` and
@@ -105,6 +140,11 @@ class Lobe(eqx.Module):
     widths: ClassVar[tuple[str, ...]] = ()
 
     def terms(self, L, V):
+        """f_r cos θi without the Fresnel factor as terms ``((a, cos_F), ...)`` (module docstring)."""
+        return self.terms_at(Geometry.of(L, V))
+
+    def terms_at(self, g: Geometry):
+        """:meth:`terms` from the directions' precomputed :class:`Geometry` (the lobe's formula)."""
         raise NotImplementedError
 
     def sample(self, V, u, uc=None):
@@ -275,13 +315,11 @@ class Gaussian(_GaussianBase):
 
     name: ClassVar[str] = "gaussian"
 
-    def terms(self, L, V):
-        cos_i, cos_r = L[..., 2], V[..., 2]
-        phi, _, cos_th, valid = half_vector_terms(L, V)
-        visible = valid & (cos_i >= 0) & (cos_r >= 0)
-        d = jnp.where(visible, gaussian_facet(phi, self.mu), 0.0)
-        s = safe_div(self.scale, 4.0 * cos_th) if self.normalised else self.scale
-        return ((s * d, cos_i),)
+    def terms_at(self, g: Geometry):
+        visible = g.valid & (g.cos_i >= 0) & (g.cos_r >= 0)
+        d = jnp.where(visible, gaussian_facet(g.phi, self.mu), 0.0)
+        s = safe_div(self.scale, 4.0 * g.cos_th) if self.normalised else self.scale
+        return ((s * d, g.cos_i),)
 
 
 class GaussianVCavity(_GaussianBase):
@@ -294,14 +332,12 @@ class GaussianVCavity(_GaussianBase):
 
     name: ClassVar[str] = "gaussian-vcavity"
 
-    def terms(self, L, V):
-        cos_i, cos_r = L[..., 2], V[..., 2]
-        phi, cos_nh, cos_th, valid = half_vector_terms(L, V)
-        visible = valid & (cos_i >= 0) & (cos_r >= 0)
-        g_over_cos = vcavity_over_cos(cos_nh, jnp.maximum(cos_r, 0.0), jnp.maximum(cos_i, 0.0), cos_th)
-        dg = jnp.where(visible, gaussian_facet(phi, self.mu) * g_over_cos, 0.0)
+    def terms_at(self, g: Geometry):
+        visible = g.valid & (g.cos_i >= 0) & (g.cos_r >= 0)
+        g_over_cos = vcavity_over_cos(g.cos_phi, jnp.maximum(g.cos_r, 0.0), jnp.maximum(g.cos_i, 0.0), g.cos_th)
+        dg = jnp.where(visible, gaussian_facet(g.phi, self.mu) * g_over_cos, 0.0)
         s = self.scale / 4.0 if self.normalised else self.scale
-        return ((s * dg, cos_th),)
+        return ((s * dg, g.cos_th),)
 
 
 # ---------------------------------------------------------------- microfacet lobes
@@ -313,6 +349,11 @@ class _Microfacet(Lobe):
     widths: ClassVar[tuple[str, ...]] = ("alpha",)
 
     def D(self, phi, cos_phi):
+        """The distribution of facet normals at facet angle φ (from φ's cos and tan, :meth:`D_trig`)."""
+        return self.D_trig(*facet_trig(phi))
+
+    def D_trig(self, trig_cos, trig_tan):
+        """D from :func:`~jkatana.models.microfacet.facet_trig` of the facet angle (the formula)."""
         raise NotImplementedError
 
     def G(self, cos_r, cos_i):
@@ -321,13 +362,11 @@ class _Microfacet(Lobe):
     def sample_h(self, u):
         raise NotImplementedError
 
-    def terms(self, L, V):
-        cos_i, cos_r = L[..., 2], V[..., 2]
-        phi, cos_nh, cos_th, valid = half_vector_terms(L, V)
-        ok = valid & (cos_i > 0) & (cos_r > 0)
-        d = self.D(phi, cos_nh)
-        g = self.G(cos_r, cos_i)
-        return ((jnp.where(ok, d * g / (4.0 * jnp.maximum(cos_r, COS_FLOOR)), 0.0), cos_th),)
+    def terms_at(self, g: Geometry):
+        ok = g.valid & (g.cos_i > 0) & (g.cos_r > 0)
+        d = self.D_trig(g.trig_cos, g.trig_tan)
+        shadow = self.G(g.cos_r, g.cos_i)
+        return ((jnp.where(ok, d * shadow / (4.0 * jnp.maximum(g.cos_r, COS_FLOOR)), 0.0), g.cos_th),)
 
     def pdf(self, L, V):
         phi, cos_nh, cos_th, valid = half_vector_terms(L, V)
@@ -360,12 +399,6 @@ class _Microfacet(Lobe):
         return _sampled(self, V, self.sample_h(u))
 
 
-def _tan2_from_phi(phi):
-    c = jnp.cos(phi)
-    t = jnp.tan(jnp.where(c > 0, phi, 0.0))
-    return t * t, c
-
-
 class Beckmann(_Microfacet):
     """Cook–Torrance with the Beckmann distribution and separable Smith shadowing.
 
@@ -381,8 +414,8 @@ class Beckmann(_Microfacet):
     alpha: Float[Array, "*p"]
     name: ClassVar[str] = "beckmann"
 
-    def D(self, phi, cos_phi):
-        return beckmann_phi(phi, self.alpha)
+    def D_trig(self, trig_cos, trig_tan):
+        return beckmann_trig(trig_cos, trig_tan, self.alpha)
 
     def G(self, cos_r, cos_i):
         return smith_beckmann(cos_r, cos_i, self.alpha)
@@ -413,10 +446,9 @@ class GGX(_Microfacet):
     alpha: Float[Array, "*p"]
     name: ClassVar[str] = "ggx"
 
-    def D(self, phi, cos_phi):
+    def D_trig(self, trig_cos, trig_tan):
         a = jnp.maximum(self.alpha, WIDTH_MIN)
-        c = jnp.cos(phi)
-        t = jnp.tan(jnp.where(c > 0, phi, 0.0))
+        c, t = trig_cos, trig_tan
         live = (c > 0) & (t < 3e7 * a)
         q = jnp.where(live, t, 0.0) / a  # tan φ / α: O(1) in the lobe, keeps float32 gradients in range
         c2 = jnp.where(live, c * c, 1.0)
@@ -482,10 +514,10 @@ class GTR(_Microfacet):
         a = jnp.clip(self.alpha, WIDTH_MIN, 1.0)
         return a, 2.0 * jnp.log(a)
 
-    def D(self, phi, cos_phi):
+    def D_trig(self, trig_cos, trig_tan):
         a, l = self._a()
         g = self.gamma
-        t2, c = _tan2_from_phi(phi)
+        t2, c = trig_tan * trig_tan, trig_cos
         live = c > 0
         c_s = jnp.where(live, c, 1.0)
         t2_s = jnp.where(live, t2, 0.0)
@@ -539,10 +571,10 @@ class Mixture(Lobe):
     weight: Float[Array, "*p"]
     name: ClassVar[str] = "mixture"
 
-    def terms(self, L, V):
+    def terms_at(self, g: Geometry):
         w = self.weight
-        return (tuple((w * a, c) for a, c in self.first.terms(L, V))
-                + tuple(((1.0 - w) * a, c) for a, c in self.second.terms(L, V)))
+        return (tuple((w * a, c) for a, c in self.first.terms_at(g))
+                + tuple(((1.0 - w) * a, c) for a, c in self.second.terms_at(g)))
 
     def pdf(self, L, V):
         return self.weight * self.first.pdf(L, V) + (1.0 - self.weight) * self.second.pdf(L, V)
@@ -721,6 +753,6 @@ def normalised_params(params: dict) -> dict:
     return p
 
 
-__all__ = ["LOBES", "Lobe", "LobeKey", "Gaussian", "GaussianVCavity", "Beckmann", "GGX", "GTR", "Mixture", "reflect",
+__all__ = ["LOBES", "Lobe", "Geometry", "LobeKey", "Gaussian", "GaussianVCavity", "Beckmann", "GGX", "GTR", "Mixture", "reflect",
            "lobe_from_params", "lobe_key", "key_params", "lobe_shape", "lobe_with_width", "normalised_params",
            "WidthFamily"]

@@ -124,6 +124,19 @@ def beckmann(cos_phi, alpha):
     return jnp.where(live, value, 0.0)
 
 
+def facet_trig(phi):
+    """``(cos φ, tan φ)`` of facet angles φ, tan φ taken as 0 where cos φ ≤ 0 (φ ≥ π/2: no facet, D = 0).
+
+    tan φ comes from φ itself, not from cos φ (in float32 1 − cos²φ is 0 for
+    φ < 2.4e-4). The microfacet distributions are functions of these two
+    (:func:`beckmann_trig`), so that a caller evaluating many α on the same
+    facet angles (a fitter's solver steps) computes them once.
+    """
+    phi = jnp.asarray(phi)
+    c = jnp.cos(phi)
+    return c, jnp.tan(jnp.where(c > 0, phi, 0.0))
+
+
 def beckmann_phi(phi, alpha):
     """Beckmann D from the facet angle φ itself (preferred over :func:`beckmann`).
 
@@ -134,12 +147,16 @@ def beckmann_phi(phi, alpha):
     :func:`~jkatana.models.geometry.half_vector_terms` (atan2 form).
     0 for φ ≥ π/2 and where the exponential underflows; finite gradients.
     """
-    phi = jnp.asarray(phi)
+    return beckmann_trig(*facet_trig(phi), alpha)
+
+
+def beckmann_trig(cos_phi, tan_phi, alpha):
+    """:func:`beckmann_phi` from the facet angle's ``(cos φ, tan φ)`` of :func:`facet_trig`."""
+    c = jnp.asarray(cos_phi)
+    t = jnp.asarray(tan_phi)
     alpha = jnp.asarray(alpha)
-    dtype = jnp.result_type(phi, alpha)
+    dtype = jnp.result_type(c, alpha)
     x_max = _exp_cutoff(dtype) * 0.5
-    c = jnp.cos(phi)
-    t = jnp.tan(jnp.where(c > 0, phi, 0.0))
     live = (c > 0) & (jnp.abs(t) < jnp.sqrt(x_max) * jnp.abs(alpha))
     a = jnp.where(live, alpha, 1.0)
     q = jnp.where(live, t, 0.0) / a  # tan φ / α: O(1) in the lobe, keeps float32 gradients in range
