@@ -340,6 +340,12 @@ def solve(terms: Terms, y, w, p0, *, spec: ModelSpec, solver: str = "lm", max_st
     ``rtol``/``atol`` default to 1e-6 for optimistix's Cauchy criterion (module
     docstring) and 1e-10 for jaxopt's Madsen–Nielsen rule (whose ``gtol`` is an
     absolute gradient norm).
+
+    The model's evaluation point (:func:`~jkatana.fit._model.evaluation_point`:
+    geometry and Fresnel factors) is computed once here, outside the solver's
+    loop. The residuals and Jacobian at ``p`` are those of optimistix's last
+    linearisation, which is at the point it returns (its ``f_info`` follows every
+    accepted step), so the check costs no further forward pass.
     """
     args = (terms, y, w, spec, None if spec.tilt else evaluation_point(terms, spec))
     if solver == "jaxopt":
