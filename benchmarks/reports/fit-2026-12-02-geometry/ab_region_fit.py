@@ -14,7 +14,7 @@ for model in models:
     ref = fit_region(data, model=model, per_incidence=False, robust=False)
     y = jnp.asarray(data.value); w = jnp.asarray(ref.weight); terms, spec = ref.terms, ref.spec
     p0 = start_vector(terms, y, w, spec); out = solve(terms, y, w, p0, spec=spec)
-    ts = timeit(lambda: start_vector(terms, y, w, spec), repeats=30)
-    t = timeit(lambda: solve(terms, y, w, p0, spec=spec), repeats=30)
-    tf = timeit(lambda: solve(terms, y, w, start_vector(terms, y, w, spec), spec=spec), repeats=30)
+    ts = timeit(lambda: start_vector(terms, y, w, spec), repeats=int(os.environ.get("REPEATS", 30)))
+    t = timeit(lambda: solve(terms, y, w, p0, spec=spec), repeats=int(os.environ.get("REPEATS", 30)))
+    tf = timeit(lambda: solve(terms, y, w, start_vector(terms, y, w, spec), spec=spec), repeats=int(os.environ.get("REPEATS", 30)))
     print(f"{model:9s} start {ts['median']*1e3:.3f} solve {t['median']*1e3:.3f} both {tf['median']*1e3:.3f}/{tf['min']*1e3:.3f} steps {int(out['steps'])} p {np.asarray(out['p'])} load {os.getloadavg()[0]:.2f}", flush=True)
