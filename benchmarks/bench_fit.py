@@ -123,9 +123,11 @@ def _lobe_campaign(model, seed=0):
 
 #: What one timed "region fit" is (the ≤ 1 ms goal): one compiled call on a region's 1188 points.
 REGION_FIT = ("start_vector then solve, as fit_region calls them: the start (closed form for hiraji/hamon, "
-              "moment start for other lobes) + optimistix LM to convergence + the convergence check's residuals "
-              "at start and optimum, Jacobian, J^T J and Gauss-Newton decrement; not the noise estimate, prepare "
-              "(geometry, Fresnel table), the Laplace covariance, per-incidence refits or the sandwich")
+              "moment start for other lobes) + the model's evaluation point (geometry and Fresnel factors, once "
+              "per call) + optimistix LM to convergence + the convergence check (residuals at the start; residuals "
+              "and Jacobian at the optimum from the solver's last linearisation, J^T J, Gauss-Newton decrement); "
+              "not the noise estimate, prepare (directions, Fresnel table), the Laplace covariance, per-incidence "
+              "refits or the sandwich")
 
 
 def _mean_cpu(fn, repeats: int) -> float:

@@ -266,3 +266,60 @@ def test_moment_start_without_a_peak_is_the_wide_grid_start(geometry):
     w = jnp.full_like(y, 1.0)  # every point below 3σ
     np.testing.assert_array_equal(np.asarray(moment_start(terms, y, w, spec)),
                                   np.asarray(two_level_start(terms, y, w, spec)))
+
+
+def _green_direct(p, terms, spec):
+    """The model evaluated without the hoisted geometry: the lobe's terms(L, V) at the (tilted, instrument-
+    averaged) directions, F̄ looked up per term (exact at the nominal cosines, else the table)."""
+    from jkatana.fit._model import _fbar_point, _perturb, _rot_y, disk_offsets
+
+    lobe = spec.fit_model.build(p[1:1 + spec.n_shape])
+    L, V = terms.L, terms.V
+    if spec.tilt:
+        L, V = _rot_y(L, p[spec.tilt_index]), _rot_y(V, p[spec.tilt_index])
+    if spec.instrument is not None:
+        src, ap, n = spec.instrument
+        L = _perturb(L, disk_offsets(src, n))[:, None]
+        V = _perturb(V, disk_offsets(ap, n))[None, :]
+    val = sum(a * _fbar_point(c, terms) for a, c in lobe.terms(L, V))
+    if spec.instrument is not None:
+        val = jnp.mean(val, axis=(0, 1))
+    return jnp.exp(p[0]) * val + (p[spec.floor_index] if spec.floor else 0.0)
+
+
+@pytest.mark.parametrize("spec", [ModelSpec(m) for m in FIT_MODELS] + [
+    ModelSpec("ggx", tilt=True, floor=True), ModelSpec("two-lobe", instrument=(0.004, 0.006, 5)),
+    ModelSpec("hamon", tilt=True, instrument=(0.003, 0.0, 4))], ids=lambda s: repr(s))
+def test_green_with_the_precomputed_geometry_is_the_direct_evaluation(geometry, spec):
+    """green (the solver's path: geometry and F̄ computed once per table and spec, outside the solver loop)
+    equals the lobe evaluated from its directions, for every model, with tilt, floor and the instrument."""
+    from jkatana.fit._model import evaluation_point
+
+    terms = prepare(spec.model, geometry["ti"], geometry["tr"], geometry["n"], geometry["k"], geometry["w"])
+    values = TRUTH[spec.model] | dict(tilt_deg=0.3, floor=5.0)
+    p = jnp.asarray(from_natural(values, spec))
+    want = np.asarray(_green_direct(p, terms, spec))
+    at = None if spec.tilt else evaluation_point(terms, spec)
+    got = np.asarray(jax.jit(lambda p, terms, at: green(p, terms, spec, at))(p, terms, at))
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.max(np.abs(want)))
+
+
+@pytest.mark.parametrize("solver", ["lm", "dogleg", "gn"])
+@pytest.mark.parametrize("model", ["hamon", "gtr", "two-lobe"])
+def test_convergence_check_is_evaluated_at_the_returned_point(geometry, model, solver):
+    """solve's cost, gradient and JᵀJ (taken from the solver's last linearisation) are those of a fresh
+    evaluation of the residuals and their Jacobian at the parameters it returns."""
+    from jkatana.fit._solve import residuals
+
+    _, sig, Y = campaigns(geometry, model, TRUTH[model], 1, seed=5)
+    spec = ModelSpec(model)
+    terms = prepare(model, geometry["ti"], geometry["tr"], geometry["n"], geometry["k"], geometry["w"])
+    y, w = jnp.asarray(Y[0]), jnp.asarray(1 / sig)
+    out = solve(terms, y, w, start_vector(terms, y, w, spec), spec=spec, solver=solver)
+    args = (terms, y, w, spec)
+    r = residuals(out["p"], args)
+    J = jax.jacfwd(residuals)(out["p"], args)
+    np.testing.assert_allclose(float(out["cost"]), 0.5 * float(jnp.sum(r * r)), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(out["jtj"]), np.asarray(J.T @ J), rtol=1e-10)
+    np.testing.assert_allclose(float(out["grad_norm"]), float(jnp.max(jnp.abs(J.T @ r))), rtol=1e-6,
+                               atol=1e-10 * float(jnp.max(jnp.abs(J)) * jnp.sum(jnp.abs(r))))

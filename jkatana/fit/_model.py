@@ -53,6 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from jkatana.models.lobes import Geometry
 from jkatana.models.microfacet import vcavity_over_cos
 
 _TABLE_NODES = 4097
@@ -202,7 +203,10 @@ class Terms(eqx.Module):
     ``theta_r`` (rad); ``f_table`` F̄ on a uniform grid of cos θ over [0, 1];
     ``f_exact`` ``[cos, F̄, dF̄/dcos]`` exact at the nominal cos θi and cos θH
     of each point, so that models evaluated at the nominal geometry use F̄
-    to float64 rounding rather than to the table's interpolation error (~1e-9).
+    to float64 rounding rather than to the table's interpolation error (~1e-9);
+    ``geo`` the nominal directions' :class:`~jkatana.models.lobes.Geometry`
+    (its cos θi and cos θH are ``f_exact``'s cosines), from which a model
+    without a tilt evaluates its lobe without recomputing the half vector.
     """
 
     phi: Float[Array, " n"]
@@ -213,6 +217,7 @@ class Terms(eqx.Module):
     L: Float[Array, "n 3"]
     V: Float[Array, "n 3"]
     f_exact: Float[Array, "2 3 n"]
+    geo: Geometry
 
 
 def _fbar_numpy(cos_theta, n, k, w):
@@ -267,12 +272,10 @@ def prepare(model: str, theta_i_deg, theta_r_deg, n, k, weights, dtype=jnp.float
     visible = (np.cos(ti) >= 0) & (np.cos(tr) >= 0)
     amp = np.where(visible, amp, 0.0)
     Lv, Vv = goniometer_vectors(np.rad2deg(ti), np.rad2deg(tr), az)
-    from jkatana.models.geometry import half_vector_terms
-
     with jax.enable_x64(True):
-        cos_h = np.asarray(half_vector_terms(jnp.asarray(Lv, dtype), jnp.asarray(Vv, dtype))[2], np.float64)
+        geo = Geometry.of(jnp.asarray(Lv, dtype), jnp.asarray(Vv, dtype))
         exact = []
-        for c in (Lv[:, 2].astype(dtype), cos_h):
+        for c in (geo.cos_i, geo.cos_th):
             c = np.asarray(c, np.float64)
             h = 1e-6
             d = (_fbar_numpy(np.minimum(c + h, 1.0), n, k, weights) - _fbar_numpy(np.maximum(c - h, 0.0), n, k, weights)
@@ -280,7 +283,8 @@ def prepare(model: str, theta_i_deg, theta_r_deg, n, k, weights, dtype=jnp.float
             exact.append(np.stack([c, _fbar_numpy(c, n, k, weights), d]))
     return Terms(f_exact=jnp.asarray(np.stack(exact), dtype), phi=jnp.asarray(0.5 * (tr - ti), dtype), amp=jnp.asarray(amp, dtype),
                  theta_i=jnp.asarray(ti, dtype), theta_r=jnp.asarray(tr, dtype),
-                 f_table=jnp.asarray(table, dtype), L=jnp.asarray(Lv, dtype), V=jnp.asarray(Vv, dtype))
+                 f_table=jnp.asarray(table, dtype), L=jnp.asarray(Lv, dtype), V=jnp.asarray(Vv, dtype),
+                 geo=geo)
 
 
 def fbar(cos_theta, table):
@@ -325,30 +329,70 @@ def _fbar_point(c, terms):
     return out
 
 
-def _lobe_value(lobe, L, V, terms):
-    total = 0.0
-    for a, c in lobe.terms(L, V):
-        total = total + a * _fbar_point(c, terms)
-    return total
+class At(eqx.Module):
+    """Where a model is evaluated: the directions' :class:`~jkatana.models.lobes.Geometry` and F̄ at its
+    cos θi and cos θH (``fresnel[0]``, ``fresnel[1]``), all parameter-free unless the tilt is fitted.
+
+    Built once per table and spec by :func:`evaluation_point` (a solver passes it to every step, so the half
+    vector and the Fresnel lookups are not recomputed per step); :func:`green` builds it itself when not given.
+    """
+
+    geo: Geometry
+    fresnel: Float[Array, "2 *b"]
 
 
-def green(p: Float[Array, " p"], terms: Terms, spec: ModelSpec) -> Float[Array, " n"]:
-    """Model values in camera units for the parameter vector ``p`` (module docstring)."""
-    fm = spec.fit_model
-    scale = jnp.exp(p[0])
-    lobe = fm.build(p[1:1 + spec.n_shape])
+def _at(geo: Geometry, terms: Terms, nominal: bool) -> At:
+    if nominal:  # the nominal cosines are f_exact's own: F̄ there exactly
+        return At(geo, terms.f_exact[:, 1])
+    return At(geo, jnp.stack([_fbar_point(geo.cos_i, terms), _fbar_point(geo.cos_th, terms)]))
+
+
+def evaluation_point(terms: Terms, spec: ModelSpec, tilt=None) -> At:
+    """The :class:`At` of the model for ``spec`` on ``terms``' directions: nominal (``terms.geo``), rotated by
+    ``tilt`` (radians; required when ``spec.tilt``), and over the instrument's disks of directions."""
+    if spec.tilt and tilt is None:
+        raise ValueError("a tilted model's evaluation point depends on the tilt")
     L, V = terms.L, terms.V
     if spec.tilt:
-        delta = p[spec.tilt_index]
-        L, V = _rot_y(L, delta), _rot_y(V, delta)
+        L, V = _rot_y(L, tilt), _rot_y(V, tilt)
     if spec.instrument is not None:
         src, ap, n = spec.instrument
         Ls = _perturb(L, disk_offsets(src, n if src > 0 else 1))
         Vs = _perturb(V, disk_offsets(ap, n if ap > 0 else 1))
-        vals = _lobe_value(lobe, Ls[:, None], Vs[None, :], terms)
-        val = jnp.mean(vals, axis=(0, 1))
-    else:
-        val = _lobe_value(lobe, L, V, terms)
+        return _at(Geometry.of(Ls[:, None], Vs[None, :]), terms, False)
+    if spec.tilt:
+        return _at(Geometry.of(L, V), terms, False)
+    return _at(terms.geo, terms, True)
+
+
+def _lobe_value(lobe, at: At, terms: Terms):
+    """Σ_j a_j F̄(cos_F_j): F̄ from ``at`` where a term's Fresnel cosine is the geometry's cos θi or cos θH
+    (every lobe of :mod:`jkatana.models.lobes`), else looked up."""
+    total = 0.0
+    for a, c in lobe.terms_at(at.geo):
+        if c is at.geo.cos_i:
+            f = at.fresnel[0]
+        elif c is at.geo.cos_th:
+            f = at.fresnel[1]
+        else:
+            f = _fbar_point(c, terms)
+        total = total + a * f
+    return total
+
+
+def green(p: Float[Array, " p"], terms: Terms, spec: ModelSpec, at: At | None = None) -> Float[Array, " n"]:
+    """Model values in camera units for the parameter vector ``p`` (module docstring).
+
+    `at`: :func:`evaluation_point` of ``terms`` and ``spec``, when the caller has it (not with a tilt).
+    """
+    fm = spec.fit_model
+    scale = jnp.exp(p[0])
+    lobe = fm.build(p[1:1 + spec.n_shape])
+    if at is None or spec.tilt:
+        at = evaluation_point(terms, spec, p[spec.tilt_index] if spec.tilt else None)
+    val = _lobe_value(lobe, at, terms)
+    if spec.instrument is not None:
+        val = jnp.mean(val, axis=(0, 1))
     out = scale * val
     if spec.floor:
         out = out + p[spec.floor_index]
@@ -386,4 +430,5 @@ def default_shape(spec: ModelSpec, log_width, dtype):
 
 
 __all__ = ["ModelSpec", "Terms", "FitModel", "FIT_MODELS", "prepare", "green", "to_natural", "from_natural",
-           "MODELS", "SCALE_NAME", "SHAPE_NAMES", "fbar", "disk_offsets", "default_shape"]
+           "MODELS", "SCALE_NAME", "SHAPE_NAMES", "fbar", "disk_offsets", "default_shape", "At",
+           "evaluation_point"]

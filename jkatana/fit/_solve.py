@@ -50,7 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from jkatana.fit._model import ModelSpec, Terms, default_shape, green, to_natural
+from jkatana.fit._model import ModelSpec, Terms, default_shape, evaluation_point, green, to_natural
 from jkatana.models.microfacet import LN2
 
 SOLVERS = ("lm", "dogleg", "gn", "jaxopt")
@@ -137,9 +137,13 @@ def estimate_noise(value, sigma=None, *, floor_fraction: float = 1e-4) -> NoiseM
 
 
 def residuals(p, args):
-    """r = (m − y)·w, w = 1/σ (0 for padded or excluded points)."""
-    terms, y, w, spec = args
-    return (green(p, terms, spec) - y) * w
+    """r = (m − y)·w, w = 1/σ (0 for padded or excluded points).
+
+    ``args`` = ``(terms, y, w, spec)`` or ``(terms, y, w, spec, at)`` with ``at`` the model's
+    :func:`~jkatana.fit._model.evaluation_point` computed once outside a solver's loop (None: computed here).
+    """
+    terms, y, w, spec, *at = args
+    return (green(p, terms, spec, at[0] if at else None) - y) * w
 
 
 def _jac(p, args):
@@ -336,8 +340,14 @@ def solve(terms: Terms, y, w, p0, *, spec: ModelSpec, solver: str = "lm", max_st
     ``rtol``/``atol`` default to 1e-6 for optimistix's Cauchy criterion (module
     docstring) and 1e-10 for jaxopt's Madsen–Nielsen rule (whose ``gtol`` is an
     absolute gradient norm).
+
+    The model's evaluation point (:func:`~jkatana.fit._model.evaluation_point`:
+    geometry and Fresnel factors) is computed once here, outside the solver's
+    loop. The residuals and Jacobian at ``p`` are those of optimistix's last
+    linearisation, which is at the point it returns (its ``f_info`` follows every
+    accepted step), so the check costs no further forward pass.
     """
-    args = (terms, y, w, spec)
+    args = (terms, y, w, spec, None if spec.tilt else evaluation_point(terms, spec))
     if solver == "jaxopt":
         rtol = 1e-10 if rtol is None else rtol
         atol = 1e-10 if atol is None else atol
@@ -359,7 +369,11 @@ def solve(terms: Terms, y, w, p0, *, spec: ModelSpec, solver: str = "lm", max_st
         steps = sol.stats["num_steps"]
         solver_ok = sol.result == optx.RESULTS.successful
     r0 = residuals(p0, args)
-    J, r = _jac_and_residuals(p, args)
+    if solver == "jaxopt":
+        J, r = _jac_and_residuals(p, args)
+    else:  # the solver's last linearisation is at its returned point: r and J there without another pass
+        info = sol.state.f_info
+        r, J = info.residual, info.jac.as_matrix()
     g = J.T @ r
     jtj = J.T @ J
     dec = _decrement(jtj, g)

@@ -17,6 +17,12 @@ API of every lobe:
   hiraji lobe, cos θH for microfacet lobes); a :class:`Mixture` has the terms
   of both parts, weighted. Keeping F outside lets a renderer take it from a
   table or fold it into the environment.
+- ``terms_at(g)``: the same terms from the directions' precomputed
+  :class:`Geometry` (``terms(L, V)`` is ``terms_at(Geometry.of(L, V))``: one
+  formula). A caller that evaluates many parameter sets on the same
+  directions (a fitter, once per solver step) computes the half vector once;
+  a returned Fresnel cosine is then one of ``g``'s own arrays, so such a
+  caller can tabulate F at it once as well.
 - ``f_cos(L, V)``: Σ a_j — the value with F ≡ 1 (white furnace).
 - ``brdf_cos(L, V, conductor)``: Σ a_j F(cos_F_j, λ) → ``(*b, wl)``.
 - ``sample(V, u, uc=None) -> (L, pdf)``: an incident direction from uniforms
@@ -64,7 +70,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from jkatana.models._safe import safe_div, safe_sqrt
 from jkatana.models.geometry import half_vector_tan_terms, half_vector_terms
@@ -93,8 +99,37 @@ def _split(u):
     return u[..., 0], u[..., 1]
 
 
+class Geometry(eqx.Module):
+    """The parameter-free geometry of direction pairs (L, V) that every lobe's value is a function of.
+
+    ``cos_i`` = N·L, ``cos_r`` = N·V and :func:`~jkatana.models.geometry.half_vector_terms`'s facet angle
+    ``phi``, ``cos_phi`` = N·H, ``cos_th`` = L·H and ``valid`` (False where L = −V), and ``tan_phi``
+    (:func:`~jkatana.models.geometry.half_vector_tan_terms`: what the microfacet distributions take, read
+    from L + V without ``atan2``), all broadcast to one batch shape. :meth:`Lobe.terms_at` evaluates a
+    lobe from it, so directions that are evaluated with many parameter values (a fitter's solver steps)
+    pay for the half vector and its angles once.
+    """
+
+    cos_i: Float[Array, "*b"]
+    cos_r: Float[Array, "*b"]
+    phi: Float[Array, "*b"]
+    cos_phi: Float[Array, "*b"]
+    cos_th: Float[Array, "*b"]
+    valid: Bool[Array, "*b"]
+    tan_phi: Float[Array, "*b"]
+
+    @classmethod
+    def of(cls, L: Float[Array, "*#b 3"], V: Float[Array, "*#b 3"]) -> "Geometry":
+        """The geometry of unit directions ``L``, ``V`` (local frame, N = +z; batch shapes broadcast)."""
+        phi, cos_phi, cos_th, valid = half_vector_terms(L, V)
+        tan_phi = half_vector_tan_terms(L, V)[0]
+        shape = phi.shape
+        return cls(jnp.broadcast_to(L[..., 2], shape), jnp.broadcast_to(V[..., 2], shape), phi, cos_phi, cos_th,
+                   valid, tan_phi)
+
+
 class Lobe(eqx.Module):
-    """Base class: subclasses define ``terms``, ``sample``, ``pdf`` and the class attribute ``name``.
+    """Base class: subclasses define ``terms_at``, ``sample``, ``pdf`` and the class attribute ``name``.
 
     ``widths`` names the fields that set the lobe's angular width (μ of the
     Gaussian lobes, α of the microfacet ones): :func:`lobe_shape` and
@@ -105,6 +140,11 @@ class Lobe(eqx.Module):
     widths: ClassVar[tuple[str, ...]] = ()
 
     def terms(self, L, V):
+        """f_r cos θi without the Fresnel factor as terms ``((a, cos_F), ...)`` (module docstring)."""
+        return self.terms_at(Geometry.of(L, V))
+
+    def terms_at(self, g: Geometry):
+        """:meth:`terms` from the directions' precomputed :class:`Geometry` (the lobe's formula)."""
         raise NotImplementedError
 
     def sample(self, V, u, uc=None):
@@ -275,13 +315,11 @@ class Gaussian(_GaussianBase):
 
     name: ClassVar[str] = "gaussian"
 
-    def terms(self, L, V):
-        cos_i, cos_r = L[..., 2], V[..., 2]
-        phi, _, cos_th, valid = half_vector_terms(L, V)
-        visible = valid & (cos_i >= 0) & (cos_r >= 0)
-        d = jnp.where(visible, gaussian_facet(phi, self.mu), 0.0)
-        s = safe_div(self.scale, 4.0 * cos_th) if self.normalised else self.scale
-        return ((s * d, cos_i),)
+    def terms_at(self, g: Geometry):
+        visible = g.valid & (g.cos_i >= 0) & (g.cos_r >= 0)
+        d = jnp.where(visible, gaussian_facet(g.phi, self.mu), 0.0)
+        s = safe_div(self.scale, 4.0 * g.cos_th) if self.normalised else self.scale
+        return ((s * d, g.cos_i),)
 
 
 class GaussianVCavity(_GaussianBase):
@@ -294,14 +332,12 @@ class GaussianVCavity(_GaussianBase):
 
     name: ClassVar[str] = "gaussian-vcavity"
 
-    def terms(self, L, V):
-        cos_i, cos_r = L[..., 2], V[..., 2]
-        phi, cos_nh, cos_th, valid = half_vector_terms(L, V)
-        visible = valid & (cos_i >= 0) & (cos_r >= 0)
-        g_over_cos = vcavity_over_cos(cos_nh, jnp.maximum(cos_r, 0.0), jnp.maximum(cos_i, 0.0), cos_th)
-        dg = jnp.where(visible, gaussian_facet(phi, self.mu) * g_over_cos, 0.0)
+    def terms_at(self, g: Geometry):
+        visible = g.valid & (g.cos_i >= 0) & (g.cos_r >= 0)
+        g_over_cos = vcavity_over_cos(g.cos_phi, jnp.maximum(g.cos_r, 0.0), jnp.maximum(g.cos_i, 0.0), g.cos_th)
+        dg = jnp.where(visible, gaussian_facet(g.phi, self.mu) * g_over_cos, 0.0)
         s = self.scale / 4.0 if self.normalised else self.scale
-        return ((s * dg, cos_th),)
+        return ((s * dg, g.cos_th),)
 
 
 # ---------------------------------------------------------------- microfacet lobes
@@ -318,7 +354,7 @@ class _Microfacet(Lobe):
     widths: ClassVar[tuple[str, ...]] = ("alpha",)
 
     def D_tan(self, tan_phi, cos_phi):
-        """The distribution of normals from tan φ and cos φ (0 where cos φ ≤ 0)."""
+        """The distribution of normals from tan φ and cos φ (0 where cos φ ≤ 0): the formula."""
         raise NotImplementedError
 
     def D(self, phi, cos_phi):
@@ -332,13 +368,11 @@ class _Microfacet(Lobe):
     def sample_h(self, u):
         raise NotImplementedError
 
-    def terms(self, L, V):
-        cos_i, cos_r = L[..., 2], V[..., 2]
-        tan_nh, cos_nh, cos_th, valid = half_vector_tan_terms(L, V)
-        ok = valid & (cos_i > 0) & (cos_r > 0)
-        d = self.D_tan(tan_nh, cos_nh)
-        g = self.G(cos_r, cos_i)
-        return ((jnp.where(ok, d * g / (4.0 * jnp.maximum(cos_r, COS_FLOOR)), 0.0), cos_th),)
+    def terms_at(self, g: Geometry):
+        ok = g.valid & (g.cos_i > 0) & (g.cos_r > 0)
+        d = self.D_tan(g.tan_phi, g.cos_phi)
+        shadow = self.G(g.cos_r, g.cos_i)
+        return ((jnp.where(ok, d * shadow / (4.0 * jnp.maximum(g.cos_r, COS_FLOOR)), 0.0), g.cos_th),)
 
     def pdf(self, L, V):
         tan_nh, cos_nh, cos_th, valid = half_vector_tan_terms(L, V)
@@ -543,10 +577,10 @@ class Mixture(Lobe):
     weight: Float[Array, "*p"]
     name: ClassVar[str] = "mixture"
 
-    def terms(self, L, V):
+    def terms_at(self, g: Geometry):
         w = self.weight
-        return (tuple((w * a, c) for a, c in self.first.terms(L, V))
-                + tuple(((1.0 - w) * a, c) for a, c in self.second.terms(L, V)))
+        return (tuple((w * a, c) for a, c in self.first.terms_at(g))
+                + tuple(((1.0 - w) * a, c) for a, c in self.second.terms_at(g)))
 
     def pdf(self, L, V):
         return self.weight * self.first.pdf(L, V) + (1.0 - self.weight) * self.second.pdf(L, V)
@@ -725,6 +759,6 @@ def normalised_params(params: dict) -> dict:
     return p
 
 
-__all__ = ["LOBES", "Lobe", "LobeKey", "Gaussian", "GaussianVCavity", "Beckmann", "GGX", "GTR", "Mixture", "reflect",
+__all__ = ["LOBES", "Lobe", "Geometry", "LobeKey", "Gaussian", "GaussianVCavity", "Beckmann", "GGX", "GTR", "Mixture", "reflect",
            "lobe_from_params", "lobe_key", "key_params", "lobe_shape", "lobe_with_width", "normalised_params",
            "WidthFamily"]
