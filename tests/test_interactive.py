@@ -120,6 +120,25 @@ def sky_scene():
 
 
 @pytest.mark.gl
+def test_rank_2_lobe_table_carries_the_tap_weights(glr, sky_scene):
+    """At rank ≤ 2 the lobe table's unused channels (A_2, A_3) carry the first and last fitted tap weight and
+    the shader takes the middle one as 1 − their sum: exact because tap_fit normalises the weights; every
+    other layer is the rank-3 table's."""
+    from jkatana.interactive.glstate import lut_layers
+
+    b = B.cached_bake(sky_scene.radiance, sky_scene.grid, rank=3)
+    l2, l3 = lut_layers(b, 2), lut_layers(b, 3)
+    w = l3[6:8, ..., :3]
+    np.testing.assert_allclose(w.sum(-1), 1.0, atol=1e-12)
+    np.testing.assert_array_equal(l2[:2, ..., :2], l3[:2, ..., :2])
+    np.testing.assert_array_equal(l2[:2, ..., 2], w[..., 0])
+    np.testing.assert_array_equal(l2[:2, ..., 3], w[..., 2])
+    np.testing.assert_allclose(1.0 - l2[:2, ..., 2] - l2[:2, ..., 3], w[..., 1], atol=1e-12)
+    np.testing.assert_array_equal(l2[2:], l3[2:])
+    assert np.any(l3[:2, ..., 2] != l2[:2, ..., 2])             # rank 3 keeps A_2 there
+
+
+@pytest.mark.gl
 def test_gl_frame_agrees_with_the_reference_renderer_under_the_sky(glr, sky_scene, tmp_path):
     """The built-in sky from an orbit view, against jkatana.render (reference mode, 256 samples)."""
     sc = sky_scene

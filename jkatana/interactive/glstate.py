@@ -81,6 +81,25 @@ def _rgba(x: np.ndarray) -> np.ndarray:
     return np.concatenate([x, pad], -1)
 
 
+def lut_layers(b: Baked, rank: int) -> np.ndarray:
+    """The lobe table and tap patterns as the shader's 2-D array texture ``(8, n_mu, n_cos, 4)``: layers 0, 1
+    the lobe tables A of hiraji, hamon (:func:`~jkatana.interactive.lobe_tables.lobe_lut`); 2, 3 their lobe
+    shapes; 4, 5 the fitted taps' log(μ_e/μ) and offsets; 6, 7 their weights
+    (:func:`~jkatana.interactive.taps.tap_fit`). At ``rank`` ≤ 2 layers 0, 1 have room: the first and last tap weight ride there in place of A_2, A_3 and
+    the middle one is 1 − their sum (tap_fit normalises the weights), so the shader reads two layers fewer
+    per pixel (``JK_RANK`` ≤ 2 in ``shade.glsl``)."""
+    lut = np.zeros((8,) + b.lut.shape[1:-1] + (MAX_RANK,))
+    lut[:2, ..., :b.rank] = b.lut
+    lut[2, ..., :3] = b.spread[0]
+    lut[3, ..., :3] = b.spread[1]
+    T = (b.taps.shape[-1] - 1) // 2
+    lut[4:6, ..., :1 + T] = b.taps[:, ..., :1 + T]
+    lut[6:8, ..., :T] = b.taps[:, ..., 1 + T:]
+    if rank <= 2 and T == 3:
+        lut[:2, ..., 2:4] = b.taps[:, ..., [1 + T, 2 * T]]
+    return lut
+
+
 class ShadingState:
     """What the shaders read: baked tables, reflectance map, and per-frame settings.
 
@@ -140,15 +159,9 @@ class ShadingState:
         if key not in self._textures:
             b = self.baked
             n_mu, rank, H, W, _ = b.env.shape
-            lut = np.zeros((8,) + b.lut.shape[1:-1] + (MAX_RANK,))
-            lut[:2, ..., :rank] = b.lut
-            lut[2, ..., :3] = b.spread[0]                                # layer 2: hiraji lobe shape
-            lut[3, ..., :3] = b.spread[1]                                # layer 3: hamon lobe shape
-            T = (b.taps.shape[-1] - 1) // 2                              # fitted taps (taps.tap_fit):
-            lut[4:6, ..., :1 + T] = b.taps[:, ..., :1 + T]               # layers 4, 5: log(μ_e/μ), offsets
-            lut[6:8, ..., :T] = b.taps[:, ..., 1 + T:]                   # layers 6, 7: weights
+            lut = lut_layers(b, self.rank)
             self._textures[key] = (
-                _tex_array(lut),                                         # (2, n_mu, n_cos, 4)
+                _tex_array(lut),                                         # (8, n_mu, n_cos, 4)
                 _tex_2d(_rgba(self.refl_map)),
                 _tex_2d(_rgba(np.asarray(b.transfer, np.float64)[None, :, None])),
                 *(_tex_3d(_rgba(b.env[:, r]), self.env_format) for r in range(rank)),     # (n_mu, H, W, 4) each

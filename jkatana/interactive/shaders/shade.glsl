@@ -41,8 +41,9 @@ uniform sampler3D jk_env2;
 #if JK_RANK > 3
 uniform sampler3D jk_env3;
 #endif
-uniform sampler2DArray jk_lut;      // layer 0 hiraji, 1 hamon: rgba = A_0..A_3; layers 2, 3: lobe shape of
-                                    // hiraji, hamon (rgb = log across-width ratio, ± tap offset, mean offset)
+uniform sampler2DArray jk_lut;      // layer 0 hiraji, 1 hamon: rgba = A_0..A_3 (rank ≤ 2: A_0, A_1, first and
+                                    // last tap weight); layers 2, 3: lobe shape of hiraji, hamon (rgb = log
+                                    // across-width ratio, ± tap offset, mean offset); 4–7: fitted taps (below)
                                     // s: cos θv, t: μ level
 uniform sampler2D jk_map;           // r = w, g = μ0, b = μ1
 uniform sampler2D jk_transfer;      // 1 row: encode(s²)
@@ -149,10 +150,16 @@ float encode1(float x)
 #endif
 }
 
-vec3 env_xyz(vec3 d, float lz, vec4 a)
+// the environment textures' coordinate (u, v, level) of direction d (map frame) at level coordinate lz
+vec3 env_coord(vec3 d, float lz)
 {
-    vec3 p = vec3(0.5 + atan(d.x, -d.z) / (2.0 * JK_PI), acos(clamp(d.y, -1.0, 1.0)) / JK_PI, lz);
-    vec3 xyz = a.x * textureLod(jk_env0, p, 0.0).rgb;
+    return vec3(0.5 + atan(d.x, -d.z) / (2.0 * JK_PI), acos(clamp(d.y, -1.0, 1.0)) / JK_PI, lz);
+}
+
+// Σ_{r ≥ 1} a_r P_r(p): the basis functions after the first at texture coordinate p
+vec3 env_rest(vec3 p, vec4 a)
+{
+    vec3 xyz = vec3(0.0);
 #if JK_RANK > 1
     xyz += a.y * textureLod(jk_env1, p, 0.0).rgb;
 #endif
@@ -163,6 +170,12 @@ vec3 env_xyz(vec3 d, float lz, vec4 a)
     xyz += a.w * textureLod(jk_env3, p, 0.0).rgb;
 #endif
     return xyz;
+}
+
+vec3 env_xyz(vec3 d, float lz, vec4 a)
+{
+    vec3 p = env_coord(d, lz);
+    return a.x * textureLod(jk_env0, p, 0.0).rgb + env_rest(p, a);
 }
 
 // display-encoded RGBA of a surface point: unit normal N, unit direction to the eye Vd, map coordinates uv
@@ -191,7 +204,13 @@ vec4 jk_shade(vec3 N, vec3 Vd, vec2 uv)
         // fitted taps (jkatana.interactive.taps.tap_fit): x = log(μ_e/μ), yzw = offsets o_j along the
         // plane of incidence (rad, towards N); layers 6, 7: weights w_j
         vec4 tp = w * lobe(4.0, cv, lf) + (1.0 - w) * lobe(5.0, cv, lt);
+#if JK_RANK > 2
         vec3 tw = w * lobe(6.0, cv, lf).rgb + (1.0 - w) * lobe(7.0, cv, lt).rgb;
+#else
+        // at rank ≤ 2 the first and last weights ride in the lobe table's unused channels (ShadingState.textures);
+        // the weights sum to 1 (tap_fit normalises them), in every blend of the two lobes too
+        vec3 tw = vec3(a.z, 1.0 - a.z - a.w, a.w);
+#endif
         float le = clamp(mix(lt, lf, w) + tp.x / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
 #elif JK_ROUGH
         vec3 shape = w * lobe(2.0, cv, lf).rgb + (1.0 - w) * lobe(3.0, cv, lt).rgb;
@@ -205,11 +224,16 @@ vec4 jk_shade(vec3 N, vec3 Vd, vec2 uv)
         tn = jk_env_rot * (tn / max(length(tn), 1e-6));
 #endif
 #if JK_TWO_TAP && JK_TAP_FIT
-        // three taps fitted to the lobe (offsets, weights, filter width): the lobe's skew too
-        vec3 d0 = cos(tp.y) * R + sin(tp.y) * tn;
-        vec3 d1 = cos(tp.z) * R + sin(tp.z) * tn;
-        vec3 d2 = cos(tp.w) * R + sin(tp.w) * tn;
-        xyz = tw.x * env_xyz(d0, lz, a) + tw.y * env_xyz(d1, lz, a) + tw.z * env_xyz(d2, lz, a);
+        // three taps fitted to the lobe (offsets, weights, filter width): the lobe's skew too. The first basis
+        // function (the mean reflectance spectrum: nearly all of the luminance) is read at the three taps; the
+        // higher ones (small, smooth spectral corrections) at the middle tap only (the offsets are sorted),
+        // with the taps' total weight 1 (an approximation: their anisotropic blur is dropped; bench_interactive
+        // measures the ΔE2000 of every agreement view)
+        vec3 p1 = env_coord(cos(tp.z) * R + sin(tp.z) * tn, lz);
+        xyz = a.x * (tw.x * textureLod(jk_env0, env_coord(cos(tp.y) * R + sin(tp.y) * tn, lz), 0.0).rgb
+                     + tw.y * textureLod(jk_env0, p1, 0.0).rgb
+                     + tw.z * textureLod(jk_env0, env_coord(cos(tp.w) * R + sin(tp.w) * tn, lz), 0.0).rgb)
+            + env_rest(p1, a);
 #elif JK_TWO_TAP && JK_TAPS == 5
         // five binomial taps (1, 4, 6, 4, 1)/16 at mean, mean ± spread, mean ± 2·spread: the lobe's mean and
         // variance, a kernel closer to the lobe's own shape than three taps
