@@ -394,6 +394,41 @@ def test_gl_frame_renders_the_lobes_of_parameter_files(glr, tmp_path):
 
 
 @pytest.mark.gl
+@pytest.mark.slow          # ~2 min on 2 loaded cores: a 256-spp reference, tap fits for two lobe families (cached)
+@pytest.mark.xfail(strict=True, reason="around the glint the GL frame is ~20 % too bright with the sun split and "
+                   "~20 % too dark without: neither the cap rule's Gaussian (the lobe's moments) nor the three "
+                   "fitted taps hold GGX's heavy tails under a sun")
+def test_sun_glint_on_parameter_files_lobes_under_a_real_hdr(glr, tmp_path):
+    """A sun (split cap) on regions holding non-paper lobes: GGX hiraji (α 0.05) and Beckmann hamon (α 0.12)
+    from parameter files under ``sunrise.exr``, at its sun-glint view; the GL frame against jkatana.render
+    (reference mode, the same files) within the agreement bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5)."""
+    from jkatana.interactive.lobe_tables import region_lobes
+    from jkatana.render.film import auto_exposure
+    from jkatana.render.renderer import prepare, render_view
+    from jkatana.render.scene import scene_from_dict
+
+    mesh = S.blade()
+    rad = A.shared_environment("sunrise.exr")
+    view = A.sun_glint_view(mesh, rad, 160, 120)
+    d = A.render_scene(view, samples=256)
+    d["material"]["hiraji"] = _params_file(tmp_path / "hiraji.json", "ggx", "hiraji",
+                                           {"scale": 2000.0, "alpha": 0.05})
+    d["material"]["hamon"] = _params_file(tmp_path / "hamon.json", "beckmann", "hamon",
+                                          {"scale": 2000.0, "alpha": 0.12})
+    prep = prepare(scene_from_dict(d), env_radiance=np.asarray(rad, np.float32))
+    keys = {"hiraji": prep.plan.hiraji_lobe, "hamon": prep.plan.hamon_lobe}
+    fr = render_view(prep)
+    exposure = auto_exposure(fr.xyz, fr.mask, key=0.6, percentile=75.0)
+    baked = B.cached_bake(rad, rank=3, mus=LV.MU_LEVELS[2:9], lobes=region_lobes(keys))
+    assert baked.n_caps == 1
+    st = glr.ShadingState(baked, np.asarray(prep.maps, np.float64), exposure=exposure)
+    img, gl_mask = A.gl_frame(st, view, mesh, return_mask=True)
+    stats = A.compare(img, A.display255(fr.xyz, exposure), fr.mask & gl_mask)[0]
+    assert stats["pixels"] > 1000
+    assert stats["mean"] <= 1.0 and stats["p95"] <= 2.5, stats
+
+
+@pytest.mark.gl
 def test_env_rotation_and_exposure_change_the_frame(glr, sky_scene):
     sc = sky_scene                      # the sky is symmetric about +Y but for the sun: use the studio
     studio = S.environment("studio", height=32)
