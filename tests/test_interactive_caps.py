@@ -115,3 +115,71 @@ def test_cap_kernel_is_normalised_and_skips_far_caps():
     assert abs(total - 1.0) < 2e-3, total
     far = np.array([np.sin(0.9), 0.0, np.cos(0.9)])
     assert float(C.kernel(M, tp, ty, c_par, c_perp, far, 0.0)) == 0.0
+
+
+@functools.lru_cache(maxsize=None)
+def _ggx_beckmann_table():
+    """The cap kernel table of GGX (α 0.05) and Beckmann (α 0.12) families at three μ levels around them."""
+    from jkatana.interactive import captable as CT
+    from jkatana.models.lobes import WidthFamily, lobe_from_params, lobe_shape
+
+    iron, dt, _ = _tables()
+    lobes = tuple(lobe_from_params({"lobe": name, "alpha": a}, dt) for name, a in (("ggx", 0.05), ("beckmann", 0.12)))
+    families = tuple(WidthFamily(lobe_shape(lobe.to_params())[1]) for lobe in lobes)
+    mus = MU_LEVELS[3:7]
+    return lobes, mus, CT.cap_kernel_table(families, mus, RADIUS, iron)
+
+
+def _table_errors(region: int, deg: float, moments: bool = False) -> float:
+    """Worst |rule − cap_integral| of the lobe of ``region`` (0: GGX α 0.05, 1: Beckmann α 0.12) over caps from
+    the mirror direction out to 8 α, along, across and between, relative to the peak of cap_integral: the
+    table read as the shader reads it (``captable.table_kernel``), or (``moments``) the closed-form rule of
+    the lobe's moments."""
+    from jkatana.interactive import captable as CT
+
+    iron, dt, _ = _tables()
+    lobes, mus, table = _ggx_beckmann_table()
+    model = lobes[region]
+    a = float(model.alpha)
+    cv = float(np.cos(np.radians(deg)))
+    V, R, t, y = (x[0] for x in CT._frame(np.array([cv])))
+    offs = a * np.array([(0, 0), (0.5, 0), (-0.5, 0), (1, 0.3), (-1.3, 0.2), (0, 1), (2, 0), (-3, 1), (4, 0),
+                         (0, 6), (-8, 0)])
+    caps = CT.cap_directions(R, t, y, offs[:, 0], offs[:, 1])
+    truth = np.asarray(cap_integral(functools.partial(model.brdf_cos, conductor=iron),
+                                    jnp.asarray(np.broadcast_to(V, caps.shape), dt), jnp.asarray(caps, dt), RADIUS,
+                                    float(model.reflected_width()), n_radial=8, n_azimuth=32)).sum(-1)
+    _, (mean, var_par, var_perp) = LT.lobe_integral(model, iron, jnp.asarray(V[None], dt), moments=True, width=a,
+                                                    tails=True)
+    energy = float(np.sum(np.asarray(LT.lobe_integral(model, iron, jnp.asarray(V, dt), width=a, tails=True))))
+    omega = 4 * np.pi * np.sin(RADIUS / 2) ** 2
+    if moments:
+        _, (_, g_par, g_perp) = LT.lobe_integral(Gaussian(mu=jnp.asarray(a, dt)), iron,
+                                                 jnp.asarray([[0.0, 0.0, 1.0]], dt), moments=True)
+        sp = np.array([0.5 * np.log(float(var_perp[0]) / (0.5 * float(g_par[0] + g_perp[0]))),
+                       np.sqrt(max(float(var_par[0] - var_perp[0]), 0.0)), float(mean[0])])
+        rule = energy * omega * C.cap_response(R, t, sp, a * np.exp(sp[0]), caps, RADIUS)
+    else:
+        level = float(np.log(a / mus[0]) / np.log(mus[1] / mus[0]))
+        rule = energy * omega * CT.table_kernel(table, mus, region, level, cv, offs[:, 0], offs[:, 1])
+    return float(np.max(np.abs(rule - truth)) / np.max(truth))
+
+
+#: worst error of the cap kernel table relative to the lobe's peak (measured 0.9–1.9 % for GGX α 0.05 and
+#: 1.2–1.9 % for Beckmann α 0.12, between two μ levels, at 0–66° incidence)
+TABLE_TOL = 0.03
+
+
+@pytest.mark.parametrize("deg", [0, 50, 66])
+def test_cap_kernel_table_against_the_cap_quadrature_of_ggx_and_beckmann(deg):
+    """The table of the cap integrated against a heavy-tailed GGX (at a μ level) and a Beckmann lobe (between
+    two levels), read as the shader reads it, within 3 % of the peak out to 8 α."""
+    for region in (0, 1):
+        assert _table_errors(region, deg) < TABLE_TOL, (region, deg)
+
+
+def test_the_moments_gaussian_misses_ggx_under_a_cap():
+    """It can fail: the closed-form rule (one Gaussian with the lobe's moments) on GGX α 0.05 misses the cap
+    quadrature by far more than the table's bound (its variance is set by the tails: the peak several times
+    too low)."""
+    assert _table_errors(0, 50, moments=True) > 10 * TABLE_TOL

@@ -111,7 +111,10 @@ class ShadingState:
       :func:`jkatana.interactive.taps.tap_fit` — the default; off: moment-matched binomial taps, which
       miss the lobe's skew: ~10 % too dark on a sun inside the oblique hamon lobe; `taps=5` is always
       moment-matched). The baked caps (compact sources split off the map, :func:`~jkatana.interactive.caps.sun_caps`)
-      are a static switch too (``JK_CAPS``, their number; 0: no cap code).
+      are a static switch too (``JK_CAPS``, their number; 0: no cap code), and so is their kernel table
+      (``JK_CAP_TABLE``: rough shading of a bake with a cap whose regions hold lobes other than the paper's,
+      :mod:`jkatana.interactive.captable`; a 3-D texture (û, v̂, (region, μ level, cos θv)) after the
+      environment textures).
     - `env_format`: GL internal format of the environment textures (:data:`ENV_FORMAT`).
     """
 
@@ -141,9 +144,14 @@ class ShadingState:
 
     def defines(self) -> dict:
         return {"JK_RANK": self.rank, "JK_ROUGH": int(self.rough), "JK_BLEND": int(self.blend),
-                "JK_CAPS": self.baked.n_caps,
+                "JK_CAPS": self.baked.n_caps, "JK_CAP_TABLE": int(self.cap_table),
                 "JK_TWO_TAP": int(self.two_tap and self.rough), "JK_TAPS": self.taps,
                 "JK_TAP_FIT": int(self.fit and self.two_tap and self.rough and self.taps == 3)}
+
+    @property
+    def cap_table(self) -> bool:
+        """Whether the shader reads the caps through the bake's kernel table (``JK_CAP_TABLE``)."""
+        return bool(self.rough and self.baked.n_caps and self.baked.cap_kernel.size)
 
     def env_rot_matrix(self) -> np.ndarray:
         """World → environment-map rotation about +Y, as :func:`jkatana.render.renderer.rotation_y`
@@ -166,6 +174,11 @@ class ShadingState:
                 _tex_2d(_rgba(np.asarray(b.transfer, np.float64)[None, :, None])),
                 *(_tex_3d(_rgba(b.env[:, r]), self.env_format) for r in range(rank)),     # (n_mu, H, W, 4) each
             )
+            if b.cap_kernel.size:                        # (2 n_mu n_cos, n_v, n_u, 4), clamped on every axis
+                k = b.cap_kernel
+                data = _rgba(k.reshape((-1,) + k.shape[-2:])[..., None])
+                self._textures[key] += (_tex_layered(GL.GL_TEXTURE_3D, data, (GL.GL_TEXTURE_WRAP_S,
+                                        GL.GL_TEXTURE_WRAP_T, GL.GL_TEXTURE_WRAP_R)),)
         return self._textures[key]
 
     def forget_current_context(self):
