@@ -119,14 +119,15 @@ def test_cap_kernel_is_normalised_and_skips_far_caps():
 
 @functools.lru_cache(maxsize=None)
 def _ggx_beckmann_table():
-    """The cap kernel table of GGX (α 0.05) and Beckmann (α 0.12) families at three μ levels around them."""
+    """The cap kernel table of GGX (α 0.05, on the first level) and Beckmann (α 0.12, between the last two)
+    families at four μ levels, 0.05–0.141."""
     from jkatana.interactive import captable as CT
     from jkatana.models.lobes import WidthFamily, lobe_from_params, lobe_shape
 
     iron, dt, _ = _tables()
     lobes = tuple(lobe_from_params({"lobe": name, "alpha": a}, dt) for name, a in (("ggx", 0.05), ("beckmann", 0.12)))
     families = tuple(WidthFamily(lobe_shape(lobe.to_params())[1]) for lobe in lobes)
-    mus = MU_LEVELS[3:7]
+    mus = MU_LEVELS[4:8]
     return lobes, mus, CT.cap_kernel_table(families, mus, RADIUS, iron)
 
 
@@ -136,10 +137,10 @@ def _table_errors(region: int, deg: float, moments: bool = False) -> float:
     table read as the shader reads it (``captable.table_kernel``), or (``moments``) the closed-form rule of
     the lobe's moments."""
     from jkatana.interactive import captable as CT
+    from jkatana.models.lobes import lobe_from_params
 
     iron, dt, _ = _tables()
-    lobes, mus, table = _ggx_beckmann_table()
-    model = lobes[region]
+    model = lobe_from_params({"lobe": ("ggx", "beckmann")[region], "alpha": (0.05, 0.12)[region]}, dt)
     a = float(model.alpha)
     cv = float(np.cos(np.radians(deg)))
     V, R, t, y = (x[0] for x in CT._frame(np.array([cv])))
@@ -160,6 +161,7 @@ def _table_errors(region: int, deg: float, moments: bool = False) -> float:
                        np.sqrt(max(float(var_par[0] - var_perp[0]), 0.0)), float(mean[0])])
         rule = energy * omega * C.cap_response(R, t, sp, a * np.exp(sp[0]), caps, RADIUS)
     else:
+        _, mus, table = _ggx_beckmann_table()
         level = float(np.log(a / mus[0]) / np.log(mus[1] / mus[0]))
         rule = energy * omega * CT.table_kernel(table, mus, region, level, cv, offs[:, 0], offs[:, 1])
     return float(np.max(np.abs(rule - truth)) / np.max(truth))
@@ -170,6 +172,7 @@ def _table_errors(region: int, deg: float, moments: bool = False) -> float:
 TABLE_TOL = 0.03
 
 
+@pytest.mark.slow          # ~1 min on 2 loaded cores: the table of two lobe families at four levels
 @pytest.mark.parametrize("deg", [0, 50, 66])
 def test_cap_kernel_table_against_the_cap_quadrature_of_ggx_and_beckmann(deg):
     """The table of the cap integrated against a heavy-tailed GGX (at a μ level) and a Beckmann lobe (between
@@ -183,3 +186,22 @@ def test_the_moments_gaussian_misses_ggx_under_a_cap():
     quadrature by far more than the table's bound (its variance is set by the tails: the peak several times
     too low)."""
     assert _table_errors(0, 50, moments=True) > 10 * TABLE_TOL
+
+
+def test_cap_kernel_table_reading_and_when_it_is_baked():
+    """The paper's lobes keep the closed-form rule (no table); a non-paper family needs one. A table of μ² K̄ = 1
+    reads 1/μ² at the pixel's own μ (between levels too) inside the table's reach and 0 beyond it."""
+    from jkatana.interactive import captable as CT
+    from jkatana.models.lobes import WidthFamily, lobe_from_params, lobe_shape
+
+    assert not CT.needs_table(LT.PAPER_LOBES)
+    ggx = WidthFamily(lobe_shape(lobe_from_params({"lobe": "ggx", "alpha": 0.05}).to_params())[1])
+    assert CT.needs_table((ggx, LT.PAPER_LOBES[1]))
+    mus = MU_LEVELS[:3]
+    table = np.ones((2, 3, CT.N_COS, CT.N_V, CT.N_U))
+    mu = float(mus[0] * np.sqrt(2.0) ** 1.5)
+    inside = np.array([0.0, 3.0, -11.9]) * mu
+    got = CT.table_kernel(table, mus, 1, 1.5, 0.7, inside, 0.5 * inside)
+    np.testing.assert_allclose(got, 1.0 / mu ** 2, rtol=1e-9)
+    far = CT.table_kernel(table, mus, 1, 1.5, 0.7, np.array([12.1 * mu, 0.0]), np.array([0.0, 12.1 * mu]))
+    assert np.all(far == 0.0)
