@@ -198,7 +198,7 @@ def test_cap_kernel_table_reading_and_when_it_is_baked():
     ggx = WidthFamily(lobe_shape(lobe_from_params({"lobe": "ggx", "alpha": 0.05}).to_params())[1])
     assert CT.needs_table((ggx, LT.PAPER_LOBES[1]))
     mus = MU_LEVELS[:3]
-    table = np.ones((2, 3, CT.N_COS, CT.N_V, CT.N_U))
+    table = np.zeros((2, 3, CT.N_COS, CT.N_V, CT.N_U))          # ln 1
     mu = float(mus[0] * np.sqrt(2.0) ** 1.5)
     inside = np.array([0.0, 3.0, -11.9]) * mu
     got = CT.table_kernel(table, mus, 1, 1.5, 0.7, inside, 0.5 * inside)

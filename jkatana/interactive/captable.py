@@ -19,10 +19,11 @@ correction). The cap centre C is placed at the angles
 ``u = atan2(C·t, C·R)`` along the plane of incidence (t ⟂ R, towards N) and ``v = atan2(|C·y|, C·R)`` across
 it (y = R × t) — the angles :func:`~jkatana.interactive.lobe_tables.lobe_integral` takes its moments in —
 scaled by the level's width μ, on a grid dense near R: ``û = u/μ = ±E s²`` for s uniform on [−1, 1] (and
-``v̂ = E s²``, s on [0, 1]), E = :data:`EXTENT`. Each entry holds ``μ² K̄`` (of order one at every level), so
-that the shader's linear interpolation between two μ levels blends kernels of the same shape in units of
-their width: the shader reads both levels at the offsets in units of the pixel's own μ and divides
-the blend by μ². Beyond E widths the kernel is 0 (the shader skips the cap).
+``v̂ = E s²``, s on [0, 1]), E = :data:`EXTENT`. Each entry holds ``ln(μ² K̄)`` (μ² K̄ is of order one at
+every level; the logarithm, floored at :data:`LOG_FLOOR`, is what is interpolated, so that a Gaussian-like tail
+between coarse nodes stays a fast decay instead of a chord far above it). Between two μ levels the shader
+blends kernels of the same shape in units of their width: it reads both levels at the offsets in units of the
+pixel's own μ and divides the blend of their μ² K̄ by μ². Beyond E widths the kernel is 0 (the shader skips the cap).
 
 The cap's radius is folded in at bake time (the environment's largest cap; a sun is 0.25–0.3°).
 """
@@ -42,6 +43,8 @@ from jkatana.models import Conductor
 #: The table's reach from the mirror direction, in units of the level's width μ (GGX at 12 α is ~1e-4 of
 #: its peak).
 EXTENT = 12.0
+#: ln of the smallest tabulated μ² K̄ (0 beyond the horizon and the lobe's reach).
+LOG_FLOOR = -69.0
 #: Grid sizes: cos θv rows (uniform on [0, 1]), in-plane and across-plane offsets.
 N_COS, N_U, N_V = 24, 33, 17
 
@@ -90,8 +93,8 @@ def _level(family, mu, conductor, V, C, radius):
 
 
 def cap_kernel_table(lobes: tuple, mus, radius: float, conductor: Conductor) -> np.ndarray:
-    """``(2, n_mu, N_COS, N_V, N_U)``: μ² K̄ for the hiraji and hamon families ``lobes`` at each μ of ``mus``,
-    for a cap of angular ``radius`` (module docstring), with ``conductor``'s Fresnel factor at its middle
+    """``(2, n_mu, N_COS, N_V, N_U)``: ln(μ² K̄) (floored at :data:`LOG_FLOOR`) for the hiraji and hamon
+    families ``lobes`` at each μ of ``mus``, for a cap of angular ``radius`` (module docstring), with ``conductor``'s Fresnel factor at its middle
     wavelength."""
     mid = conductor.n.shape[-1] // 2
     conductor = Conductor(n=conductor.n[..., mid:mid + 1], k=conductor.k[..., mid:mid + 1])
@@ -110,14 +113,15 @@ def cap_kernel_table(lobes: tuple, mus, radius: float, conductor: Conductor) -> 
             got = np.asarray(_level(family, jnp.asarray(mu, dt), conductor, jnp.asarray(V, dt),
                                     jnp.asarray(C, dt), jnp.asarray(radius, dt)), np.float64)
             out[i, k] = np.where(inside & np.isfinite(got), np.maximum(got, 0.0), 0.0)
-    return out
+    return np.maximum(np.log(np.maximum(out, 1e-300)), LOG_FLOOR)
 
 
 def table_kernel(table: np.ndarray, mus, region: int, level: float, cos_v: float, u, v) -> np.ndarray:
     """K̄ (1/sr) read from ``table`` as the shader reads it: the lobe of ``region`` (0 hiraji, 1 hamon) at the
     fractional μ ``level`` (index into ``mus``), view cosine ``cos_v``, cap at angles ``u``, ``v`` (rad) from
-    R — in units of the pixel's width μ (that of ``level``), linear in the offsets' grid coordinates, in
-    cos θv and between the two μ levels' μ² K̄ (exact for a family whose kernel scales with μ), divided by μ²;
+    R — in units of the pixel's width μ (that of ``level``), ln(μ² K̄) linear in the offsets' grid coordinates
+    and in cos θv, then exponentiated, and linear between the two μ levels' μ² K̄ (exact for a family whose
+    kernel scales with μ), divided by μ²;
     0 beyond :data:`EXTENT` widths."""
     from scipy.interpolate import RegularGridInterpolator
 
@@ -131,6 +135,6 @@ def table_kernel(table: np.ndarray, mus, region: int, level: float, cos_v: float
     ok = (np.abs(uh) <= EXTENT) & (vh <= EXTENT)
     pts = np.stack(np.broadcast_arrays(np.full(np.shape(uh), cos_v), np.sqrt(np.minimum(vh, EXTENT) / EXTENT),
                                        np.sign(uh) * np.sqrt(np.minimum(np.abs(uh), EXTENT) / EXTENT)), -1)
-    val = sum(wk * RegularGridInterpolator((cos, sv, su), table[region, k])(pts)
+    val = sum(wk * np.exp(RegularGridInterpolator((cos, sv, su), table[region, k])(pts))
               for k, wk in ((k0, 1.0 - f), (k0 + 1, f)))
     return np.where(ok, val, 0.0) / (mu * mu)

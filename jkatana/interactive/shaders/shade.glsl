@@ -181,7 +181,7 @@ vec3 env_xyz(vec3 d, float lz, vec4 a)
 }
 
 #if JK_CAPS > 0 && JK_CAP_TABLE
-uniform sampler3D jk_capk;          // (s_u, s_v, (region · n_mu + level) · n_cos + cos row) → r = μ² K̄
+uniform sampler3D jk_capk;          // (s_u, s_v, (region · n_mu + level) · n_cos + cos row) → r = ln(μ² K̄)
 uniform vec4 jk_capk_dims;          // n_u, n_v, n_cos, n_mu of the table
 uniform float jk_capk_ext;          // its reach E in widths: û = ±E s_u², v̂ = E s_v²
 
@@ -194,7 +194,7 @@ float jk_capk_at(float region, float k, float cv, vec2 o)
     float y = (s.y * (jk_capk_dims.y - 1.0) + 0.5) / jk_capk_dims.y;
     float z = ((region * jk_capk_dims.w + k) * jk_capk_dims.z + cv * (jk_capk_dims.z - 1.0) + 0.5)
               / (2.0 * jk_capk_dims.w * jk_capk_dims.z);
-    return textureLod(jk_capk, vec3(x, y, z), 0.0).r;
+    return exp(textureLod(jk_capk, vec3(x, y, z), 0.0).r);
 }
 
 // K̄ (1/sr) of a region's lobe at fractional level l for a cap at angles uv from R: both levels read at the
