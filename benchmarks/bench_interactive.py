@@ -41,10 +41,12 @@ Two times per case, both honest, for two uses:
 - **read-back** (``readback_s``, ``fps_readback``): :meth:`BakedOffscreenRenderer.render` — the same
   plus the 800×600 RGBA8 read-back into numpy (batch previews, ``view --offscreen``).
 
-Medians of repeats; fps = 1/median. ``cpu_s``: process CPU time per drawn frame (user + system,
-llvmpipe's threads included) — unlike the wall time it hardly depends on what else runs on the
-machine; ``cores / cpu_s`` is the frame rate the frame's work allows on an idle machine with
-perfect parallelism (an upper bound). ``ns_per_pixel_cpu``: cpu_s over the blade's pixels.
+Medians of repeats; fps = 1/median. ``cpu_s``: process CPU time per drawn frame over 15 frames (user +
+system, llvmpipe's threads included) — unlike the wall time it hardly depends on what else runs on the
+machine; ``cpu_by_thread_s``: the same split into the main thread, llvmpipe's threads and the others
+(JAX/XLA's pools, which the reference render before each case leaves behind); ``cores / cpu_s`` is the
+frame rate the frame's work allows on an idle machine with perfect parallelism (an upper bound).
+``ns_per_pixel_cpu``: cpu_s over the blade's pixels.
 The ``empty`` view (blade behind the camera) is the fixed cost per frame (vertex processing of the
 51k-triangle mesh, depth clear, colour clear, read-back). ``stages_s`` (``full`` and ``empty``): the
 wall time of each pass, glFinish after each — G-buffer pass, shading pass, read-back, and ``other``
@@ -59,7 +61,8 @@ while the mouse is held; full resolution returns on release); ``viewer_drag_auto
 ``shaded_scale`` records it). Skipped (and said so) without Xvfb.
 
 Where the close-up's time goes (A/B shader variants, Mesa's knobs, G-buffer layouts) is recorded in
-``benchmarks/reports/interactive-2026-12-02/NOTES.md`` and the reports before it.
+``benchmarks/reports/interactive-2026-12-02/NOTES.md``, ``…-fps/`` and ``…-margin/`` (the cost of each
+part of the shading, the benchmark's one-process sequence) and the reports before it.
 
 Error: ΔE2000 (mean, p95) over the blade's pixels of the GL frame against the reference renderer
 (:func:`validation.gl_agreement.reference_frame`: jkatana.render's reference mode, exact Fresnel,
@@ -120,11 +123,38 @@ def _cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _cpu_per_frame(fn, n: int) -> float:
-    c = _cpu()
+def _thread_cpu() -> dict:
+    """CPU seconds used so far by this process's threads, grouped: ``main`` (the Python thread that issues
+    the GL calls; llvmpipe's vertex stage runs here), ``llvmpipe`` (its rasteriser threads) and ``other``
+    (JAX/XLA's pools and the rest). Linux ``/proc/self/task``; empty elsewhere."""
+    out = {"main": 0.0, "llvmpipe": 0.0, "other": 0.0}
+    try:
+        tids = os.listdir("/proc/self/task")
+    except OSError:
+        return {}
+    tck, pid = os.sysconf("SC_CLK_TCK"), os.getpid()
+    for t in tids:
+        try:
+            with open(f"/proc/self/task/{t}/comm") as f:
+                comm = f.read().strip()
+            with open(f"/proc/self/task/{t}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:                       # the thread ended meanwhile
+            continue
+        group = "main" if int(t) == pid else "llvmpipe" if comm.startswith("llvmpipe") else "other"
+        out[group] += (int(fields[11]) + int(fields[12])) / tck           # utime + stime
+    return out
+
+
+def _cpu_per_frame(fn, n: int) -> tuple[float, dict]:
+    """Process CPU seconds per call of ``fn`` over ``n`` calls, and the same per thread group
+    (:func:`_thread_cpu`: whether anything beside the frame's own threads ran, e.g. JAX's pools after a
+    reference render; clock ticks of 10 ms, so meaningful over ≥ 10 calls)."""
+    c, t = _cpu(), _thread_cpu()
     for _ in range(n):
         fn()
-    return (_cpu() - c) / n
+    t1 = _thread_cpu()
+    return (_cpu() - c) / n, {k: (t1[k] - t[k]) / n for k in t1}
 
 
 def _stages(r, scene, n: int) -> dict:
@@ -236,7 +266,7 @@ def run(quick: bool = False, defaults_only: bool = False) -> list[dict]:
             ctx = ctx or describe_context()
             drawn = timeit(lambda: r.draw(scene), repeats=reps, warmup=2)
             readback = timeit(lambda: r.render(scene), repeats=max(reps // 2, 3), warmup=1)
-            cpu_s = _cpu_per_frame(lambda: r.draw(scene), 5)
+            cpu_s, cpu_threads = _cpu_per_frame(lambda: r.draw(scene), 15)
             stages = _stages(r, scene, reps) if cname == "full" else None
             frame = r.render(scene)
             covered = int(np.any(frame != frame[0, 0], -1).sum())
@@ -251,7 +281,8 @@ def run(quick: bool = False, defaults_only: bool = False) -> list[dict]:
             load = os.getloadavg()[0]
             _log(f"{vname:8s} {cname:11s} drawn {1e3 * drawn['median']:5.1f} ms ({fps:5.1f} fps)  read-back "
                  f"{1e3 * readback['median']:5.1f} ms ({1 / readback['median']:5.1f} fps)  cpu "
-                 f"{1e3 * cpu_s:5.1f} ms/frame  ΔE mean {err['dE00_mean']:.2f} p95 {err['dE00_p95']:.2f}  "
+                 f"{1e3 * cpu_s:5.1f} ms/frame (" + ", ".join(f"{k} {1e3 * v:.1f}" for k, v in cpu_threads.items())
+                 + f")  ΔE mean {err['dE00_mean']:.2f} p95 {err['dE00_p95']:.2f}  "
                  f"(load {load:.1f})")
             rows.append(record("bench_interactive", {"view": vname, "config": cname, **cfg, "rank": st.rank,
                                                      "width": view.width, "height": view.height,
@@ -260,7 +291,7 @@ def run(quick: bool = False, defaults_only: bool = False) -> list[dict]:
                                reference=f"jkatana.render reference mode, {REF_SAMPLES} samples, 61 bands, "
                                          f"{err_res[0]}×{err_res[1]}",
                                fps=fps, readback_s=readback, fps_readback=1.0 / readback["median"],
-                               cpu_s=cpu_s, idle_fps_bound=(os.cpu_count() or 1) / cpu_s,
+                               cpu_s=cpu_s, cpu_by_thread_s=cpu_threads, idle_fps_bound=(os.cpu_count() or 1) / cpu_s,
                                blade_pixels=covered, blade_coverage=covered / (view.width * view.height),
                                ns_per_pixel_cpu=1e9 * cpu_s / max(covered, 1), loadavg_1min=load,
                                gl=ctx, bake_s=bake_s, reference_s=ref_s,
@@ -289,7 +320,7 @@ def run(quick: bool = False, defaults_only: bool = False) -> list[dict]:
     scene = G.build_scene(sc.mesh, away)
     drawn = timeit(lambda: r.draw(scene), repeats=reps, warmup=2)
     readback = timeit(lambda: r.render(scene), repeats=reps, warmup=1)
-    cpu_s = _cpu_per_frame(lambda: r.draw(scene), 5)
+    cpu_s, _ = _cpu_per_frame(lambda: r.draw(scene), 15)
     stages = _stages(r, scene, reps)
     r.delete()
     _log("empty    stages (glFinish after each): " + ", ".join(f"{k[:-2]} {1e3 * v:.2f} ms" for k, v in stages.items()))

@@ -120,6 +120,25 @@ def sky_scene():
 
 
 @pytest.mark.gl
+def test_rank_2_lobe_table_carries_the_tap_weights(glr, sky_scene):
+    """At rank ≤ 2 the lobe table's unused channels (A_2, A_3) carry the first and last fitted tap weight and
+    the shader takes the middle one as 1 − their sum: exact because tap_fit normalises the weights; every
+    other layer is the rank-3 table's."""
+    from jkatana.interactive.glstate import lut_layers
+
+    b = B.cached_bake(sky_scene.radiance, sky_scene.grid, rank=3)
+    l2, l3 = lut_layers(b, 2), lut_layers(b, 3)
+    w = l3[6:8, ..., :3]
+    np.testing.assert_allclose(w.sum(-1), 1.0, atol=1e-12)
+    np.testing.assert_array_equal(l2[:2, ..., :2], l3[:2, ..., :2])
+    np.testing.assert_array_equal(l2[:2, ..., 2], w[..., 0])
+    np.testing.assert_array_equal(l2[:2, ..., 3], w[..., 2])
+    np.testing.assert_allclose(1.0 - l2[:2, ..., 2] - l2[:2, ..., 3], w[..., 1], atol=1e-12)
+    np.testing.assert_array_equal(l2[2:], l3[2:])
+    assert np.any(l3[:2, ..., 2] != l2[:2, ..., 2])             # rank 3 keeps A_2 there
+
+
+@pytest.mark.gl
 def test_gl_frame_agrees_with_the_reference_renderer_under_the_sky(glr, sky_scene, tmp_path):
     """The built-in sky from an orbit view, against jkatana.render (reference mode, 256 samples)."""
     sc = sky_scene
@@ -372,6 +391,41 @@ def test_gl_frame_renders_the_lobes_of_parameter_files(glr, tmp_path):
     assert stats["files"]["pixels"] > 500
     assert stats["files"]["mean"] <= 1.0 and stats["files"]["p95"] <= 2.5, stats
     assert stats["paper"]["mean"] > 1.5 * stats["files"]["mean"], stats
+
+
+@pytest.mark.gl
+@pytest.mark.slow          # ~2 min on 2 loaded cores: a 256-spp reference, tap fits for two lobe families (cached)
+@pytest.mark.xfail(strict=True, reason="with the caps through the kernel table: ΔE2000 mean 1.13, p95 2.75; on a "
+                   "uniform GGX map the remainder's share is ~9 % too dark: the three fitted taps miss the "
+                   "remainder's light in GGX's tails")
+def test_sun_glint_on_parameter_files_lobes_under_a_real_hdr(glr, tmp_path):
+    """A sun (split cap) on regions holding non-paper lobes: GGX hiraji (α 0.05) and Beckmann hamon (α 0.12)
+    from parameter files under ``sunrise.exr``, at its sun-glint view; the GL frame against jkatana.render
+    (reference mode, the same files) within the agreement bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5)."""
+    from jkatana.interactive.lobe_tables import region_lobes
+    from jkatana.render.film import auto_exposure
+    from jkatana.render.renderer import prepare, render_view
+    from jkatana.render.scene import scene_from_dict
+
+    mesh = S.blade()
+    rad = A.shared_environment("sunrise.exr")
+    view = A.sun_glint_view(mesh, rad, 160, 120)
+    d = A.render_scene(view, samples=256)
+    d["material"]["hiraji"] = _params_file(tmp_path / "hiraji.json", "ggx", "hiraji",
+                                           {"scale": 2000.0, "alpha": 0.05})
+    d["material"]["hamon"] = _params_file(tmp_path / "hamon.json", "beckmann", "hamon",
+                                          {"scale": 2000.0, "alpha": 0.12})
+    prep = prepare(scene_from_dict(d), env_radiance=np.asarray(rad, np.float32))
+    keys = {"hiraji": prep.plan.hiraji_lobe, "hamon": prep.plan.hamon_lobe}
+    fr = render_view(prep)
+    exposure = auto_exposure(fr.xyz, fr.mask, key=0.6, percentile=75.0)
+    baked = B.cached_bake(rad, rank=3, mus=LV.MU_LEVELS[2:9], lobes=region_lobes(keys))
+    assert baked.n_caps == 1
+    st = glr.ShadingState(baked, np.asarray(prep.maps, np.float64), exposure=exposure)
+    img, gl_mask = A.gl_frame(st, view, mesh, return_mask=True)
+    stats = A.compare(img, A.display255(fr.xyz, exposure), fr.mask & gl_mask)[0]
+    assert stats["pixels"] > 1000
+    assert stats["mean"] <= 1.0 and stats["p95"] <= 2.5, stats
 
 
 @pytest.mark.gl

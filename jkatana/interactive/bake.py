@@ -28,7 +28,9 @@ one module per table:
    (:mod:`jkatana.interactive.tables`);
 4. compact bright sources (suns) split off the map as caps, each a shader
    uniform integrated against the lobe in closed form
-   (:mod:`jkatana.interactive.caps`).
+   (:mod:`jkatana.interactive.caps`) — or, where a region holds a lobe other
+   than the paper's, through the cap kernel table of
+   :mod:`jkatana.interactive.captable`.
 
 Plus the display transform: the XYZ → linear RGB matrix of
 :func:`jkatana.spectral.xyz_to_rgb_matrix` (eq. 7) and a 1-D table of
@@ -45,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.interactive.caps import MAX_CAPS as MAX_CAPS, sun_caps
+from jkatana.interactive.captable import cap_kernel_table, needs_table
 from jkatana.interactive.levels import MU_LEVELS, prefilter_level, upsample
 from jkatana.interactive.lobe_tables import PAPER_LOBES, family_names
 from jkatana.interactive.tables import MAX_RANK as MAX_RANK, cache_folder, load_entry, save_entry
@@ -58,7 +61,8 @@ from jkatana.spectral.colorimetry import encode, xyz_to_rgb_matrix
 #: The modules whose source keys :func:`cached_bake`'s entries (a change to any of them re-bakes).
 BAKE_MODULES = ("jkatana.interactive.bake", "jkatana.interactive.levels", "jkatana.interactive.lobe_tables",
                 "jkatana.interactive.taps", "jkatana.interactive.tables", "jkatana.interactive.caps",
-                "jkatana.light.prefilter", "jkatana.light.fresnel_basis", "jkatana.light.sun")
+                "jkatana.light.prefilter", "jkatana.light.fresnel_basis", "jkatana.light.sun",
+                "jkatana.interactive.captable", "jkatana.light.capquad")
 
 
 @dataclasses.dataclass
@@ -75,6 +79,9 @@ class Baked:
     - ``xyz_to_rgb`` 3×3; ``transfer`` 1-D table of encode(s²) for s uniform in [0, 1].
     - ``cap_dir`` ``(n, 3)``, ``cap_radius`` ``(n,)``, ``cap_q`` ``(n, rank, 3)``: the compact sources split
       off the map (:func:`~jkatana.interactive.caps.sun_caps`; ``n = 0``: none, ``env`` is the whole map).
+    - ``cap_kernel`` ``(2, n_mu, n_cos, n_v, n_u)``: the caps' kernel table of the regions' lobes
+      (:func:`~jkatana.interactive.captable.cap_kernel_table`) where a region holds a lobe other than the
+      paper's and the map has a cap; ``(0,)`` otherwise (the shader's closed-form cap rule).
     """
 
     env: np.ndarray
@@ -92,6 +99,7 @@ class Baked:
     cap_dir: np.ndarray
     cap_radius: np.ndarray
     cap_q: np.ndarray
+    cap_kernel: np.ndarray
 
     @property
     def rank(self) -> int:
@@ -207,8 +215,12 @@ def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_
     env = env.reshape(len(mus), H, Wd, rank, 3).transpose(0, 3, 1, 2, 4)
     taps, tap_l1, tap_ok = cached_tap_fit(conductor, mus, lut.shape[2], cache_dir, lobes)
     taps = resolved_taps(taps, spread, mus, radiance.shape[0])
+    cap_kernel = np.zeros((0,))
+    if len(cap_radius) and needs_table(lobes):
+        cap_kernel = cap_kernel_table(tuple(lobes), mus, float(np.max(cap_radius)), conductor)
     return Baked(env=env, lut=lut, spread=spread, taps=taps, tap_l1=tap_l1, tap_ok=tap_ok,
                  mus=np.asarray(mus, np.float64), b=b, fresnel_err=err,
                  xyz_to_rgb=xyz_to_rgb_matrix(colourspace),
                  transfer=transfer_table(colourspace if transfer is None else transfer),
-                 colourspace=colourspace, cap_dir=cap_dir, cap_radius=cap_radius, cap_q=cap_q), levels
+                 colourspace=colourspace, cap_dir=cap_dir, cap_radius=cap_radius, cap_q=cap_q,
+                cap_kernel=cap_kernel), levels

@@ -17,7 +17,10 @@ its centre: ``c' = 4 (1 − e^{−c r²/4})/r²``.
 
 The moments match the lobe where it is close to a Gaussian: narrow lobes at any incidence, wide lobes near
 normal incidence. A wide lobe at grazing incidence (μ ≳ 0.14 beyond ~55°) is skewed and cut by the horizon,
-which two moments do not describe (``tests/test_interactive_caps.py`` states the error per incidence).
+which two moments do not describe (``tests/test_interactive_caps.py`` states the error per incidence). A lobe
+with algebraic tails (GGX, GTR) has moments set by its tails, which the Gaussian does not hold at all: a region
+holding a lobe other than the paper's reads the caps through the bake's kernel table instead
+(:mod:`jkatana.interactive.captable`).
 """
 
 from __future__ import annotations

@@ -29,6 +29,7 @@ from OpenGL import GL  # noqa: E402
 from pyrender.shader_program import ShaderProgram, ShaderProgramCache  # noqa: E402
 
 from jkatana.interactive.bake import MAX_RANK  # noqa: E402
+from jkatana.interactive.captable import EXTENT  # noqa: E402
 from jkatana.interactive.glstate import ShadingState  # noqa: E402
 
 SHADER_DIR = Path(__file__).parent / "shaders"
@@ -89,6 +90,9 @@ class BakedProgram(ShaderProgram):
     def _samplers(self):
         names = ["jk_lut", "jk_map", "jk_transfer"] + [f"jk_env{r}" for r in range(self.state.rank)]
         targets = [GL.GL_TEXTURE_2D_ARRAY, GL.GL_TEXTURE_2D, GL.GL_TEXTURE_2D] + [GL.GL_TEXTURE_3D] * self.state.rank
+        if self.state.cap_table:
+            names.append("jk_capk")
+            targets.append(GL.GL_TEXTURE_3D)
         if self.gbuffer is not None:
             names += list(self.gbuffer)
             targets += [GL.GL_TEXTURE_2D] * len(self.gbuffer)
@@ -103,6 +107,7 @@ class BakedProgram(ShaderProgram):
         if self.defines.get("JK_SRGB"):
             optional |= {"jk_transfer", "jk_n_transfer"}
         caps = ("jk_cap", "jk_cap_q") if self.state.baked.n_caps else ()
+        caps += ("jk_capk_dims", "jk_capk_ext") if self.state.cap_table else ()
         need = dict.fromkeys(u for u in UNIFORMS + caps + tuple(self._samplers()[0]) if u not in optional)
         missing = [u for u in need if GL.glGetUniformLocation(self._program_id, u) == -1]
         if missing:
@@ -145,7 +150,8 @@ class BakedProgram(ShaderProgram):
         st, b = self.state, self.state.baked
         pid = self._program_id
         names, targets = self._samplers()
-        textures = st.textures()[:3 + st.rank] + tuple((self.gbuffer or {}).values())
+        textures = (st.textures()[:3 + st.rank] + (st.textures()[3 + b.rank:4 + b.rank] if st.cap_table else ())
+                    + tuple((self.gbuffer or {}).values()))
         for i, (name, tex, target) in enumerate(zip(names, textures, targets)):
             GL.glActiveTexture(GL.GL_TEXTURE0 + _UNIT0 + i)
             GL.glBindTexture(target, tex)
@@ -169,6 +175,10 @@ class BakedProgram(ShaderProgram):
             q[:, :b.rank] = b.cap_q
             GL.glUniform4fv(loc(pid, "jk_cap"), n, cap)
             GL.glUniform3fv(loc(pid, "jk_cap_q"), n * MAX_RANK, q)
+        if st.cap_table:                       # the caps' kernel table (captable.cap_kernel_table)
+            _, n_mu, n_cos, n_v, n_u = b.cap_kernel.shape
+            GL.glUniform4f(loc(pid, "jk_capk_dims"), float(n_u), float(n_v), float(n_cos), float(n_mu))
+            GL.glUniform1f(loc(pid, "jk_capk_ext"), float(EXTENT))
 
 
 class BackgroundProgram(BakedProgram):

@@ -81,6 +81,25 @@ def _rgba(x: np.ndarray) -> np.ndarray:
     return np.concatenate([x, pad], -1)
 
 
+def lut_layers(b: Baked, rank: int) -> np.ndarray:
+    """The lobe table and tap patterns as the shader's 2-D array texture ``(8, n_mu, n_cos, 4)``: layers 0, 1
+    the lobe tables A of hiraji, hamon (:func:`~jkatana.interactive.lobe_tables.lobe_lut`); 2, 3 their lobe
+    shapes; 4, 5 the fitted taps' log(μ_e/μ) and offsets; 6, 7 their weights
+    (:func:`~jkatana.interactive.taps.tap_fit`). At ``rank`` ≤ 2 layers 0, 1 have room: the first and last tap weight ride there in place of A_2, A_3 and
+    the middle one is 1 − their sum (tap_fit normalises the weights), so the shader reads two layers fewer
+    per pixel (``JK_RANK`` ≤ 2 in ``shade.glsl``)."""
+    lut = np.zeros((8,) + b.lut.shape[1:-1] + (MAX_RANK,))
+    lut[:2, ..., :b.rank] = b.lut
+    lut[2, ..., :3] = b.spread[0]
+    lut[3, ..., :3] = b.spread[1]
+    T = (b.taps.shape[-1] - 1) // 2
+    lut[4:6, ..., :1 + T] = b.taps[:, ..., :1 + T]
+    lut[6:8, ..., :T] = b.taps[:, ..., 1 + T:]
+    if rank <= 2 and T == 3:
+        lut[:2, ..., 2:4] = b.taps[:, ..., [1 + T, 2 * T]]
+    return lut
+
+
 class ShadingState:
     """What the shaders read: baked tables, reflectance map, and per-frame settings.
 
@@ -92,7 +111,10 @@ class ShadingState:
       :func:`jkatana.interactive.taps.tap_fit` — the default; off: moment-matched binomial taps, which
       miss the lobe's skew: ~10 % too dark on a sun inside the oblique hamon lobe; `taps=5` is always
       moment-matched). The baked caps (compact sources split off the map, :func:`~jkatana.interactive.caps.sun_caps`)
-      are a static switch too (``JK_CAPS``, their number; 0: no cap code).
+      are a static switch too (``JK_CAPS``, their number; 0: no cap code), and so is their kernel table
+      (``JK_CAP_TABLE``: rough shading of a bake with a cap whose regions hold lobes other than the paper's,
+      :mod:`jkatana.interactive.captable`; a 3-D texture (û, v̂, (region, μ level, cos θv)) after the
+      environment textures).
     - `env_format`: GL internal format of the environment textures (:data:`ENV_FORMAT`).
     """
 
@@ -122,9 +144,14 @@ class ShadingState:
 
     def defines(self) -> dict:
         return {"JK_RANK": self.rank, "JK_ROUGH": int(self.rough), "JK_BLEND": int(self.blend),
-                "JK_CAPS": self.baked.n_caps,
+                "JK_CAPS": self.baked.n_caps, "JK_CAP_TABLE": int(self.cap_table),
                 "JK_TWO_TAP": int(self.two_tap and self.rough), "JK_TAPS": self.taps,
                 "JK_TAP_FIT": int(self.fit and self.two_tap and self.rough and self.taps == 3)}
+
+    @property
+    def cap_table(self) -> bool:
+        """Whether the shader reads the caps through the bake's kernel table (``JK_CAP_TABLE``)."""
+        return bool(self.rough and self.baked.n_caps and self.baked.cap_kernel.size)
 
     def env_rot_matrix(self) -> np.ndarray:
         """World → environment-map rotation about +Y, as :func:`jkatana.render.renderer.rotation_y`
@@ -140,19 +167,18 @@ class ShadingState:
         if key not in self._textures:
             b = self.baked
             n_mu, rank, H, W, _ = b.env.shape
-            lut = np.zeros((8,) + b.lut.shape[1:-1] + (MAX_RANK,))
-            lut[:2, ..., :rank] = b.lut
-            lut[2, ..., :3] = b.spread[0]                                # layer 2: hiraji lobe shape
-            lut[3, ..., :3] = b.spread[1]                                # layer 3: hamon lobe shape
-            T = (b.taps.shape[-1] - 1) // 2                              # fitted taps (taps.tap_fit):
-            lut[4:6, ..., :1 + T] = b.taps[:, ..., :1 + T]               # layers 4, 5: log(μ_e/μ), offsets
-            lut[6:8, ..., :T] = b.taps[:, ..., 1 + T:]                   # layers 6, 7: weights
+            lut = lut_layers(b, self.rank)
             self._textures[key] = (
-                _tex_array(lut),                                         # (2, n_mu, n_cos, 4)
+                _tex_array(lut),                                         # (8, n_mu, n_cos, 4)
                 _tex_2d(_rgba(self.refl_map)),
                 _tex_2d(_rgba(np.asarray(b.transfer, np.float64)[None, :, None])),
                 *(_tex_3d(_rgba(b.env[:, r]), self.env_format) for r in range(rank)),     # (n_mu, H, W, 4) each
             )
+            if b.cap_kernel.size:                        # (2 n_mu n_cos, n_v, n_u, 4), clamped on every axis
+                k = b.cap_kernel
+                data = _rgba(k.reshape((-1,) + k.shape[-2:])[..., None])
+                self._textures[key] += (_tex_layered(GL.GL_TEXTURE_3D, data, (GL.GL_TEXTURE_WRAP_S,
+                                        GL.GL_TEXTURE_WRAP_T, GL.GL_TEXTURE_WRAP_R)),)
         return self._textures[key]
 
     def forget_current_context(self):

@@ -28,7 +28,9 @@
 // compact bright sources split off the map as spherical caps, caps.sun_caps: each cap's radiance Q, weighted
 // by the lobe table A, times the lobe's normalised kernel over the cap's disc, in closed form — one
 // anisotropic Gaussian with the lobe's moments, jk_caps_xyz; its NumPy twin
-// jkatana.interactive.caprule.cap_response is tested against jkatana.light.capquad.cap_integral of the models).
+// jkatana.interactive.caprule.cap_response is tested against jkatana.light.capquad.cap_integral of the models),
+// JK_CAP_TABLE (where a region holds a lobe other than the paper's: the caps through the bake's table of the
+// cap integrated against each region's lobe, jkatana.interactive.captable, instead of the moments' Gaussian).
 
 uniform vec3 cam_pos;
 uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
@@ -41,8 +43,9 @@ uniform sampler3D jk_env2;
 #if JK_RANK > 3
 uniform sampler3D jk_env3;
 #endif
-uniform sampler2DArray jk_lut;      // layer 0 hiraji, 1 hamon: rgba = A_0..A_3; layers 2, 3: lobe shape of
-                                    // hiraji, hamon (rgb = log across-width ratio, ± tap offset, mean offset)
+uniform sampler2DArray jk_lut;      // layer 0 hiraji, 1 hamon: rgba = A_0..A_3 (rank ≤ 2: A_0, A_1, first and
+                                    // last tap weight); layers 2, 3: lobe shape of hiraji, hamon (rgb = log
+                                    // across-width ratio, ± tap offset, mean offset); 4–7: fitted taps (below)
                                     // s: cos θv, t: μ level
 uniform sampler2D jk_map;           // r = w, g = μ0, b = μ1
 uniform sampler2D jk_transfer;      // 1 row: encode(s²)
@@ -149,10 +152,16 @@ float encode1(float x)
 #endif
 }
 
-vec3 env_xyz(vec3 d, float lz, vec4 a)
+// the environment textures' coordinate (u, v, level) of direction d (map frame) at level coordinate lz
+vec3 env_coord(vec3 d, float lz)
 {
-    vec3 p = vec3(0.5 + atan(d.x, -d.z) / (2.0 * JK_PI), acos(clamp(d.y, -1.0, 1.0)) / JK_PI, lz);
-    vec3 xyz = a.x * textureLod(jk_env0, p, 0.0).rgb;
+    return vec3(0.5 + atan(d.x, -d.z) / (2.0 * JK_PI), acos(clamp(d.y, -1.0, 1.0)) / JK_PI, lz);
+}
+
+// Σ_{r ≥ 1} a_r P_r(p): the basis functions after the first at texture coordinate p
+vec3 env_rest(vec3 p, vec4 a)
+{
+    vec3 xyz = vec3(0.0);
 #if JK_RANK > 1
     xyz += a.y * textureLod(jk_env1, p, 0.0).rgb;
 #endif
@@ -164,6 +173,73 @@ vec3 env_xyz(vec3 d, float lz, vec4 a)
 #endif
     return xyz;
 }
+
+vec3 env_xyz(vec3 d, float lz, vec4 a)
+{
+    vec3 p = env_coord(d, lz);
+    return a.x * textureLod(jk_env0, p, 0.0).rgb + env_rest(p, a);
+}
+
+#if JK_CAPS > 0 && JK_CAP_TABLE
+uniform sampler3D jk_capk;          // (s_u, s_v, (region · n_mu + level) · n_cos + cos row) → r = ln(μ² K̄)
+uniform vec4 jk_capk_dims;          // n_u, n_v, n_cos, n_mu of the table
+uniform float jk_capk_ext;          // its reach E in widths: û = ±E s_u², v̂ = E s_v²
+
+// μ² K̄ of a region's lobe at integer level k, view cosine cv, offsets o = (û, v̂ ≥ 0) in widths
+// (NumPy twin: jkatana.interactive.captable.table_kernel)
+float jk_capk_at(float region, float k, float cv, vec2 o)
+{
+    vec2 s = sqrt(min(abs(o), vec2(jk_capk_ext)) / jk_capk_ext);
+    float x = ((sign(o.x) * s.x + 1.0) * 0.5 * (jk_capk_dims.x - 1.0) + 0.5) / jk_capk_dims.x;
+    float y = (s.y * (jk_capk_dims.y - 1.0) + 0.5) / jk_capk_dims.y;
+    float z = ((region * jk_capk_dims.w + k) * jk_capk_dims.z + cv * (jk_capk_dims.z - 1.0) + 0.5)
+              / (2.0 * jk_capk_dims.w * jk_capk_dims.z);
+    return exp(textureLod(jk_capk, vec3(x, y, z), 0.0).r);
+}
+
+// K̄ (1/sr) of a region's lobe at fractional level l for a cap at angles uv from R: both levels read at the
+// offsets in units of the pixel's own μ, their μ² K̄ blended and divided by μ²
+float jk_capk_kernel(float region, float l, float cv, vec2 uv)
+{
+    float mu = exp(jk_log_mu_first + l * jk_log_mu_step);
+    vec2 o = uv / mu;
+    if (max(abs(o.x), o.y) > jk_capk_ext)
+        return 0.0;
+    float k0 = min(floor(l), jk_capk_dims.w - 2.0);
+    return mix(jk_capk_at(region, k0, cv, o), jk_capk_at(region, k0 + 1.0, cv, o), l - k0) / (mu * mu);
+}
+
+// the caps' radiance through the kernel table: Σ_k Q_k · (w A_hiraji K̄_hiraji + (1 − w) A_hamon K̄_hamon), the
+// cap at angles u = atan2(C·t, C·R) along the plane of incidence (t = tn, towards N) and v = atan2(|C·y|, C·R)
+// across it. A cap beyond E widths of the wider lobe (|u|, |v| ≤ ∠(C, R)) is skipped before any fetch.
+vec3 jk_caps_table_xyz(float w, float cv, float lf, float lt, vec3 R, vec3 tn)
+{
+    vec3 ty = cross(R, tn);
+    float cmin = cos(min(jk_capk_ext * exp(jk_log_mu_first + max(lf, lt) * jk_log_mu_step), JK_PI));
+    vec3 xyz = vec3(0.0);
+    for (int k = 0; k < JK_CAPS; ++k) {
+        vec3 C = jk_cap[k].xyz;
+        float cr = dot(C, R);
+        if (cr < cmin)
+            continue;
+        vec2 uv = vec2(atan(dot(C, tn), cr), atan(abs(dot(C, ty)), cr));
+        vec4 a = w * jk_capk_kernel(0.0, lf, cv, uv) * lobe(0.0, cv, lf)
+                 + (1.0 - w) * jk_capk_kernel(1.0, lt, cv, uv) * lobe(1.0, cv, lt);
+        vec3 q = a.x * jk_cap_q[4 * k];
+#if JK_RANK > 1
+        q += a.y * jk_cap_q[4 * k + 1];
+#endif
+#if JK_RANK > 2
+        q += a.z * jk_cap_q[4 * k + 2];
+#endif
+#if JK_RANK > 3
+        q += a.w * jk_cap_q[4 * k + 3];
+#endif
+        xyz += q;
+    }
+    return xyz;
+}
+#endif
 
 // display-encoded RGBA of a surface point: unit normal N, unit direction to the eye Vd, map coordinates uv
 vec4 jk_shade(vec3 N, vec3 Vd, vec2 uv)
@@ -191,7 +267,13 @@ vec4 jk_shade(vec3 N, vec3 Vd, vec2 uv)
         // fitted taps (jkatana.interactive.taps.tap_fit): x = log(μ_e/μ), yzw = offsets o_j along the
         // plane of incidence (rad, towards N); layers 6, 7: weights w_j
         vec4 tp = w * lobe(4.0, cv, lf) + (1.0 - w) * lobe(5.0, cv, lt);
+#if JK_RANK > 2
         vec3 tw = w * lobe(6.0, cv, lf).rgb + (1.0 - w) * lobe(7.0, cv, lt).rgb;
+#else
+        // at rank ≤ 2 the first and last weights ride in the lobe table's unused channels (ShadingState.textures);
+        // the weights sum to 1 (tap_fit normalises them), in every blend of the two lobes too
+        vec3 tw = vec3(a.z, 1.0 - a.z - a.w, a.w);
+#endif
         float le = clamp(mix(lt, lf, w) + tp.x / jk_log_mu_step, 0.0, jk_n_levels - 1.0);
 #elif JK_ROUGH
         vec3 shape = w * lobe(2.0, cv, lf).rgb + (1.0 - w) * lobe(3.0, cv, lt).rgb;
@@ -205,11 +287,16 @@ vec4 jk_shade(vec3 N, vec3 Vd, vec2 uv)
         tn = jk_env_rot * (tn / max(length(tn), 1e-6));
 #endif
 #if JK_TWO_TAP && JK_TAP_FIT
-        // three taps fitted to the lobe (offsets, weights, filter width): the lobe's skew too
-        vec3 d0 = cos(tp.y) * R + sin(tp.y) * tn;
-        vec3 d1 = cos(tp.z) * R + sin(tp.z) * tn;
-        vec3 d2 = cos(tp.w) * R + sin(tp.w) * tn;
-        xyz = tw.x * env_xyz(d0, lz, a) + tw.y * env_xyz(d1, lz, a) + tw.z * env_xyz(d2, lz, a);
+        // three taps fitted to the lobe (offsets, weights, filter width): the lobe's skew too. The first basis
+        // function (the mean reflectance spectrum: nearly all of the luminance) is read at the three taps; the
+        // higher ones (small, smooth spectral corrections) at the middle tap only (the offsets are sorted),
+        // with the taps' total weight 1 (an approximation: their anisotropic blur is dropped; bench_interactive
+        // measures the ΔE2000 of every agreement view)
+        vec3 p1 = env_coord(cos(tp.z) * R + sin(tp.z) * tn, lz);
+        xyz = a.x * (tw.x * textureLod(jk_env0, env_coord(cos(tp.y) * R + sin(tp.y) * tn, lz), 0.0).rgb
+                     + tw.y * textureLod(jk_env0, p1, 0.0).rgb
+                     + tw.z * textureLod(jk_env0, env_coord(cos(tp.w) * R + sin(tp.w) * tn, lz), 0.0).rgb)
+            + env_rest(p1, a);
 #elif JK_TWO_TAP && JK_TAPS == 5
         // five binomial taps (1, 4, 6, 4, 1)/16 at mean, mean ± spread, mean ± 2·spread: the lobe's mean and
         // variance, a kernel closer to the lobe's own shape than three taps
@@ -232,7 +319,10 @@ vec4 jk_shade(vec3 N, vec3 Vd, vec2 uv)
 #else
         xyz = env_xyz(R, lz, a);
 #endif
-#if JK_CAPS > 0 && JK_ROUGH
+#if JK_CAPS > 0 && JK_ROUGH && JK_CAP_TABLE
+        // the caps through the kernel table of the regions' lobes (jk_caps_table_xyz)
+        xyz += jk_caps_table_xyz(w, cv, lf, lt, R, tn);
+#elif JK_CAPS > 0 && JK_ROUGH
         // the caps through the lobe's moments (jk_caps_xyz): centre at the mean offset, across-plane
         // variance 2 μ_e²/ln2 of the moment pattern's level (c = 2/var = ln2/μ_e²), in-plane var + spread²
 #if JK_TAP_FIT
