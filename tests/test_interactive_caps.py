@@ -183,6 +183,7 @@ def test_cap_kernel_table_against_the_cap_quadrature_of_ggx_and_beckmann(deg):
         assert _table_errors(region, deg) < TABLE_TOL, (region, deg)
 
 
+@pytest.mark.slow
 def test_the_moments_gaussian_misses_ggx_under_a_cap():
     """It can fail: the closed-form rule (one Gaussian with the lobe's moments) on GGX α 0.05 misses the cap
     quadrature by far more than the table's bound (its variance is set by the tails: the peak several times
