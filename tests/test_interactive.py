@@ -342,6 +342,20 @@ def test_sun_glint_under_a_real_hdr_agrees_only_with_the_sun_split(glr):
                 assert np.all(np.isfinite(frame))
 
 
+def _files_prepared(tmp_path, view, rad):
+    """The demo scene at ``view`` under ``rad`` (256 spp) with parameter files holding a GGX hiraji (α 0.05) and
+    a Beckmann hamon (α 0.12), prepared for jkatana.render."""
+    from jkatana.render.renderer import prepare
+    from jkatana.render.scene import scene_from_dict
+
+    d = A.render_scene(view, samples=256)
+    d["material"]["hiraji"] = _params_file(tmp_path / "hiraji.json", "ggx", "hiraji",
+                                           {"scale": 2000.0, "alpha": 0.05})
+    d["material"]["hamon"] = _params_file(tmp_path / "hamon.json", "beckmann", "hamon",
+                                          {"scale": 2000.0, "alpha": 0.12})
+    return prepare(scene_from_dict(d), env_radiance=np.asarray(rad, np.float32))
+
+
 def _params_file(path, model: str, region: str, values: dict) -> str:
     """A parameter file as ``jkatana fit`` writes it for ``model`` (its ``lobe`` from the fit model's ``build``)."""
     import json
@@ -364,17 +378,11 @@ def test_gl_frame_renders_the_lobes_of_parameter_files(glr, tmp_path):
     studio demo view; the paper's tables on the same maps do not."""
     from jkatana.interactive.lobe_tables import region_lobes
     from jkatana.render.film import auto_exposure
-    from jkatana.render.renderer import prepare, render_view
-    from jkatana.render.scene import scene_from_dict
+    from jkatana.render.renderer import render_view
 
     view = S.demo_view(120, 90)
     rad = S.environment("studio")
-    d = A.render_scene(view, samples=256)
-    d["material"]["hiraji"] = _params_file(tmp_path / "hiraji.json", "ggx", "hiraji",
-                                           {"scale": 2000.0, "alpha": 0.05})
-    d["material"]["hamon"] = _params_file(tmp_path / "hamon.json", "beckmann", "hamon",
-                                          {"scale": 2000.0, "alpha": 0.12})
-    prep = prepare(scene_from_dict(d), env_radiance=np.asarray(rad, np.float32))
+    prep = _files_prepared(tmp_path, view, rad)
     keys = {"hiraji": prep.plan.hiraji_lobe, "hamon": prep.plan.hamon_lobe}
     assert keys["hiraji"][0] == "ggx" and keys["hamon"][0] == "beckmann"
     fr = render_view(prep)
@@ -404,18 +412,12 @@ def test_sun_glint_on_parameter_files_lobes_under_a_real_hdr(glr, tmp_path):
     (reference mode, the same files) within the agreement bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5)."""
     from jkatana.interactive.lobe_tables import region_lobes
     from jkatana.render.film import auto_exposure
-    from jkatana.render.renderer import prepare, render_view
-    from jkatana.render.scene import scene_from_dict
+    from jkatana.render.renderer import render_view
 
     mesh = S.blade()
     rad = A.shared_environment("sunrise.exr")
     view = A.sun_glint_view(mesh, rad, 160, 120)
-    d = A.render_scene(view, samples=256)
-    d["material"]["hiraji"] = _params_file(tmp_path / "hiraji.json", "ggx", "hiraji",
-                                           {"scale": 2000.0, "alpha": 0.05})
-    d["material"]["hamon"] = _params_file(tmp_path / "hamon.json", "beckmann", "hamon",
-                                          {"scale": 2000.0, "alpha": 0.12})
-    prep = prepare(scene_from_dict(d), env_radiance=np.asarray(rad, np.float32))
+    prep = _files_prepared(tmp_path, view, rad)
     keys = {"hiraji": prep.plan.hiraji_lobe, "hamon": prep.plan.hamon_lobe}
     fr = render_view(prep)
     exposure = auto_exposure(fr.xyz, fr.mask, key=0.6, percentile=75.0)

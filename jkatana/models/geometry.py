@@ -33,6 +33,17 @@ def _cut(dtype) -> float:
     return float(jnp.finfo(dtype).eps)
 
 
+def _half_vector_sum(L, V):
+    """``(s, |s|, valid)`` of s = L + V, with s = N and |s| = 1 substituted where |s| ≤ :func:`_cut` ("double
+    where": the half-vector functions below stay finite, values and gradients, at L = −V)."""
+    s = L + V
+    dtype = jnp.result_type(s)
+    length = norm(s)
+    valid = length > _cut(dtype)
+    s_safe = jnp.where(valid[..., None], s, jnp.asarray([0.0, 0.0, 1.0], dtype))
+    return s_safe, jnp.where(valid, length, 1.0), valid
+
+
 def half_vector_terms(L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b 3"]):
     """``(φ, cos φ, cos θH, valid)`` in one pass, guarded for the models.
 
@@ -42,12 +53,7 @@ def half_vector_terms(L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b 3"]
     every output is computed on a substituted H = N ("double where"), so values
     *and* gradients are finite, and φ = 0, cos φ = cos θH = 0 are returned.
     """
-    s = L + V
-    dtype = jnp.result_type(s)
-    length = norm(s)
-    valid = length > _cut(dtype)
-    s_safe = jnp.where(valid[..., None], s, jnp.asarray([0.0, 0.0, 1.0], dtype))
-    length_safe = jnp.where(valid, length, 1.0)
+    s_safe, length_safe, valid = _half_vector_sum(L, V)
     phi = jnp.where(valid, safe_atan2(norm(s_safe[..., :2]), s_safe[..., 2]), 0.0)
     cos_phi = jnp.where(valid, s_safe[..., 2] / length_safe, 0.0)
     cos_theta_h = jnp.where(valid, jnp.clip(0.5 * length_safe, 0.0, 1.0), 0.0)
@@ -65,12 +71,7 @@ def half_vector_tan_terms(L: Float[ArrayLike, "*#b 3"], V: Float[ArrayLike, "*#b
     the dtype's eps every output is 0 with ``valid`` False, as in
     :func:`half_vector_terms` ("double where": finite values and gradients).
     """
-    s = L + V
-    dtype = jnp.result_type(s)
-    length = norm(s)
-    valid = length > _cut(dtype)
-    s_safe = jnp.where(valid[..., None], s, jnp.asarray([0.0, 0.0, 1.0], dtype))
-    length_safe = jnp.where(valid, length, 1.0)
+    s_safe, length_safe, valid = _half_vector_sum(L, V)
     up = valid & (s_safe[..., 2] > 0)
     tan_phi = jnp.where(up, norm(s_safe[..., :2]) / jnp.where(up, s_safe[..., 2], 1.0), 0.0)
     cos_phi = jnp.where(valid, s_safe[..., 2] / length_safe, 0.0)

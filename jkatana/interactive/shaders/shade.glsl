@@ -64,6 +64,22 @@ const float JK_PI = 3.14159265358979;
 uniform vec4 jk_cap[JK_CAPS];       // xyz: cap centre C (map frame), w: r² (r: the cap's angular radius)
 uniform vec3 jk_cap_q[4 * JK_CAPS]; // [4k + r]: Q_r of cap k, Ω_cap Σ_λ b_r(λ) W(λ) L_cap(λ) (XYZ)
 
+// XYZ of cap k reflected by lobe weights a on the spectral basis: Σ_r a_r Q_r
+vec3 jk_cap_xyz(vec4 a, int k)
+{
+    vec3 q = a.x * jk_cap_q[4 * k];
+#if JK_RANK > 1
+    q += a.y * jk_cap_q[4 * k + 1];
+#endif
+#if JK_RANK > 2
+    q += a.z * jk_cap_q[4 * k + 2];
+#endif
+#if JK_RANK > 3
+    q += a.w * jk_cap_q[4 * k + 3];
+#endif
+    return q;
+}
+
 // The cap rule (NumPy twin: jkatana.interactive.caprule.cap_response, tested against
 // jkatana.light.capquad.cap_integral of the models). The reflected lobe is one anisotropic Gaussian on the sphere
 // with the lobe's own first and second moments (lobe_tables.lobe_lut): centred on its mean direction, variance
@@ -108,17 +124,7 @@ vec3 jk_caps_xyz(vec4 a, vec3 M, vec3 tp, vec3 ty, vec2 c)
         if (c.x * s2 > 30.0 * (1.0 + 0.25 * c.x * jk_cap[k].w))
             continue;
         float ks = jk_cap_gauss(e, s2, tp, ty, jk_cap_c(c.x, k), jk_cap_c(c.y, k));
-        vec3 q = a.x * jk_cap_q[4 * k];
-#if JK_RANK > 1
-        q += a.y * jk_cap_q[4 * k + 1];
-#endif
-#if JK_RANK > 2
-        q += a.z * jk_cap_q[4 * k + 2];
-#endif
-#if JK_RANK > 3
-        q += a.w * jk_cap_q[4 * k + 3];
-#endif
-        xyz += ks * q;
+        xyz += ks * jk_cap_xyz(a, k);
     }
     return xyz;
 }
@@ -225,17 +231,7 @@ vec3 jk_caps_table_xyz(float w, float cv, float lf, float lt, vec3 R, vec3 tn)
         vec2 uv = vec2(atan(dot(C, tn), cr), atan(abs(dot(C, ty)), cr));
         vec4 a = w * jk_capk_kernel(0.0, lf, cv, uv) * lobe(0.0, cv, lf)
                  + (1.0 - w) * jk_capk_kernel(1.0, lt, cv, uv) * lobe(1.0, cv, lt);
-        vec3 q = a.x * jk_cap_q[4 * k];
-#if JK_RANK > 1
-        q += a.y * jk_cap_q[4 * k + 1];
-#endif
-#if JK_RANK > 2
-        q += a.z * jk_cap_q[4 * k + 2];
-#endif
-#if JK_RANK > 3
-        q += a.w * jk_cap_q[4 * k + 3];
-#endif
-        xyz += q;
+        xyz += jk_cap_xyz(a, k);
     }
     return xyz;
 }
