@@ -293,6 +293,15 @@ def _add_cap_rule(plan: Plan, mat: Material, px: Pixels, Vl, fr, caps: Caps, Cw,
     return acc
 
 
+def _cap_constants(plan: Plan, env: Environment, caps: Caps, vis: Visibility | None, P: int, dtype):
+    """The split caps' constants of a frame: ``(world centres (K, 3), per cap its channels broadcast to the
+    P pixels, per cap its shadow rays' visibility or None)``."""
+    Cw = caps.world(env.rotation).astype(dtype)
+    Ecap = [jnp.broadcast_to(c.astype(dtype), (P, c.shape[-1])) for c in caps.channels]
+    cap_vis = [None if vis is None else vis.lights[:, plan.lights + k] for k in range(caps.count)]
+    return Cw, Ecap, cap_vis
+
+
 def shade_caps(plan: Plan, mat: Material, env: Environment, px: Pixels, cmf: Float[Array, "wl 3"],
                vis: Visibility | None = None) -> tuple[Array, Array | None]:
     """The split caps' share of :func:`shade` in the deterministic modes (``"prefiltered"``, ``"paper"``):
@@ -311,9 +320,7 @@ def shade_caps(plan: Plan, mat: Material, env: Environment, px: Pixels, cmf: Flo
         return _output(plan, env, cmf, acc)
     vis = vis if plan.visibility else None
     fr, Vl = _frame(px)
-    Cw = caps.world(env.rotation).astype(dtype)
-    Ecap = [jnp.broadcast_to(c.astype(dtype), (P, c.shape[-1])) for c in caps.channels]
-    cap_vis = [None if vis is None else vis.lights[:, plan.lights + k] for k in range(caps.count)]
+    Cw, Ecap, cap_vis = _cap_constants(plan, env, caps, vis, P, dtype)
     acc = _add_mirror_caps(plan, px, Vl, fr, env, caps, Ecap, vis, combine, acc)
     if _has_lobe(plan):
         acc = _add_cap_rule(plan, mat, px, Vl, fr, caps, Cw, Ecap, cap_vis, None, combine, acc)
@@ -374,10 +381,8 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     if caps is not None:
         if plan.mode == "paper-published":
             raise ValueError("the paper-published mode shades the whole map: build its environment without split_sun")
-        Cw = caps.world(env.rotation).astype(dtype)
+        Cw, Ecap, cap_vis = _cap_constants(plan, env, caps, vis, P, dtype)
         p_cap = (1.0 / caps.solid_angle()).astype(dtype)
-        Ecap = [jnp.broadcast_to(c.astype(dtype), (P, c.shape[-1])) for c in caps.channels]
-        cap_vis = [None if vis is None else vis.lights[:, plan.lights + k] for k in range(caps.count)]
 
         def add_cap_rule(acc):
             """The deterministic modes: each cap integrated against each lobe by the cap rule."""
