@@ -339,12 +339,10 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
         mat, env = folded(plan.fresnel_rank, mat, env, jnp.asarray(cmf, px.normal.dtype),
                           jnp.asarray(vt[:plan.fresnel_rank], px.normal.dtype))
     n_dev = n_devices or len(jax.local_devices())
-    if not split_caps:
-        return _collect(_dispatch(plan, mat, env, lights, px, cmf, key, n_dev, chunk, occluders, ids), px)
     # the caps on their own pass over the pixels where they can matter, when those are few enough to pay
     # for the pass; else in the one pass, as every other term
-    near = np.flatnonzero(np.asarray(near))
-    if len(near) > CAP_PASS_MAX * px.normal.shape[0]:
+    near = np.flatnonzero(np.asarray(near)) if split_caps else None
+    if near is None or len(near) > CAP_PASS_MAX * px.normal.shape[0]:
         return _collect(_dispatch(plan, mat, env, lights, px, cmf, key, n_dev, chunk, occluders, ids), px)
     no_caps = eqx.tree_at(lambda e: e.caps, env, None)
     rest = _dispatch(plan, mat, no_caps, lights, px, cmf, key, n_dev, chunk, occluders, ids)
