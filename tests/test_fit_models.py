@@ -322,3 +322,29 @@ def test_convergence_check_is_evaluated_at_the_returned_point(geometry, model, s
     np.testing.assert_allclose(np.asarray(out["jtj"]), np.asarray(J.T @ J), rtol=1e-10)
     np.testing.assert_allclose(float(out["grad_norm"]), float(jnp.max(jnp.abs(J.T @ r))), rtol=1e-6,
                                atol=1e-10 * float(jnp.max(jnp.abs(J)) * jnp.sum(jnp.abs(r))))
+
+
+def test_two_lobe_start_fits_the_weight_and_scale(geometry):
+    """The two-lobe start's scale and weight are the weighted least-squares ones at its widths (the cost's
+    gradient in log scale and logit weight vanishes there), with the haze at the model's default ratio."""
+    from jkatana.fit._solve import residuals
+
+    _, sig, Y = campaigns(geometry, "two-lobe", TRUTH["two-lobe"], 1, seed=3)
+    spec = ModelSpec("two-lobe")
+    terms = prepare("two-lobe", geometry["ti"], geometry["tr"], geometry["n"], geometry["k"], geometry["w"])
+    y, w = jnp.asarray(Y[0]), jnp.asarray(1 / sig)
+    p0 = start_vector(terms, y, w, spec)
+    nat = to_natural(p0, spec)
+    assert nat["alpha_haze"] == pytest.approx(FIT_MODELS["two-lobe"].defaults[0] * nat["alpha"], rel=1e-12)
+    assert 0.0 < nat["weight"] < 1.0 and nat["weight"] != pytest.approx(FIT_MODELS["two-lobe"].defaults[1])
+
+    def cost(p):
+        r = residuals(p, (terms, y, w, spec))
+        return 0.5 * jnp.sum(r * r)
+
+    g = np.asarray(jax.grad(cost)(p0))
+    r0 = np.asarray(residuals(p0, (terms, y, w, spec)))
+    scale_of_g = float(np.sqrt(np.sum(r0 * r0)) * np.max(np.linalg.norm(np.asarray(
+        jax.jacfwd(residuals)(p0, (terms, y, w, spec))), axis=0)))
+    assert abs(g[0]) < 1e-9 * scale_of_g and abs(g[3]) < 1e-9 * scale_of_g, (g, scale_of_g)
+    assert abs(g[1]) > 1e-6 * scale_of_g  # the widths are not fitted: the test can tell

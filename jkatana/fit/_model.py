@@ -399,6 +399,17 @@ def green(p: Float[Array, " p"], terms: Terms, spec: ModelSpec, at: At | None = 
     return out
 
 
+def mixture_parts(log_width, terms: Terms, spec: ModelSpec, at: At | None = None) -> Float[Array, " n"]:
+    """The first part of a two-lobe model at width ``exp(log_width)``, unit scale and weight (its lobe from
+    :meth:`FitModel.build`; instrument-averaged like :func:`green`), for a start that fits the parts'
+    amplitudes linearly. The two-lobe model's parts are of one family (GGX), so this is also its second part
+    at that width. Evaluated at zero tilt (`at`: :func:`evaluation_point` of the untilted spec)."""
+    lobe = spec.fit_model.build(default_shape(spec, log_width, log_width.dtype))
+    at = evaluation_point(terms, dataclasses.replace(spec, tilt=False)) if at is None else at
+    val = _lobe_value(lobe.first, at, terms)
+    return jnp.mean(val, axis=(0, 1)) if spec.instrument is not None else val
+
+
 def to_natural(p, spec: ModelSpec) -> dict[str, float]:
     """Parameter vector → natural units (``tilt_deg`` in degrees)."""
     p = np.asarray(p, np.float64)
@@ -431,4 +442,4 @@ def default_shape(spec: ModelSpec, log_width, dtype):
 
 __all__ = ["ModelSpec", "Terms", "FitModel", "FIT_MODELS", "prepare", "green", "to_natural", "from_natural",
            "MODELS", "SCALE_NAME", "SHAPE_NAMES", "fbar", "disk_offsets", "default_shape", "At",
-           "evaluation_point"]
+           "evaluation_point", "mixture_parts"]

@@ -185,7 +185,8 @@ def moment_start(terms: Terms, y, w, spec: ModelSpec, fallback=None):
     sharp first lobe's: the peak is what the closed form sees). Every lobe's reflected width is linear
     in its width, so one ratio maps it. The closed form sees the peak's curvature while a heavy-tailed
     lobe's reflected width is its core's scale, so :func:`grid_start` then picks the best of
-    :data:`MOMENT_FACTORS` around it (other shape parameters at their defaults, the scale linear).
+    :data:`MOMENT_FACTORS` around it (other shape parameters at their defaults, the scale linear); a
+    two-lobe sum's widths, haze ratio and weight come from :func:`pair_start` around it.
     Where the closed form has no peak to measure (too few points above the noise, or no downward
     curvature) the start is :func:`two_level_start`'s search over the whole width range, or `fallback`
     when one is given (a batch of refits passes the full fit's optimum: under ``vmap`` a ``lax.cond``
@@ -203,10 +204,57 @@ def moment_start(terms: Terms, y, w, spec: ModelSpec, fallback=None):
     factors = jnp.geomspace(lo, hi, n).astype(y.dtype)
     good = good & jnp.isfinite(width) & (width > 0)
     width = jnp.where(good, width, 1.0)
+    if isinstance(lobe, Mixture):
+        near = lambda: pair_start(terms, y, w, spec, width)  # noqa: E731
+    else:
+        near = lambda: grid_start(terms, y, w, spec, mus=width * factors)  # noqa: E731
     if fallback is not None:
-        return jnp.where(good, grid_start(terms, y, w, spec, mus=width * factors), jnp.asarray(fallback, y.dtype))
-    return jax.lax.cond(good, lambda: grid_start(terms, y, w, spec, mus=width * factors),
-                        lambda: two_level_start(terms, y, w, spec))
+        return jnp.where(good, near(), jnp.asarray(fallback, y.dtype))
+    return jax.lax.cond(good, near, lambda: two_level_start(terms, y, w, spec))
+
+
+@functools.partial(jax.jit, static_argnames=("spec",))
+def pair_start(terms: Terms, y, w, spec: ModelSpec, width):
+    """Start for a sharp + haze sum (two-lobe model): the sharp width from :data:`MOMENT_FACTORS` around the
+    moment width, the haze at the model's default ratio, and the weight fitted, not assumed.
+
+    With both widths fixed the model s·(w f(α₁) + (1 − w) f(α₂)) is linear in the parts' amplitudes
+    a₁ = s·w and a₂ = s·(1 − w): each candidate's best amplitudes come from a 2×2 weighted least-squares
+    solve (one evaluation of each part: :func:`~jkatana.fit._model.mixture_parts`), and the lowest-cost
+    candidate with both amplitudes positive (a sum, not a difference) wins. Where none has (no haze in the
+    data) the start is :func:`grid_start`'s at these widths: the default weight, the scale linear.
+    """
+    from jkatana.fit._model import mixture_parts
+
+    dtype = y.dtype
+    haze, weight = spec.fit_model.defaults
+    lo, hi, n = MOMENT_FACTORS
+    sharp = jnp.log(width) + jnp.log(jnp.geomspace(lo, hi, n)).astype(dtype)
+    at = evaluation_point(terms, dataclasses.replace(spec, tilt=False))
+    parts = jax.vmap(lambda t: mixture_parts(t, terms, spec, at))
+    A1, A2 = parts(sharp) * w, parts(sharp + math.log(haze)) * w  # (n, points)
+    yw = y * w
+    g11, g22, g12 = jnp.sum(A1 * A1, -1), jnp.sum(A2 * A2, -1), jnp.sum(A1 * A2, -1)
+    b1, b2 = A1 @ yw, A2 @ yw
+    det = g11 * g22 - g12**2
+    ok = det > 1e-12 * g11 * g22
+    det = jnp.where(ok, det, 1.0)
+    a1 = (g22 * b1 - g12 * b2) / det
+    a2 = (g11 * b2 - g12 * b1) / det
+    gain = a1 * b1 + a2 * b2  # the cost removed: ½‖yw‖² − cost = ½ gain at the candidate's amplitudes
+    ok = ok & (a1 > 0) & (a2 > 0) & jnp.isfinite(gain)
+    # the default weight w₀ instead (grid_start's candidates, from the same part values): scale linear
+    m = weight * A1 + (1.0 - weight) * A2
+    mm = jnp.maximum(jnp.sum(m * m, -1), jnp.finfo(dtype).tiny)
+    s0 = jnp.maximum(m @ yw / mm, jnp.finfo(dtype).tiny)
+    gain0 = jnp.where(jnp.isfinite(s0), s0 * (m @ yw), -jnp.inf)
+    fitted = jnp.any(ok)
+    k = jnp.where(fitted, jnp.argmax(jnp.where(ok, gain, -jnp.inf)), jnp.argmax(gain0))
+    a1 = jnp.where(fitted, jnp.where(ok, a1, 1.0)[k], weight * s0[k])
+    a2 = jnp.where(fitted, jnp.where(ok, a2, 1.0)[k], (1.0 - weight) * s0[k])
+    tail = jnp.zeros(int(spec.tilt) + int(spec.floor), dtype)
+    return jnp.concatenate([jnp.stack([jnp.log(a1 + a2), sharp[k], jnp.asarray(math.log(haze - 1.0), dtype),
+                                       jnp.log(a1 / a2)]), tail])
 
 
 #: Width grid of :func:`grid_start` (radians for the paper's μ, the microfacet α otherwise).
@@ -473,5 +521,5 @@ def laplace(jtj, cost: float, n_eff: int, p, spec: ModelSpec, *, birge: bool = T
 
 
 __all__ = ["NoiseModel", "estimate_noise", "residuals", "closed_form_start", "grid_start", "two_level_start",
-           "moment_start", "start_vector", "solve",
+           "moment_start", "pair_start", "start_vector", "solve",
            "verdict", "laplace", "natural_intervals", "SOLVERS", "to_natural"]
