@@ -57,8 +57,12 @@ def _x64():
     """float64 fits (DESIGN: numerical core) and JAX's persistent compilation cache.
 
     The cache (``$JKATANA_CACHE``, else ``~/.cache/jkatana``, folder ``jax``)
-    keeps the compiled solvers between runs, so the second ``jkatana fit`` of a
-    table of the same shape and model pays tracing, not XLA compilation.
+    keeps the compiled programs between runs, so the second ``jkatana fit`` of a
+    table of the same shape and model pays tracing, not XLA compilation. Every
+    program is kept, however quick to compile: a fit runs about a hundred small
+    ones (eager array operations, per-incidence refits, intervals) whose
+    compilation together costs as much as the solver's; the cache of one
+    model and table shape is about 1 MB.
     Set ``JKATANA_NO_JAX_CACHE=1`` to switch it off.
     """
     import os
@@ -71,7 +75,7 @@ def _x64():
         try:
             root.mkdir(parents=True, exist_ok=True)
             jax.config.update("jax_compilation_cache_dir", str(root))
-            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
         except OSError:  # a read-only home: compile every time
             pass
 
