@@ -348,3 +348,21 @@ def test_two_lobe_start_fits_the_weight_and_scale(geometry):
         jax.jacfwd(residuals)(p0, (terms, y, w, spec))), axis=0)))
     assert abs(g[0]) < 1e-9 * scale_of_g and abs(g[3]) < 1e-9 * scale_of_g, (g, scale_of_g)
     assert abs(g[1]) > 1e-6 * scale_of_g  # the widths are not fitted: the test can tell
+
+
+@pytest.mark.parametrize("spec", [ModelSpec("two-lobe"), ModelSpec("two-lobe", floor=True),
+                                  ModelSpec("two-lobe", instrument=(0.004, 0.006, 5))], ids=lambda s: repr(s))
+def test_two_lobe_jacobian_through_the_parts_is_the_direct_one(geometry, spec):
+    """The two-lobe model's derivative (the chain rule through its parts, one tangent per part) equals
+    forward-mode differentiation of the lobe evaluated from its directions, away from the truth too."""
+    from jkatana.fit._model import evaluation_point
+
+    terms = prepare(spec.model, geometry["ti"], geometry["tr"], geometry["n"], geometry["k"], geometry["w"])
+    at = evaluation_point(terms, spec)
+    for values in (TRUTH["two-lobe"] | dict(floor=5.0), dict(scale=900.0, alpha=0.011, alpha_haze=0.05, weight=0.3)):
+        p = jnp.asarray(from_natural(values, spec))
+        want = np.asarray(jax.jacfwd(_green_direct)(p, terms, spec))
+        got = np.asarray(jax.jit(jax.jacfwd(lambda p: green(p, terms, spec, at)))(p))
+        np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10 * np.max(np.abs(want)))
+        got_rev = np.asarray(jax.jacrev(lambda p: green(p, terms, spec, at))(p))  # reverse mode: emcee, sandwich
+        np.testing.assert_allclose(got_rev, want, rtol=1e-10, atol=1e-10 * np.max(np.abs(want)))

@@ -45,6 +45,7 @@ shape…, tilt (rad), floor]`` where tilt and floor are present only when on.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import equinox as eqx
@@ -387,12 +388,14 @@ def green(p: Float[Array, " p"], terms: Terms, spec: ModelSpec, at: At | None = 
     """
     fm = spec.fit_model
     scale = jnp.exp(p[0])
-    lobe = fm.build(p[1:1 + spec.n_shape])
     if at is None or spec.tilt:
         at = evaluation_point(terms, spec, p[spec.tilt_index] if spec.tilt else None)
-    val = _lobe_value(lobe, at, terms)
-    if spec.instrument is not None:
-        val = jnp.mean(val, axis=(0, 1))
+    if fm.name == "two-lobe" and not spec.tilt:
+        val = _two_lobe_value(p[1:1 + spec.n_shape], terms, at, spec)
+    else:
+        val = _lobe_value(fm.build(p[1:1 + spec.n_shape]), at, terms)
+        if spec.instrument is not None:
+            val = jnp.mean(val, axis=(0, 1))
     out = scale * val
     if spec.floor:
         out = out + p[spec.floor_index]
@@ -408,6 +411,35 @@ def mixture_parts(log_width, terms: Terms, spec: ModelSpec, at: At | None = None
     at = evaluation_point(terms, dataclasses.replace(spec, tilt=False)) if at is None else at
     val = _lobe_value(lobe.first, at, terms)
     return jnp.mean(val, axis=(0, 1)) if spec.instrument is not None else val
+
+
+def _two_lobe_logs(q):
+    """log α₁, log α₂ and w of the two-lobe shape vector ``q`` (module table)."""
+    return q[0], q[0] + jnp.logaddexp(0.0, q[1]), _sigmoid(q[2])
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(3,))
+def _two_lobe_value(q, terms: Terms, at: At, spec: ModelSpec):
+    """The two-lobe model's unit-scale value w·f(α₁) + (1 − w)·f(α₂) at shape vector ``q`` (module table), with
+    its derivative by the chain rule through the parts (:func:`_two_lobe_jvp`)."""
+    l1, l2, w = _two_lobe_logs(q)
+    return w * mixture_parts(l1, terms, spec, at) + (1.0 - w) * mixture_parts(l2, terms, spec, at)
+
+
+@_two_lobe_value.defjvp
+def _two_lobe_jvp(spec, primals, tangents):
+    """Each part depends on one width only, so the derivative in the three shape parameters needs each part's
+    derivative in its own log width (one forward-mode tangent per part) instead of three tangents through both
+    parts: log α₁ = q₀, log α₂ = q₀ + log(1 + e^{q₁}), w = sigmoid(q₂). The table's arrays are constants."""
+    q, terms, at = primals
+    dq = tangents[0]
+    l1, l2, w = _two_lobe_logs(q)
+    part = lambda t: mixture_parts(t, terms, spec, at)  # noqa: E731
+    f1, d1 = jax.jvp(part, (l1,), (jnp.ones_like(l1),))
+    f2, d2 = jax.jvp(part, (l2,), (jnp.ones_like(l2),))
+    dl2 = dq[0] + _sigmoid(q[1]) * dq[1]
+    return (w * f1 + (1.0 - w) * f2,
+            w * d1 * dq[0] + (1.0 - w) * d2 * dl2 + w * (1.0 - w) * dq[2] * (f1 - f2))
 
 
 def to_natural(p, spec: ModelSpec) -> dict[str, float]:
