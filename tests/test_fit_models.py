@@ -350,16 +350,20 @@ def test_two_lobe_start_fits_the_weight_and_scale(geometry):
     assert abs(g[1]) > 1e-6 * scale_of_g  # the widths are not fitted: the test can tell
 
 
-@pytest.mark.parametrize("spec", [ModelSpec("two-lobe"), ModelSpec("two-lobe", floor=True),
-                                  ModelSpec("two-lobe", instrument=(0.004, 0.006, 5))], ids=lambda s: repr(s))
-def test_two_lobe_jacobian_through_the_parts_is_the_direct_one(geometry, spec):
-    """The two-lobe model's derivative (the chain rule through its parts, one tangent per part) equals
-    forward-mode differentiation of the lobe evaluated from its directions, away from the truth too."""
+@pytest.mark.parametrize("spec", [ModelSpec(m) for m in FIT_MODELS] + [
+    ModelSpec("two-lobe", floor=True), ModelSpec("two-lobe", instrument=(0.004, 0.006, 5)),
+    ModelSpec("gtr", floor=True, instrument=(0.003, 0.0, 4))], ids=lambda s: repr(s))
+def test_model_jacobian_is_the_direct_one(geometry, spec):
+    """The model's derivative (in the shape parameters alone; for the two-lobe model by the chain rule through
+    its parts, one tangent per part) equals forward-mode differentiation of the lobe evaluated from its
+    directions, at the truth and away from it, in forward and reverse mode."""
     from jkatana.fit._model import evaluation_point
 
     terms = prepare(spec.model, geometry["ti"], geometry["tr"], geometry["n"], geometry["k"], geometry["w"])
     at = evaluation_point(terms, spec)
-    for values in (TRUTH["two-lobe"] | dict(floor=5.0), dict(scale=900.0, alpha=0.011, alpha_haze=0.05, weight=0.3)):
+    away = {k: 0.6 * v for k, v in TRUTH[spec.model].items()} | dict(weight=0.3, gamma=2.5)
+    for values in (TRUTH[spec.model] | dict(floor=5.0), away):
+        values = {k: v for k, v in values.items() if k in spec.names}
         p = jnp.asarray(from_natural(values, spec))
         want = np.asarray(jax.jacfwd(_green_direct)(p, terms, spec))
         got = np.asarray(jax.jit(jax.jacfwd(lambda p: green(p, terms, spec, at)))(p))

@@ -390,12 +390,13 @@ def green(p: Float[Array, " p"], terms: Terms, spec: ModelSpec, at: At | None = 
     scale = jnp.exp(p[0])
     if at is None or spec.tilt:
         at = evaluation_point(terms, spec, p[spec.tilt_index] if spec.tilt else None)
-    if fm.name == "two-lobe" and not spec.tilt:
-        val = _two_lobe_value(p[1:1 + spec.n_shape], terms, at, spec)
+    q = p[1:1 + spec.n_shape]
+    if spec.tilt:  # the evaluation point depends on the parameters: plain forward-mode derivative
+        val = _unit_value(q, terms, at, spec)
+    elif fm.name == "two-lobe":
+        val = _two_lobe_value(q, terms, at, spec)
     else:
-        val = _lobe_value(fm.build(p[1:1 + spec.n_shape]), at, terms)
-        if spec.instrument is not None:
-            val = jnp.mean(val, axis=(0, 1))
+        val = _shape_value(q, terms, at, spec)
     out = scale * val
     if spec.floor:
         out = out + p[spec.floor_index]
@@ -411,6 +412,27 @@ def mixture_parts(log_width, terms: Terms, spec: ModelSpec, at: At | None = None
     at = evaluation_point(terms, dataclasses.replace(spec, tilt=False)) if at is None else at
     val = _lobe_value(lobe.first, at, terms)
     return jnp.mean(val, axis=(0, 1)) if spec.instrument is not None else val
+
+
+def _unit_value(q, terms: Terms, at: At, spec: ModelSpec):
+    """The model's lobe at shape vector ``q`` with unit scale, instrument-averaged, at ``at``."""
+    val = _lobe_value(spec.fit_model.build(q), at, terms)
+    return jnp.mean(val, axis=(0, 1)) if spec.instrument is not None else val
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(3,))
+def _shape_value(q, terms: Terms, at: At, spec: ModelSpec):
+    """:func:`_unit_value` whose derivative is its Jacobian in ``q`` alone: a solver's Jacobian of
+    ``s·f(q)`` then pushes one tangent per shape parameter through the lobe, not one per fitted parameter
+    (the scale's column is the value itself; the table's arrays are constants)."""
+    return _unit_value(q, terms, at, spec)
+
+
+@_shape_value.defjvp
+def _shape_jvp(spec, primals, tangents):
+    q, terms, at = primals
+    f = lambda q: _unit_value(q, terms, at, spec)  # noqa: E731
+    return f(q), jax.jacfwd(f)(q) @ tangents[0]
 
 
 def _two_lobe_logs(q):
