@@ -436,7 +436,8 @@ def _shape_jvp(spec, primals, tangents):
 
 
 def _two_lobe_logs(q):
-    """log α₁, log α₂ and w of the two-lobe shape vector ``q`` (module table)."""
+    """log α₁, log α₂ and w of the two-lobe shape vector ``q``: :meth:`FitModel.build`'s map (module table),
+    in log form for the chain rule."""
     return q[0], q[0] + jnp.logaddexp(0.0, q[1]), _sigmoid(q[2])
 
 
