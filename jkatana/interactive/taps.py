@@ -7,7 +7,11 @@ directions rotated from the mirror direction R in the plane of incidence,
 each at a fitted level width, with fitted weights (:func:`tap_fit`): filtered
 importance sampling (Křivánek & Colbert 2008) with a pattern fitted to the
 lobe instead of drawn from it. Where the map cannot resolve a fitted level
-the moment-matched pattern is used instead (:func:`resolved_taps`).
+the moment-matched pattern is used instead (:func:`resolved_taps`). For a
+region holding a long-tailed lobe (GGX, GTR, …: not the paper's) the three
+taps and a fourth, wider one — the tail tap — are fitted together to the
+whole lobe (:func:`tail_fit`), so the light in its tails is read where the
+lobe has it.
 """
 
 from __future__ import annotations
@@ -181,11 +185,182 @@ def tap_fit(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64, n: int = 32, l
     return cos, taps, l1, ok
 
 
+#: Reach of :func:`polar_lobe_kernel`'s grid in widths μ: GGX keeps 1/(1 + 24²) ≈ 0.2 % of its facet
+#: distribution's mass beyond a half-angle of 24 α (Walter et al. 2007, eq. 33).
+TAIL_REACH = 48.0
+#: Edges (in μ) of the rings around R whose energies :func:`tail_fit` matches, besides the kernel's shape.
+TAIL_RINGS = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 48.0)
+
+
+def polar_lobe_kernel(model, conductor: Conductor, cos_v, n_psi: int = 48, n_chi: int = 32, width=None):
+    """The reflected lobe of ``model`` as a normalised kernel around R on a polar grid reaching its tails.
+
+    Angle ψ from R (ψ = ψ_max u², u uniform: nodes dense at the peak; ψ_max = min(:data:`TAIL_REACH` μ, π))
+    and azimuth χ from the plane of incidence (χ = 0 towards N), so that L = cos ψ R + sin ψ (cos χ t +
+    sin χ y) with t, y as :func:`lobe_kernel`'s, dω = sin ψ dψ dχ. The kernel is the lobe's f_r cos θi
+    (``model.brdf_cos`` summed over λ) at V = (sin θv, 0, cos θv), normalised so that Σ K dω = 1: unlike
+    :func:`lobe_kernel`'s ±14 μ box it holds a long-tailed lobe's far tails (GGX, GTR), whose light the
+    lobe table's energy (:func:`~jkatana.interactive.lobe_tables.lobe_integral` with ``tails``) counts.
+
+    **Returns** ``(K, a_par, a_perp, dω, ψ)``, each ``(n_psi, n_chi)``; a_par, a_perp as :func:`lobe_kernel`'s.
+    """
+    dt = conductor.n.dtype
+    mu = jnp.asarray(model.mu if width is None else width, dt)
+    cv = jnp.asarray(cos_v, dt)
+    sv = jnp.sqrt(jnp.maximum(1.0 - cv ** 2, 0.0))
+    V = jnp.stack([sv, jnp.zeros_like(sv), cv])
+    R = jnp.stack([-sv, jnp.zeros_like(sv), cv])
+    tt = jnp.asarray([0.0, 0.0, 1.0], dt) - cv * R
+    tn = jnp.linalg.norm(tt)
+    t = jnp.where(tn > 1e-9, tt / jnp.maximum(tn, 1e-12), jnp.asarray([1.0, 0.0, 0.0], dt))
+    y = jnp.cross(R, t)
+    top = jnp.minimum(TAIL_REACH * mu, jnp.pi)
+    u = (jnp.arange(n_psi, dtype=dt) + 0.5) / n_psi
+    chi = (jnp.arange(n_chi, dtype=dt) + 0.5) / n_chi * 2 * jnp.pi
+    psi, ch = jnp.meshgrid(top * u * u, chi, indexing="ij")
+    st, ct = jnp.sin(psi), jnp.cos(psi)
+    L = ct[..., None] * R + (st * jnp.cos(ch))[..., None] * t + (st * jnp.sin(ch))[..., None] * y
+    f = model.brdf_cos(L, jnp.broadcast_to(V, L.shape), conductor).sum(-1)
+    dw = st * (2 * top * u / n_psi)[:, None] * (2 * jnp.pi / n_chi)
+    K = f / jnp.maximum(jnp.sum(f * dw), 1e-30)
+    a_par = jnp.arctan2(st * jnp.cos(ch), ct)
+    a_perp = jnp.arcsin(jnp.clip(st * jnp.sin(ch), -1.0, 1.0))
+    return K, a_par, a_perp, dw, psi
+
+
+def tail_kernel(params, mu, ap, aq, mu_min: Float[ArrayLike, ""], mu_max: Float[ArrayLike, ""]):
+    """The shader's kernel with a tail tap, for ``(s, o_1..o_3, s_t, o_t, l_1..l_3, l_t)``: the three taps of
+    :func:`tap_kernel` (width μ e^s, offsets o_j, weights ∝ e^{l_j}) and a fourth, the tail tap, at offset o_t
+    read at its own width μ_t = μ e^{s_t} clamped to [mu_min, mu_max] (the widest prefiltered level); the four
+    weights are softmax(l), the tail's w_t = softmax(l)_4."""
+    T = N_TAPS
+    core = jnp.concatenate([params[:1 + T], params[3 + T:3 + 2 * T]])
+    w = jax.nn.softmax(params[3 + T:])
+    s_t, o_t = params[1 + T], params[2 + T]
+    mu_t = jnp.clip(mu * jnp.exp(s_t), mu_min, mu_max)
+    x = jnp.sin(aq / 2) ** 2 + jnp.cos(aq) * jnp.sin((ap - o_t) / 2) ** 2
+    return (1.0 - w[T]) * tap_kernel(core, mu, ap, aq, mu_min) + w[T] * prefilter_kernel(x, mu_t)
+
+
+@functools.partial(jax.jit, static_argnames=("family", "n_psi", "n_chi"))
+def _polar_kernels(family, mu, conductor, cos_v, n_psi: int, n_chi: int):
+    model = family(mu)
+    return jax.vmap(lambda cv: polar_lobe_kernel(model, conductor, cv, n_psi, n_chi, width=mu))(cos_v)
+
+
+def _ring_energy(Kdw, psi, chi_sector, mu):
+    """Σ K dω per (ring of ψ/μ between :data:`TAIL_RINGS`, sector of azimuth): the energies the tail fit
+    matches (three sectors: towards N, away from it, across the plane of incidence)."""
+    ring = jnp.searchsorted(jnp.asarray(TAIL_RINGS[1:-1], psi.dtype), psi / mu)
+    cell = ring * 3 + chi_sector
+    return jnp.zeros(3 * (len(TAIL_RINGS) - 1), Kdw.dtype).at[cell.ravel()].add(Kdw.ravel())
+
+
+@jax.jit
+def _tail_fit_scan(K, ap, aq, dw, psi, taps, mu, mu_min, mu_max):
+    """Least-squares fits of three taps and a tail tap to lobes ``K (B, C, n_psi, n_chi)`` (polar grids,
+    :func:`polar_lobe_kernel`; widths ``mu (B,)``), along decreasing cos θv (axis C), warm-started from the
+    previous entry, the first from the three-tap fit ``taps (B, C, 1 + 2T)`` (logits) with a tail of width
+    3 μ and weight 0.1. The residual is the kernel's shape, ∫ (K − fit)² dω scaled by μ (dimensionless), and
+    the energy in rings and sectors around R (:func:`_ring_energy`): the far tails hold little of the first
+    but much of the second."""
+    import optimistix as optx
+
+    solver = optx.LevenbergMarquardt(rtol=1e-5, atol=1e-7)
+    T = N_TAPS
+    spread = jnp.linspace(-0.25, 0.25, T).astype(mu.dtype)
+
+    def start(t3, m):
+        return jnp.concatenate([t3[:1 + T], jnp.stack([jnp.log(3.0), 0.0]).astype(m.dtype),
+                                t3[1 + T:] - jax.nn.logsumexp(t3[1 + T:]),
+                                jnp.log(jnp.asarray([1.0 / 9.0], m.dtype))])
+
+    def one(prev, m, Kc, apc, aqc, dwc, pc):
+        sq = jnp.sqrt(dwc) * m
+        chi = jnp.arctan2(jnp.sin(aqc), jnp.cos(aqc) * jnp.sin(apc))    # azimuth from the plane, towards N
+        sector = jnp.where(jnp.abs(chi) < jnp.pi / 4, 0, jnp.where(jnp.abs(chi) > 3 * jnp.pi / 4, 1, 2))
+        e_lobe = _ring_energy(Kc * dwc, pc, sector, m)
+        p0 = prev.at[1:1 + T].add(m * spread)
+
+        def resid(p, _):
+            F = tail_kernel(p, m, apc, aqc, mu_min, mu_max)
+            r = ((F - Kc) * sq).ravel()
+            e = 3.0 * (_ring_energy(F * dwc, pc, sector, m) - e_lobe)
+            return jnp.concatenate([r, e, 1e-3 * p[3 + T:]])
+        sol = optx.least_squares(resid, solver, p0, max_steps=64, throw=False)
+        p = sol.value
+        F = tail_kernel(p, m, apc, aqc, mu_min, mu_max)
+        err = jnp.sum(jnp.abs(F - Kc) * dwc)
+        err0 = jnp.sum(jnp.abs(tail_kernel(p0, m, apc, aqc, mu_min, mu_max) - Kc) * dwc)
+        good = jnp.isfinite(err) & jnp.all(jnp.isfinite(p))
+        p, err = jnp.where(good, p, p0), jnp.where(good, err, err0)
+        idx = jnp.argsort(p[1:1 + T])                                       # taps ordered by offset
+        p = jnp.concatenate([p[:1], p[1:1 + T][idx], p[1 + T:3 + T], p[3 + T:3 + 2 * T][idx], p[3 + 2 * T:]])
+        return p, err, (sol.result == optx.RESULTS.successful) & good
+
+    def step(prev, xs):
+        p, err, ok = jax.vmap(one)(prev, mu, *xs)
+        return p, (p, err, ok)
+    p0 = jax.vmap(start)(taps[:, 0], mu)
+    xs = tuple(jnp.moveaxis(x, 1, 0) for x in (K, ap, aq, dw, psi))
+    _, (ps, errs, ok) = jax.lax.scan(step, p0, xs)
+    return ps, errs, ok                                                      # (C, B, ...)
+
+
+def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int = 64, lobes: tuple = PAPER_LOBES,
+             n_psi: int = 48, n_chi: int = 32):
+    """Three taps and a tail tap fitted per (cos θv, μ) to the regions' lobes ``lobes`` that are not the paper's.
+
+    Three taps prefiltered with the paper's Gaussian (:func:`tap_fit`) hold a long-tailed lobe's core but not
+    its tails: GGX (Walter et al. 2007) keeps 1/(1 + k²) of its facet mass beyond a half-angle of k α, so a
+    third of the reflected light lies beyond 3 α from R, where the taps' Gaussian kernels hold almost nothing,
+    and an environment brighter there than near R (the sky around a sun) comes out too dark. The tail tap is a
+    fourth read of the environment, at its own, wider level, fitted jointly with the three (least squares on
+    the polar grid of :func:`polar_lobe_kernel`, which reaches the tails, for the kernel's shape and its energy
+    in rings around R; optimistix Levenberg–Marquardt), starting from ``taps`` (:func:`tap_fit`'s table).
+
+    **Returns** ``(taps (2, n_mu, n_cos, 1 + 2T), tail (2, n_mu, n_cos, 3), l1 (2, n_mu, n_cos))``: per region
+    the three taps in :func:`tap_fit`'s layout (their weights summing to 1), the tail tap (s_t = log(μ_t/μ),
+    offset o_t towards N, weight w_t: the shader reads (1 − w_t) Σ_j w_j L̃_j + w_t L̃_t), and ∫ |K − fit| dω
+    on the polar grid; regions holding the paper's lobe keep ``taps`` with w_t = 0.
+    """
+    T = N_TAPS
+    taps = np.array(taps, np.float64)
+    tail = np.zeros(taps.shape[:3] + (3,))
+    l1 = np.zeros(taps.shape[:3])
+    todo = [m for m, family in enumerate(lobes) if family not in PAPER_LOBES]
+    if not todo:
+        return taps, tail, l1
+    cos_c = np.maximum(np.linspace(0.0, 1.0, n_cos), 1e-3)[::-1]
+    dt = conductor.n.dtype
+    kern = [_polar_kernels(lobes[m], jnp.asarray(mu, dt), conductor, jnp.asarray(cos_c, dt), n_psi, n_chi)
+            for m in todo for mu in mus]
+    K, ap, aq, dw, psi = (jnp.stack([k[i] for k in kern]) for i in range(5))
+    mu_b = jnp.asarray(np.tile(np.asarray(mus, np.float64), len(todo)), dt)
+    t3 = taps[todo][:, :, ::-1].reshape(len(todo) * len(mus), n_cos, -1).copy()
+    t3[..., 1 + T:] = np.log(np.maximum(t3[..., 1 + T:], 1e-12))
+    ps, errs, _ = _tail_fit_scan(K, ap, aq, dw, psi, jnp.asarray(t3, dt), mu_b,
+                                 jnp.asarray(float(np.min(mus)), dt), jnp.asarray(float(np.max(mus)), dt))
+    ps = np.asarray(ps, np.float64)[::-1].transpose(1, 0, 2).reshape(len(todo), len(mus), n_cos, -1)
+    w = np.exp(ps[..., 3 + T:] - ps[..., 3 + T:].max(-1, keepdims=True))
+    w /= w.sum(-1, keepdims=True)
+    mu_t = np.clip(np.asarray(mus)[None, :, None] * np.exp(ps[..., 1 + T]), np.min(mus), np.max(mus))
+    for i, m in enumerate(todo):
+        taps[m] = np.concatenate([ps[i, ..., :1 + T], w[i, ..., :T] / w[i, ..., :T].sum(-1, keepdims=True)], -1)
+        tail[m] = np.stack([np.log(mu_t[i] / np.asarray(mus)[:, None]), ps[i, ..., 2 + T], w[i, ..., T]], -1)
+    l1[todo] = np.asarray(errs, np.float64)[::-1].T.reshape(len(todo), len(mus), n_cos)
+    return taps, tail, l1
+
+
+#: The functions whose source text keys the tail table (:func:`jkatana.interactive.tables.cached_tail_fit`).
+TAIL_SOURCES = (polar_lobe_kernel, tail_kernel, _polar_kernels, _ring_energy, _tail_fit_scan, tail_fit)
+
+
 #: The fitted pattern is used where its filter width μ_e spans at least this many texels of the map.
 MIN_FIT_TEXELS = 2.0
 
 
-def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int) -> np.ndarray:
+def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int, tail: np.ndarray | None = None):
     """The fitted taps where the map resolves them, the moment-matched ones elsewhere.
 
     The fit (:func:`tap_fit`) models each tap as the continuous prefilter kernel of width μ_e; the
@@ -194,11 +369,15 @@ def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int) -> np.
     shape, and a small bright source (a sun of ~2 texels) lands on whichever texel the fitted offsets
     happen to hit; the moment pattern, wider, averages over it (the sun-glint view of
     ``experiments/interactive_agreement.py`` compares both). So per table entry: fitted if
-    μ e^s ≥ MIN_FIT_TEXELS·π/height, else moments.
+    μ e^s ≥ MIN_FIT_TEXELS·π/height, else moments. With a ``tail`` table (:func:`tail_fit`) also returns it,
+    its weight 0 where the moments are used (their pattern is the whole lobe's).
     """
     mu_e = np.asarray(mus, np.float64)[None, :, None] * np.exp(taps[..., 0])
     use = mu_e >= MIN_FIT_TEXELS * np.pi / height
-    return np.where(use[..., None], taps, moment_taps(spread))
+    out = np.where(use[..., None], taps, moment_taps(spread))
+    if tail is None:
+        return out
+    return out, np.where(use[..., None], tail, 0.0)
 
 
 #: The functions whose source text keys the tap table (:func:`jkatana.interactive.tables.tap_fit_key`).
