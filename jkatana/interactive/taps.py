@@ -188,7 +188,9 @@ def tap_fit(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64, n: int = 32, l
 #: Reach of :func:`polar_lobe_kernel`'s grid in widths μ: GGX keeps 1/(1 + 24²) ≈ 0.2 % of its facet
 #: distribution's mass beyond a half-angle of 24 α (Walter et al. 2007, eq. 33).
 TAIL_REACH = 48.0
-#: Edges (in μ) of the rings around R whose energies :func:`tail_fit` matches, besides the kernel's shape.
+#: Radius (in μ) beyond which :func:`tail_fit` puts the lobe's energy back with the tail tap.
+TAIL_FROM = 4.0
+#: Edges (in μ) of the rings around R whose energies :func:`tail_fit`'s choice of level matches.
 TAIL_RINGS = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 48.0)
 
 
@@ -242,118 +244,86 @@ def tail_kernel(params, mu, ap, aq, mu_min: Float[ArrayLike, ""], mu_max: Float[
     return (1.0 - w[T]) * tap_kernel(core, mu, ap, aq, mu_min) + w[T] * prefilter_kernel(x, mu_t)
 
 
-@functools.partial(jax.jit, static_argnames=("family", "n_psi", "n_chi"))
-def _polar_kernels(family, mu, conductor, cos_v, n_psi: int, n_chi: int):
-    model = family(mu)
-    return jax.vmap(lambda cv: polar_lobe_kernel(model, conductor, cv, n_psi, n_chi, width=mu))(cos_v)
-
-
-def _ring_energy(Kdw, psi, chi_sector, mu):
-    """Σ K dω per (ring of ψ/μ between :data:`TAIL_RINGS`, sector of azimuth): the energies the tail fit
-    matches (three sectors: towards N, away from it, across the plane of incidence)."""
+def _ring_energy(Kdw, psi, mu):
+    """Σ K dω per ring of ψ/μ between :data:`TAIL_RINGS` (the energies the tail tap matches)."""
     ring = jnp.searchsorted(jnp.asarray(TAIL_RINGS[1:-1], psi.dtype), psi / mu)
-    cell = ring * 3 + chi_sector
-    return jnp.zeros(3 * (len(TAIL_RINGS) - 1), Kdw.dtype).at[cell.ravel()].add(Kdw.ravel())
+    return jnp.zeros(len(TAIL_RINGS) - 1, Kdw.dtype).at[ring.ravel()].add(Kdw.ravel())
 
 
-@jax.jit
-def _tail_fit_scan(K, ap, aq, dw, psi, taps, mu, mu_min, mu_max):
-    """Least-squares fits of three taps and a tail tap to lobes ``K (B, C, n_psi, n_chi)`` (polar grids,
-    :func:`polar_lobe_kernel`; widths ``mu (B,)``), along decreasing cos θv (axis C), warm-started from the
-    previous entry, the first from the three-tap fit ``taps (B, C, 1 + 2T)`` (logits) with a tail of width
-    3 μ and weight 0.1. The residual is the kernel's shape, ∫ (K − fit)² dω scaled by μ (dimensionless), and
-    the energy in rings and sectors around R (:func:`_ring_energy`): the far tails hold little of the first
-    but much of the second."""
-    import optimistix as optx
-
-    solver = optx.LevenbergMarquardt(rtol=1e-5, atol=1e-7)
+@functools.partial(jax.jit, static_argnames=("family", "n_psi", "n_chi"))
+def _tail_rows(family, mu, conductor, cos_v, taps, levels, mu_min, n_psi: int, n_chi: int):
+    """The tail tap ``(s_t, o_t, w_t)`` per cos θv for the lobe ``family(mu)`` read by the three taps ``taps
+    (C, 1 + 2T)`` (weights, not logits), candidates the prefiltered ``levels``; see :func:`tail_fit`. Rows
+    ``(s_t, o_t, w_t, ∫ |K − mix| dω)``."""
     T = N_TAPS
-    spread = jnp.linspace(-0.25, 0.25, T).astype(mu.dtype)
 
-    def start(t3, m):
-        return jnp.concatenate([t3[:1 + T], jnp.stack([jnp.log(3.0), 0.0]).astype(m.dtype),
-                                t3[1 + T:] - jax.nn.logsumexp(t3[1 + T:]),
-                                jnp.log(jnp.asarray([1.0 / 9.0], m.dtype))])
+    def one(cv, t):
+        K, ap, aq, dw, psi = polar_lobe_kernel(family(mu), conductor, cv, n_psi, n_chi, width=mu)
+        F3 = tap_kernel(jnp.concatenate([t[:1 + T], jnp.log(jnp.maximum(t[1 + T:], 1e-30))]), mu, ap, aq, mu_min)
+        far = psi > TAIL_FROM * mu
+        Kd = K * dw
+        e_lobe = jnp.sum(jnp.where(far, Kd, 0.0))
+        e_taps = jnp.sum(jnp.where(far, F3 * dw, 0.0))
+        o_t = jnp.sum(jnp.where(far, Kd * ap, 0.0)) / jnp.maximum(e_lobe, 1e-30)
+        x = jnp.sin(aq / 2) ** 2 + jnp.cos(aq) * jnp.sin((ap - o_t) / 2) ** 2
+        rings = _ring_energy(Kd, psi, mu)
 
-    def one(prev, m, Kc, apc, aqc, dwc, pc):
-        sq = jnp.sqrt(dwc) * m
-        chi = jnp.arctan2(jnp.sin(aqc), jnp.cos(aqc) * jnp.sin(apc))    # azimuth from the plane, towards N
-        sector = jnp.where(jnp.abs(chi) < jnp.pi / 4, 0, jnp.where(jnp.abs(chi) > 3 * jnp.pi / 4, 1, 2))
-        e_lobe = _ring_energy(Kc * dwc, pc, sector, m)
-        p0 = prev.at[1:1 + T].add(m * spread)
-
-        def resid(p, _):
-            F = tail_kernel(p, m, apc, aqc, mu_min, mu_max)
-            r = ((F - Kc) * sq).ravel()
-            e = 3.0 * (_ring_energy(F * dwc, pc, sector, m) - e_lobe)
-            return jnp.concatenate([r, e, 1e-3 * p[3 + T:]])
-        sol = optx.least_squares(resid, solver, p0, max_steps=64, throw=False)
-        p = sol.value
-        F = tail_kernel(p, m, apc, aqc, mu_min, mu_max)
-        err = jnp.sum(jnp.abs(F - Kc) * dwc)
-        err0 = jnp.sum(jnp.abs(tail_kernel(p0, m, apc, aqc, mu_min, mu_max) - Kc) * dwc)
-        good = jnp.isfinite(err) & jnp.all(jnp.isfinite(p))
-        p, err = jnp.where(good, p, p0), jnp.where(good, err, err0)
-        idx = jnp.argsort(p[1:1 + T])                                       # taps ordered by offset
-        p = jnp.concatenate([p[:1], p[1:1 + T][idx], p[1 + T:3 + T], p[3 + T:3 + 2 * T][idx], p[3 + 2 * T:]])
-        return p, err, (sol.result == optx.RESULTS.successful) & good
-
-    def step(prev, xs):
-        p, err, ok = jax.vmap(one)(prev, mu, *xs)
-        return p, (p, err, ok)
-    p0 = jax.vmap(start)(taps[:, 0], mu)
-    xs = tuple(jnp.moveaxis(x, 1, 0) for x in (K, ap, aq, dw, psi))
-    _, (ps, errs, ok) = jax.lax.scan(step, p0, xs)
-    return ps, errs, ok                                                      # (C, B, ...)
+        def candidate(mt):
+            Ft = prefilter_kernel(x, mt)
+            e_t = jnp.sum(jnp.where(far, Ft * dw, 0.0))
+            gain = e_t - e_taps
+            w = jnp.clip((e_lobe - e_taps) / jnp.where(gain > 1e-6, gain, 1.0), 0.0, 0.9)
+            w = jnp.where((gain > 1e-6) & (mt > mu), w, 0.0)
+            err = jnp.sum((_ring_energy(((1.0 - w) * F3 + w * Ft) * dw, psi, mu) - rings) ** 2)
+            return w, err
+        ws, errs = jax.vmap(candidate)(levels)
+        i = jnp.argmin(errs)
+        l1 = jnp.sum(jnp.abs((1.0 - ws[i]) * F3 + ws[i] * prefilter_kernel(x, levels[i]) - K) * dw)
+        return jnp.stack([jnp.log(levels[i] / mu), o_t, ws[i], l1])
+    return jax.vmap(one)(cos_v, taps)
 
 
 def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int = 64, lobes: tuple = PAPER_LOBES,
              n_psi: int = 48, n_chi: int = 32):
-    """Three taps and a tail tap fitted per (cos θv, μ) to the regions' lobes ``lobes`` that are not the paper's.
+    """A tail tap per (cos θv, μ) for the regions' lobes ``lobes`` that are not the paper's.
 
     Three taps prefiltered with the paper's Gaussian (:func:`tap_fit`) hold a long-tailed lobe's core but not
-    its tails: GGX (Walter et al. 2007) keeps 1/(1 + k²) of its facet mass beyond a half-angle of k α, so a
-    third of the reflected light lies beyond 3 α from R, where the taps' Gaussian kernels hold almost nothing,
-    and an environment brighter there than near R (the sky around a sun) comes out too dark. The tail tap is a
-    fourth read of the environment, at its own, wider level, fitted jointly with the three (least squares on
-    the polar grid of :func:`polar_lobe_kernel`, which reaches the tails, for the kernel's shape and its energy
-    in rings around R; optimistix Levenberg–Marquardt), starting from ``taps`` (:func:`tap_fit`'s table).
+    its tails: GGX (Walter et al. 2007) keeps 1/(1 + k²) of its facet mass beyond a half-angle of k α, so
+    12–21 % of the reflected light lies beyond 4 μ from R, where the taps' Gaussian kernels hold almost
+    nothing, and an environment brighter there than near R (the sky around a sun) comes out too dark. The
+    tail tap is a fourth read of the environment at a wider prefiltered level: the shader reads
+    (1 − w_t) Σ_j w_j L̃_j + w_t L̃_t. On the polar grid of :func:`polar_lobe_kernel` (which reaches the
+    tails), its offset o_t is the in-plane mean angle of the lobe's light beyond :data:`TAIL_FROM` μ from R,
+    its weight w_t puts the lobe's energy beyond that radius back (energy of (1 − w_t) taps + w_t tail there
+    = the lobe's; w_t ≤ 0.9), and its level is, among the prefiltered levels wider than μ (``mus``), the one
+    whose mix best matches the lobe's energy in the rings :data:`TAIL_RINGS` around R (least squares). No
+    iteration: a choice among the levels the shader can read.
 
-    **Returns** ``(taps (2, n_mu, n_cos, 1 + 2T), tail (2, n_mu, n_cos, 3), l1 (2, n_mu, n_cos))``: per region
-    the three taps in :func:`tap_fit`'s layout (their weights summing to 1), the tail tap (s_t = log(μ_t/μ),
-    offset o_t towards N, weight w_t: the shader reads (1 − w_t) Σ_j w_j L̃_j + w_t L̃_t), and ∫ |K − fit| dω
-    on the polar grid; regions holding the paper's lobe keep ``taps`` with w_t = 0.
+    **Returns** ``(taps, tail (2, n_mu, n_cos, 3), l1 (2, n_mu, n_cos))``: ``taps`` unchanged (:func:`tap_fit`'s
+    layout), the tail tap (s_t = log(μ_t/μ), offset o_t towards N, weight w_t) and ∫ |K − mix| dω on the polar
+    grid; regions holding the paper's lobe get w_t = 0 (and l1 0: not evaluated there).
     """
     T = N_TAPS
     taps = np.array(taps, np.float64)
     tail = np.zeros(taps.shape[:3] + (3,))
     l1 = np.zeros(taps.shape[:3])
-    todo = [m for m, family in enumerate(lobes) if family not in PAPER_LOBES]
-    if not todo:
-        return taps, tail, l1
-    cos_c = np.maximum(np.linspace(0.0, 1.0, n_cos), 1e-3)[::-1]
     dt = conductor.n.dtype
-    kern = [_polar_kernels(lobes[m], jnp.asarray(mu, dt), conductor, jnp.asarray(cos_c, dt), n_psi, n_chi)
-            for m in todo for mu in mus]
-    K, ap, aq, dw, psi = (jnp.stack([k[i] for k in kern]) for i in range(5))
-    mu_b = jnp.asarray(np.tile(np.asarray(mus, np.float64), len(todo)), dt)
-    t3 = taps[todo][:, :, ::-1].reshape(len(todo) * len(mus), n_cos, -1).copy()
-    t3[..., 1 + T:] = np.log(np.maximum(t3[..., 1 + T:], 1e-12))
-    ps, errs, _ = _tail_fit_scan(K, ap, aq, dw, psi, jnp.asarray(t3, dt), mu_b,
-                                 jnp.asarray(float(np.min(mus)), dt), jnp.asarray(float(np.max(mus)), dt))
-    ps = np.asarray(ps, np.float64)[::-1].transpose(1, 0, 2).reshape(len(todo), len(mus), n_cos, -1)
-    w = np.exp(ps[..., 3 + T:] - ps[..., 3 + T:].max(-1, keepdims=True))
-    w /= w.sum(-1, keepdims=True)
-    mu_t = np.clip(np.asarray(mus)[None, :, None] * np.exp(ps[..., 1 + T]), np.min(mus), np.max(mus))
-    for i, m in enumerate(todo):
-        taps[m] = np.concatenate([ps[i, ..., :1 + T], w[i, ..., :T] / w[i, ..., :T].sum(-1, keepdims=True)], -1)
-        tail[m] = np.stack([np.log(mu_t[i] / np.asarray(mus)[:, None]), ps[i, ..., 2 + T], w[i, ..., T]], -1)
-    l1[todo] = np.asarray(errs, np.float64)[::-1].T.reshape(len(todo), len(mus), n_cos)
+    cos_c = jnp.asarray(np.maximum(np.linspace(0.0, 1.0, n_cos), 1e-3), dt)
+    levels = jnp.asarray(np.asarray(mus, np.float64), dt)
+    mu_min = jnp.asarray(float(np.min(mus)), dt)
+    for m, family in enumerate(lobes):
+        if family in PAPER_LOBES:
+            continue
+        for k, mu in enumerate(mus):
+            rows = np.array(_tail_rows(family, jnp.asarray(mu, dt), conductor, cos_c,
+                                        jnp.asarray(taps[m, k], dt), levels, mu_min, n_psi, n_chi), np.float64)
+            rows[:, 0] = np.where(rows[:, 2] > 0, rows[:, 0], 0.0)     # no wider level: no tail, s_t = 0
+            tail[m, k], l1[m, k] = rows[:, :3], rows[:, 3]
     return taps, tail, l1
 
 
 #: The functions whose source text keys the tail table (:func:`jkatana.interactive.tables.cached_tail_fit`).
-TAIL_SOURCES = (polar_lobe_kernel, tail_kernel, _polar_kernels, _ring_energy, _tail_fit_scan, tail_fit)
+TAIL_SOURCES = (polar_lobe_kernel, tail_kernel, _ring_energy, _tail_rows, tail_fit)
 
 
 #: The fitted pattern is used where its filter width μ_e spans at least this many texels of the map.

@@ -62,5 +62,5 @@ for name, bk in (("tail tap", baked), ("three taps (before)", dataclasses.replac
             out = Path(os.environ["SAVE"]); out.mkdir(exist_ok=True, parents=True)
             tag = "tail" if name == "tail tap" else "before"
             de = A.compare(img, ref, mm)[1]
-            iio.imwrite(out / f"glint-{tag}.png", np.concatenate([img[..., :3], ref[..., :3],
+            iio.imwrite(out / f"glint-{tag}.png", np.concatenate([img[..., :3].astype(np.uint8), ref[..., :3].astype(np.uint8),
                         np.repeat(np.clip(np.nan_to_num(de) * 40, 0, 255)[..., None], 3, -1).astype(np.uint8)], 1))
