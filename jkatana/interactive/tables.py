@@ -133,10 +133,9 @@ def cached_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None, lobes:
 
 
 def cached_tail_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None, lobes: tuple = PAPER_LOBES):
-    """``(taps, tail, l1)``: :func:`~jkatana.interactive.taps.tail_fit` (three taps and a tail tap for the
-    regions holding a lobe other than the paper's) started from :func:`cached_tap_fit`'s table, cached in the
-    user cache. Key: :func:`tap_fit_key`'s and the source of
-    :data:`~jkatana.interactive.taps.TAIL_SOURCES`. Regions holding the paper's lobes keep the three-tap table
+    """``(taps, tail, l1)``: :func:`~jkatana.interactive.taps.tail_fit` (a tail tap for the regions holding a
+    lobe other than the paper's, beside :func:`cached_tap_fit`'s three taps), cached in the user cache. Key:
+    :func:`tap_fit_key`'s and the source of :data:`~jkatana.interactive.taps.TAIL_SOURCES`. Regions holding the paper's lobes keep the three-tap table
     (w_t = 0); with the paper's lobes in both regions nothing is fitted."""
     import hashlib
     import inspect

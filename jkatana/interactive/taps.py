@@ -8,10 +8,9 @@ each at a fitted level width, with fitted weights (:func:`tap_fit`): filtered
 importance sampling (Křivánek & Colbert 2008) with a pattern fitted to the
 lobe instead of drawn from it. Where the map cannot resolve a fitted level
 the moment-matched pattern is used instead (:func:`resolved_taps`). For a
-region holding a long-tailed lobe (GGX, GTR, …: not the paper's) the three
-taps and a fourth, wider one — the tail tap — are fitted together to the
-whole lobe (:func:`tail_fit`), so the light in its tails is read where the
-lobe has it.
+region holding a long-tailed lobe (GGX, GTR, …: not the paper's) a fourth,
+wider read — the tail tap (:func:`tail_fit`) — puts the light of the lobe's
+tails, which the three taps miss, back where the lobe has it.
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@
 // JK_CAP_TABLE (where a region holds a lobe other than the paper's: the caps through the bake's table of the
 // cap integrated against each region's lobe, jkatana.interactive.captable, instead of the moments' Gaussian),
 // JK_TAIL (with JK_TAP_FIT, where a region holds a long-tailed lobe: a fourth read, the tail tap, at a wider
-// level, fitted with the three taps to the lobe's whole kernel, jkatana.interactive.taps.tail_fit).
+// level, putting back the light of the lobe's tails that the three taps miss, jkatana.interactive.taps.tail_fit).
 
 uniform vec3 cam_pos;
 uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
