@@ -403,13 +403,11 @@ def test_gl_frame_renders_the_lobes_of_parameter_files(glr, tmp_path):
 
 @pytest.mark.gl
 @pytest.mark.slow          # ~2 min on 2 loaded cores: a 256-spp reference, tap fits for two lobe families (cached)
-@pytest.mark.xfail(strict=True, reason="with the caps through the kernel table: ΔE2000 mean 1.13, p95 2.75; on a "
-                   "uniform GGX map the remainder's share is ~9 % too dark: the three fitted taps miss the "
-                   "remainder's light in GGX's tails")
 def test_sun_glint_on_parameter_files_lobes_under_a_real_hdr(glr, tmp_path):
     """A sun (split cap) on regions holding non-paper lobes: GGX hiraji (α 0.05) and Beckmann hamon (α 0.12)
     from parameter files under ``sunrise.exr``, at its sun-glint view; the GL frame against jkatana.render
-    (reference mode, the same files) within the agreement bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5)."""
+    (reference mode, the same files) within the agreement bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5): the caps through the
+    kernel table, the remainder through three taps and GGX's tail tap (taps.tail_fit)."""
     from jkatana.interactive.lobe_tables import region_lobes
     from jkatana.render.film import auto_exposure
     from jkatana.render.renderer import render_view

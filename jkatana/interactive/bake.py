@@ -25,7 +25,9 @@ one module per table:
    (:mod:`jkatana.interactive.lobe_tables`), and the tap pattern the shader
    reads the levels with (:mod:`jkatana.interactive.taps`); these do not depend
    on the environment and are cached and shipped
-   (:mod:`jkatana.interactive.tables`);
+   (:mod:`jkatana.interactive.tables`); for a region holding a long-tailed lobe
+   (not the paper's) a fourth, wider tail tap beside the three taps
+   (:func:`jkatana.interactive.taps.tail_fit`);
 4. compact bright sources (suns) split off the map as caps, each a shader
    uniform integrated against the lobe in closed form
    (:mod:`jkatana.interactive.caps`) — or, where a region holds a lobe other
@@ -51,7 +53,7 @@ from jkatana.interactive.captable import cap_kernel_table, needs_table
 from jkatana.interactive.levels import MU_LEVELS, prefilter_level, upsample
 from jkatana.interactive.lobe_tables import PAPER_LOBES, family_names
 from jkatana.interactive.tables import MAX_RANK as MAX_RANK, cache_folder, load_entry, save_entry
-from jkatana.interactive.tables import cached_material_tables, cached_tap_fit
+from jkatana.interactive.tables import cached_material_tables, cached_tail_fit, cached_tap_fit
 from jkatana.interactive.taps import resolved_taps
 from jkatana.models import Conductor
 from jkatana.render.film import film_weights
@@ -82,6 +84,9 @@ class Baked:
     - ``cap_kernel`` ``(2, n_mu, n_cos, n_v, n_u)``: the caps' kernel table of the regions' lobes
       (:func:`~jkatana.interactive.captable.cap_kernel_table`) where a region holds a lobe other than the
       paper's and the map has a cap; ``(0,)`` otherwise (the shader's closed-form cap rule).
+    - ``tail`` ``(2, n_mu, n_cos, 3)``: the tail tap (s_t, o_t, w_t) of regions holding a lobe other than the
+      paper's (:func:`~jkatana.interactive.taps.tail_fit`, read beside their three ``taps``); w_t = 0 elsewhere,
+      and all zero for the paper's lobes (the shader has no tail code then).
     """
 
     env: np.ndarray
@@ -100,6 +105,7 @@ class Baked:
     cap_radius: np.ndarray
     cap_q: np.ndarray
     cap_kernel: np.ndarray
+    tail: np.ndarray
 
     @property
     def rank(self) -> int:
@@ -214,7 +220,10 @@ def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_
     env = np.stack([upsample(lv.astype(np.float32), H, Wd) for lv in levels])        # (n_mu, H, W, r*3)
     env = env.reshape(len(mus), H, Wd, rank, 3).transpose(0, 3, 1, 2, 4)
     taps, tap_l1, tap_ok = cached_tap_fit(conductor, mus, lut.shape[2], cache_dir, lobes)
-    taps = resolved_taps(taps, spread, mus, radiance.shape[0])
+    tail = np.zeros(taps.shape[:3] + (3,))
+    if any(family not in PAPER_LOBES for family in lobes):
+        taps, tail, _ = cached_tail_fit(conductor, mus, lut.shape[2], cache_dir, lobes)
+    taps, tail = resolved_taps(taps, spread, mus, radiance.shape[0], tail)
     cap_kernel = np.zeros((0,))
     if len(cap_radius) and needs_table(lobes):
         cap_kernel = cap_kernel_table(tuple(lobes), mus, float(np.max(cap_radius)), conductor)
@@ -223,4 +232,4 @@ def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_
                  xyz_to_rgb=xyz_to_rgb_matrix(colourspace),
                  transfer=transfer_table(colourspace if transfer is None else transfer),
                  colourspace=colourspace, cap_dir=cap_dir, cap_radius=cap_radius, cap_q=cap_q,
-                cap_kernel=cap_kernel), levels
+                cap_kernel=cap_kernel, tail=tail), levels

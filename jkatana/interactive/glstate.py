@@ -82,13 +82,15 @@ def _rgba(x: np.ndarray) -> np.ndarray:
 
 
 def lut_layers(b: Baked, rank: int) -> np.ndarray:
-    """The lobe table and tap patterns as the shader's 2-D array texture ``(8, n_mu, n_cos, 4)``: layers 0, 1
+    """The lobe table and tap patterns as the shader's 2-D array texture ``(8, n_mu, n_cos, 4)`` (10 layers
+    with a tail tap: 8, 9 hold hiraji's, hamon's (s_t, o_t, w_t), :func:`~jkatana.interactive.taps.tail_fit`):
+    layers 0, 1
     the lobe tables A of hiraji, hamon (:func:`~jkatana.interactive.lobe_tables.lobe_lut`); 2, 3 their lobe
     shapes; 4, 5 the fitted taps' log(μ_e/μ) and offsets; 6, 7 their weights
     (:func:`~jkatana.interactive.taps.tap_fit`). At ``rank`` ≤ 2 layers 0, 1 have room: the first and last tap weight ride there in place of A_2, A_3 and
     the middle one is 1 − their sum (tap_fit normalises the weights), so the shader reads two layers fewer
     per pixel (``JK_RANK`` ≤ 2 in ``shade.glsl``)."""
-    lut = np.zeros((8,) + b.lut.shape[1:-1] + (MAX_RANK,))
+    lut = np.zeros((10 if has_tail(b) else 8,) + b.lut.shape[1:-1] + (MAX_RANK,))
     lut[:2, ..., :b.rank] = b.lut
     lut[2, ..., :3] = b.spread[0]
     lut[3, ..., :3] = b.spread[1]
@@ -97,7 +99,14 @@ def lut_layers(b: Baked, rank: int) -> np.ndarray:
     lut[6:8, ..., :T] = b.taps[:, ..., 1 + T:]
     if rank <= 2 and T == 3:
         lut[:2, ..., 2:4] = b.taps[:, ..., [1 + T, 2 * T]]
+    if has_tail(b):
+        lut[8:10, ..., :3] = b.tail
     return lut
+
+
+def has_tail(b: Baked) -> bool:
+    """Whether the bake has a tail tap anywhere (a region holding a long-tailed lobe, ``Baked.tail``)."""
+    return bool(np.any(b.tail[..., 2] > 0))
 
 
 class ShadingState:
@@ -114,7 +123,8 @@ class ShadingState:
       are a static switch too (``JK_CAPS``, their number; 0: no cap code), and so is their kernel table
       (``JK_CAP_TABLE``: rough shading of a bake with a cap whose regions hold lobes other than the paper's,
       :mod:`jkatana.interactive.captable`; a 3-D texture (û, v̂, (region, μ level, cos θv)) after the
-      environment textures).
+      environment textures). With the fitted taps, a bake whose regions hold a long-tailed lobe adds a tail
+      tap (``JK_TAIL``: a fourth environment read at a wider level, :func:`jkatana.interactive.taps.tail_fit`).
     - `env_format`: GL internal format of the environment textures (:data:`ENV_FORMAT`).
     """
 
@@ -146,7 +156,8 @@ class ShadingState:
         return {"JK_RANK": self.rank, "JK_ROUGH": int(self.rough), "JK_BLEND": int(self.blend),
                 "JK_CAPS": self.baked.n_caps, "JK_CAP_TABLE": int(self.cap_table),
                 "JK_TWO_TAP": int(self.two_tap and self.rough), "JK_TAPS": self.taps,
-                "JK_TAP_FIT": int(self.fit and self.two_tap and self.rough and self.taps == 3)}
+                "JK_TAP_FIT": int(self.fit and self.two_tap and self.rough and self.taps == 3),
+                "JK_TAIL": int(self.fit and self.two_tap and self.rough and self.taps == 3 and has_tail(self.baked))}
 
     @property
     def cap_table(self) -> bool:
@@ -169,7 +180,7 @@ class ShadingState:
             n_mu, rank, H, W, _ = b.env.shape
             lut = lut_layers(b, self.rank)
             self._textures[key] = (
-                _tex_array(lut),                                         # (8, n_mu, n_cos, 4)
+                _tex_array(lut),                                         # (8 or 10, n_mu, n_cos, 4)
                 _tex_2d(_rgba(self.refl_map)),
                 _tex_2d(_rgba(np.asarray(b.transfer, np.float64)[None, :, None])),
                 *(_tex_3d(_rgba(b.env[:, r]), self.env_format) for r in range(rank)),     # (n_mu, H, W, 4) each

@@ -22,7 +22,7 @@ import numpy as np
 
 from jkatana.interactive.levels import MU_LEVELS
 from jkatana.interactive.lobe_tables import LUT_SOURCES, PAPER_LOBES, family_names, lobe_lut
-from jkatana.interactive.taps import FIT_SOURCES, N_TAPS, tap_fit
+from jkatana.interactive.taps import FIT_SOURCES, N_TAPS, TAIL_SOURCES, tail_fit, tap_fit
 from jkatana.light.fresnel_basis import basis_of_table, fresnel_basis
 from jkatana.models import Conductor
 from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
@@ -130,6 +130,29 @@ def cached_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None, lobes:
     _, taps, l1, ok = tap_fit(conductor, mus, n_cos=n_cos, lobes=lobes)
     save_entry(path, cache_dir, taps=taps, l1=l1, ok=ok)
     return taps, l1, ok
+
+
+def cached_tail_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None, lobes: tuple = PAPER_LOBES):
+    """``(taps, tail, l1)``: :func:`~jkatana.interactive.taps.tail_fit` (a tail tap for the regions holding a
+    lobe other than the paper's, beside :func:`cached_tap_fit`'s three taps), cached in the user cache. Key:
+    :func:`tap_fit_key`'s and the source of :data:`~jkatana.interactive.taps.TAIL_SOURCES`. Regions holding the paper's lobes keep the three-tap table
+    (w_t = 0); with the paper's lobes in both regions nothing is fitted."""
+    import hashlib
+    import inspect
+
+    taps, _, _ = cached_tap_fit(conductor, mus, n_cos, cache_dir, lobes)
+    if all(family in PAPER_LOBES for family in lobes):
+        return tail_fit(conductor, taps, mus, n_cos, lobes)
+    h = hashlib.sha256(tap_fit_key(conductor, mus, n_cos, lobes).encode())
+    for f in TAIL_SOURCES:
+        h.update(inspect.getsource(f).encode())
+    path = cache_folder(cache_dir) / f"tail-{h.hexdigest()[:24]}.npz"
+    found = load_entry(path, lambda z: (z["taps"], z["tail"], z["l1"]))
+    if found is not None:
+        return found
+    taps, tail, l1 = tail_fit(conductor, taps, mus, n_cos, lobes)
+    save_entry(path, cache_dir, taps=taps, tail=tail, l1=l1)
+    return taps, tail, l1
 
 
 def cached_material_tables(conductor: Conductor, rank: int, mus, cache_dir=None, lobes: tuple = PAPER_LOBES):

@@ -7,7 +7,10 @@ directions rotated from the mirror direction R in the plane of incidence,
 each at a fitted level width, with fitted weights (:func:`tap_fit`): filtered
 importance sampling (Křivánek & Colbert 2008) with a pattern fitted to the
 lobe instead of drawn from it. Where the map cannot resolve a fitted level
-the moment-matched pattern is used instead (:func:`resolved_taps`).
+the moment-matched pattern is used instead (:func:`resolved_taps`). For a
+region holding a long-tailed lobe (GGX, GTR, …: not the paper's) a fourth,
+wider read — the tail tap (:func:`tail_fit`) — puts the light of the lobe's
+tails, which the three taps miss, back where the lobe has it.
 """
 
 from __future__ import annotations
@@ -181,11 +184,152 @@ def tap_fit(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64, n: int = 32, l
     return cos, taps, l1, ok
 
 
+#: Reach of :func:`polar_lobe_kernel`'s grid in widths μ: GGX keeps 1/(1 + 24²) ≈ 0.2 % of its facet
+#: distribution's mass beyond a half-angle of 24 α (Walter et al. 2007, eq. 33).
+TAIL_REACH = 48.0
+#: Radius (in μ) beyond which :func:`tail_fit` puts the lobe's energy back with the tail tap.
+TAIL_FROM = 4.0
+#: Edges (in μ) of the rings around R whose energies :func:`tail_fit`'s choice of level matches.
+TAIL_RINGS = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 48.0)
+
+
+def polar_lobe_kernel(model, conductor: Conductor, cos_v, n_psi: int = 48, n_chi: int = 32, width=None):
+    """The reflected lobe of ``model`` as a normalised kernel around R on a polar grid reaching its tails.
+
+    Angle ψ from R (ψ = ψ_max u², u uniform: nodes dense at the peak; ψ_max = min(:data:`TAIL_REACH` μ, π))
+    and azimuth χ from the plane of incidence (χ = 0 towards N), so that L = cos ψ R + sin ψ (cos χ t +
+    sin χ y) with t, y as :func:`lobe_kernel`'s, dω = sin ψ dψ dχ. The kernel is the lobe's f_r cos θi
+    (``model.brdf_cos`` summed over λ) at V = (sin θv, 0, cos θv), normalised so that Σ K dω = 1: unlike
+    :func:`lobe_kernel`'s ±14 μ box it holds a long-tailed lobe's far tails (GGX, GTR), whose light the
+    lobe table's energy (:func:`~jkatana.interactive.lobe_tables.lobe_integral` with ``tails``) counts.
+
+    **Returns** ``(K, a_par, a_perp, dω, ψ)``, each ``(n_psi, n_chi)``; a_par, a_perp as :func:`lobe_kernel`'s.
+    """
+    dt = conductor.n.dtype
+    mu = jnp.asarray(model.mu if width is None else width, dt)
+    cv = jnp.asarray(cos_v, dt)
+    sv = jnp.sqrt(jnp.maximum(1.0 - cv ** 2, 0.0))
+    V = jnp.stack([sv, jnp.zeros_like(sv), cv])
+    R = jnp.stack([-sv, jnp.zeros_like(sv), cv])
+    tt = jnp.asarray([0.0, 0.0, 1.0], dt) - cv * R
+    tn = jnp.linalg.norm(tt)
+    t = jnp.where(tn > 1e-9, tt / jnp.maximum(tn, 1e-12), jnp.asarray([1.0, 0.0, 0.0], dt))
+    y = jnp.cross(R, t)
+    top = jnp.minimum(TAIL_REACH * mu, jnp.pi)
+    u = (jnp.arange(n_psi, dtype=dt) + 0.5) / n_psi
+    chi = (jnp.arange(n_chi, dtype=dt) + 0.5) / n_chi * 2 * jnp.pi
+    psi, ch = jnp.meshgrid(top * u * u, chi, indexing="ij")
+    st, ct = jnp.sin(psi), jnp.cos(psi)
+    L = ct[..., None] * R + (st * jnp.cos(ch))[..., None] * t + (st * jnp.sin(ch))[..., None] * y
+    f = model.brdf_cos(L, jnp.broadcast_to(V, L.shape), conductor).sum(-1)
+    dw = st * (2 * top * u / n_psi)[:, None] * (2 * jnp.pi / n_chi)
+    K = f / jnp.maximum(jnp.sum(f * dw), 1e-30)
+    a_par = jnp.arctan2(st * jnp.cos(ch), ct)
+    a_perp = jnp.arcsin(jnp.clip(st * jnp.sin(ch), -1.0, 1.0))
+    return K, a_par, a_perp, dw, psi
+
+
+def tail_kernel(params, mu, ap, aq, mu_min: Float[ArrayLike, ""], mu_max: Float[ArrayLike, ""]):
+    """The shader's kernel with a tail tap, for ``(s, o_1..o_3, s_t, o_t, l_1..l_3, l_t)``: the three taps of
+    :func:`tap_kernel` (width μ e^s, offsets o_j, weights ∝ e^{l_j}) and a fourth, the tail tap, at offset o_t
+    read at its own width μ_t = μ e^{s_t} clamped to [mu_min, mu_max] (the widest prefiltered level); the four
+    weights are softmax(l), the tail's w_t = softmax(l)_4."""
+    T = N_TAPS
+    core = jnp.concatenate([params[:1 + T], params[3 + T:3 + 2 * T]])
+    w = jax.nn.softmax(params[3 + T:])
+    s_t, o_t = params[1 + T], params[2 + T]
+    mu_t = jnp.clip(mu * jnp.exp(s_t), mu_min, mu_max)
+    x = jnp.sin(aq / 2) ** 2 + jnp.cos(aq) * jnp.sin((ap - o_t) / 2) ** 2
+    return (1.0 - w[T]) * tap_kernel(core, mu, ap, aq, mu_min) + w[T] * prefilter_kernel(x, mu_t)
+
+
+def _ring_energy(Kdw, psi, mu):
+    """Σ K dω per ring of ψ/μ between :data:`TAIL_RINGS` (the energies the tail tap matches)."""
+    ring = jnp.searchsorted(jnp.asarray(TAIL_RINGS[1:-1], psi.dtype), psi / mu)
+    return jnp.zeros(len(TAIL_RINGS) - 1, Kdw.dtype).at[ring.ravel()].add(Kdw.ravel())
+
+
+@functools.partial(jax.jit, static_argnames=("family", "n_psi", "n_chi"))
+def _tail_rows(family, mu, conductor, cos_v, taps, levels, mu_min, n_psi: int, n_chi: int):
+    """The tail tap ``(s_t, o_t, w_t)`` per cos θv for the lobe ``family(mu)`` read by the three taps ``taps
+    (C, 1 + 2T)`` (weights, not logits), candidates the prefiltered ``levels``; see :func:`tail_fit`. Rows
+    ``(s_t, o_t, w_t, ∫ |K − mix| dω)``."""
+    T = N_TAPS
+
+    def one(cv, t):
+        K, ap, aq, dw, psi = polar_lobe_kernel(family(mu), conductor, cv, n_psi, n_chi, width=mu)
+        F3 = tap_kernel(jnp.concatenate([t[:1 + T], jnp.log(jnp.maximum(t[1 + T:], 1e-30))]), mu, ap, aq, mu_min)
+        far = psi > TAIL_FROM * mu
+        Kd = K * dw
+        e_lobe = jnp.sum(jnp.where(far, Kd, 0.0))
+        e_taps = jnp.sum(jnp.where(far, F3 * dw, 0.0))
+        o_t = jnp.sum(jnp.where(far, Kd * ap, 0.0)) / jnp.maximum(e_lobe, 1e-30)
+        x = jnp.sin(aq / 2) ** 2 + jnp.cos(aq) * jnp.sin((ap - o_t) / 2) ** 2
+        rings = _ring_energy(Kd, psi, mu)
+
+        def candidate(mt):
+            Ft = prefilter_kernel(x, mt)
+            e_t = jnp.sum(jnp.where(far, Ft * dw, 0.0))
+            gain = e_t - e_taps
+            w = jnp.clip((e_lobe - e_taps) / jnp.where(gain > 1e-6, gain, 1.0), 0.0, 0.9)
+            w = jnp.where((gain > 1e-6) & (mt > mu), w, 0.0)
+            err = jnp.sum((_ring_energy(((1.0 - w) * F3 + w * Ft) * dw, psi, mu) - rings) ** 2)
+            return w, err
+        ws, errs = jax.vmap(candidate)(levels)
+        i = jnp.argmin(errs)
+        l1 = jnp.sum(jnp.abs((1.0 - ws[i]) * F3 + ws[i] * prefilter_kernel(x, levels[i]) - K) * dw)
+        return jnp.stack([jnp.log(levels[i] / mu), o_t, ws[i], l1])
+    return jax.vmap(one)(cos_v, taps)
+
+
+def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int = 64, lobes: tuple = PAPER_LOBES,
+             n_psi: int = 48, n_chi: int = 32):
+    """A tail tap per (cos θv, μ) for the regions' lobes ``lobes`` that are not the paper's.
+
+    Three taps prefiltered with the paper's Gaussian (:func:`tap_fit`) hold a long-tailed lobe's core but not
+    its tails: GGX (Walter et al. 2007) keeps 1/(1 + k²) of its facet mass beyond a half-angle of k α, so
+    12–21 % of the reflected light lies beyond 4 μ from R, where the taps' Gaussian kernels hold almost
+    nothing, and an environment brighter there than near R (the sky around a sun) comes out too dark. The
+    tail tap is a fourth read of the environment at a wider prefiltered level: the shader reads
+    (1 − w_t) Σ_j w_j L̃_j + w_t L̃_t. On the polar grid of :func:`polar_lobe_kernel` (which reaches the
+    tails), its offset o_t is the in-plane mean angle of the lobe's light beyond :data:`TAIL_FROM` μ from R,
+    its weight w_t puts the lobe's energy beyond that radius back (energy of (1 − w_t) taps + w_t tail there
+    = the lobe's; w_t ≤ 0.9), and its level is, among the prefiltered levels wider than μ (``mus``), the one
+    whose mix best matches the lobe's energy in the rings :data:`TAIL_RINGS` around R (least squares). No
+    iteration: a choice among the levels the shader can read.
+
+    **Returns** ``(taps, tail (2, n_mu, n_cos, 3), l1 (2, n_mu, n_cos))``: ``taps`` unchanged (:func:`tap_fit`'s
+    layout), the tail tap (s_t = log(μ_t/μ), offset o_t towards N, weight w_t) and ∫ |K − mix| dω on the polar
+    grid; regions holding the paper's lobe get w_t = 0 (and l1 0: not evaluated there).
+    """
+    T = N_TAPS
+    taps = np.array(taps, np.float64)
+    tail = np.zeros(taps.shape[:3] + (3,))
+    l1 = np.zeros(taps.shape[:3])
+    dt = conductor.n.dtype
+    cos_c = jnp.asarray(np.maximum(np.linspace(0.0, 1.0, n_cos), 1e-3), dt)
+    levels = jnp.asarray(np.asarray(mus, np.float64), dt)
+    mu_min = jnp.asarray(float(np.min(mus)), dt)
+    for m, family in enumerate(lobes):
+        if family in PAPER_LOBES:
+            continue
+        for k, mu in enumerate(mus):
+            rows = np.array(_tail_rows(family, jnp.asarray(mu, dt), conductor, cos_c,
+                                        jnp.asarray(taps[m, k], dt), levels, mu_min, n_psi, n_chi), np.float64)
+            rows[:, 0] = np.where(rows[:, 2] > 0, rows[:, 0], 0.0)     # no wider level: no tail, s_t = 0
+            tail[m, k], l1[m, k] = rows[:, :3], rows[:, 3]
+    return taps, tail, l1
+
+
+#: The functions whose source text keys the tail table (:func:`jkatana.interactive.tables.cached_tail_fit`).
+TAIL_SOURCES = (polar_lobe_kernel, tail_kernel, _ring_energy, _tail_rows, tail_fit)
+
+
 #: The fitted pattern is used where its filter width μ_e spans at least this many texels of the map.
 MIN_FIT_TEXELS = 2.0
 
 
-def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int) -> np.ndarray:
+def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int, tail: np.ndarray | None = None):
     """The fitted taps where the map resolves them, the moment-matched ones elsewhere.
 
     The fit (:func:`tap_fit`) models each tap as the continuous prefilter kernel of width μ_e; the
@@ -194,11 +338,15 @@ def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int) -> np.
     shape, and a small bright source (a sun of ~2 texels) lands on whichever texel the fitted offsets
     happen to hit; the moment pattern, wider, averages over it (the sun-glint view of
     ``experiments/interactive_agreement.py`` compares both). So per table entry: fitted if
-    μ e^s ≥ MIN_FIT_TEXELS·π/height, else moments.
+    μ e^s ≥ MIN_FIT_TEXELS·π/height, else moments. With a ``tail`` table (:func:`tail_fit`) also returns it,
+    its weight 0 where the moments are used (their pattern is the whole lobe's).
     """
     mu_e = np.asarray(mus, np.float64)[None, :, None] * np.exp(taps[..., 0])
     use = mu_e >= MIN_FIT_TEXELS * np.pi / height
-    return np.where(use[..., None], taps, moment_taps(spread))
+    out = np.where(use[..., None], taps, moment_taps(spread))
+    if tail is None:
+        return out
+    return out, np.where(use[..., None], tail, 0.0)
 
 
 #: The functions whose source text keys the tap table (:func:`jkatana.interactive.tables.tap_fit_key`).

@@ -30,7 +30,9 @@
 // anisotropic Gaussian with the lobe's moments, jk_caps_xyz; its NumPy twin
 // jkatana.interactive.caprule.cap_response is tested against jkatana.light.capquad.cap_integral of the models),
 // JK_CAP_TABLE (where a region holds a lobe other than the paper's: the caps through the bake's table of the
-// cap integrated against each region's lobe, jkatana.interactive.captable, instead of the moments' Gaussian).
+// cap integrated against each region's lobe, jkatana.interactive.captable, instead of the moments' Gaussian),
+// JK_TAIL (with JK_TAP_FIT, where a region holds a long-tailed lobe: a fourth read, the tail tap, at a wider
+// level, putting back the light of the lobe's tails that the three taps miss, jkatana.interactive.taps.tail_fit).
 
 uniform vec3 cam_pos;
 uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
@@ -289,10 +291,17 @@ vec4 jk_shade(vec3 N, vec3 Vd, vec2 uv)
         // with the taps' total weight 1 (an approximation: their anisotropic blur is dropped; bench_interactive
         // measures the ΔE2000 of every agreement view)
         vec3 p1 = env_coord(cos(tp.z) * R + sin(tp.z) * tn, lz);
-        xyz = a.x * (tw.x * textureLod(jk_env0, env_coord(cos(tp.y) * R + sin(tp.y) * tn, lz), 0.0).rgb
-                     + tw.y * textureLod(jk_env0, p1, 0.0).rgb
-                     + tw.z * textureLod(jk_env0, env_coord(cos(tp.w) * R + sin(tp.w) * tn, lz), 0.0).rgb)
-            + env_rest(p1, a);
+        vec3 core = tw.x * textureLod(jk_env0, env_coord(cos(tp.y) * R + sin(tp.y) * tn, lz), 0.0).rgb
+                    + tw.y * textureLod(jk_env0, p1, 0.0).rgb
+                    + tw.z * textureLod(jk_env0, env_coord(cos(tp.w) * R + sin(tp.w) * tn, lz), 0.0).rgb;
+#if JK_TAIL
+        // the tail tap of long-tailed lobes (jkatana.interactive.taps.tail_fit; layers 8, 9: log(μ_t/μ), offset,
+        // weight w_t): the first basis function read once more, at the tail's own, wider level
+        vec3 tt = w * lobe(8.0, cv, lf).rgb + (1.0 - w) * lobe(9.0, cv, lt).rgb;
+        float lzt = (clamp(mix(lt, lf, w) + tt.x / jk_log_mu_step, 0.0, jk_n_levels - 1.0) + 0.5) / jk_n_levels;
+        core = mix(core, textureLod(jk_env0, env_coord(cos(tt.y) * R + sin(tt.y) * tn, lzt), 0.0).rgb, tt.z);
+#endif
+        xyz = a.x * core + env_rest(p1, a);
 #elif JK_TWO_TAP && JK_TAPS == 5
         // five binomial taps (1, 4, 6, 4, 1)/16 at mean, mean ± spread, mean ± 2·spread: the lobe's mean and
         // variance, a kernel closer to the lobe's own shape than three taps
