@@ -472,10 +472,13 @@ def _beckmann_visible_slope(cot, u):
     cot = jnp.minimum(cot, _COT_MAX)
     c = jax.scipy.special.erf(cot)
     den = cot * (1.0 + c) + jnp.exp(-cot * cot) * (1.0 / math.sqrt(math.pi))
-    theta = jnp.arctan2(jnp.ones_like(cot), cot)
+    # the start's view angle θ = atan(1/cot θ) to ±0.004 rad (a start only: the steps correct it)
+    z = jnp.where(cot >= 1.0, 1.0 / jnp.maximum(cot, 1.0), cot)
+    at = z * (math.pi / 4 + 0.273 * (1.0 - z))
+    theta = jnp.where(cot >= 1.0, at, math.pi / 2 - at)
     fit = 1.0 + theta * (-0.876 + theta * (0.4265 - 0.0594 * theta))
     u = jnp.clip(u, 0.0, U_MAX)
-    b = c - (1.0 + c) * jnp.power(1.0 - u, fit)
+    b = c - (1.0 + c) * jnp.exp(fit * jnp.log1p(-u))
     lo, hi = jnp.full_like(b, -1.0), c
     for _ in range(BECKMANN_NEWTON_STEPS):
         b = jnp.clip(jnp.where((b >= lo) & (b <= hi), b, 0.5 * (lo + hi)), eps - 1.0, 1.0 - eps)
