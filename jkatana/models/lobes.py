@@ -103,8 +103,20 @@ def reflect(V: Float[Array, "*#b 3"], h: Float[Array, "*#b 3"]) -> Float[Array, 
     return 2.0 * jnp.sum(V * h, -1, keepdims=True) * h - V
 
 
+def _vec3(x, y, z):
+    """The vectors (x, y, z) ``(*b, 3)`` as x e_x + y e_y + z e_z (exact: products with 0 and 1).
+
+    Broadcast rather than ``jnp.stack``: XLA's CPU backend fuses a stack's
+    operands into one loop over the ``(*b, 3)`` output that evaluates every
+    component's whole producer per output element, unvectorised (a Beckmann
+    visible-normal sample: 180 ns per normal stacked, 29 ns broadcast).
+    """
+    e = jnp.eye(3, dtype=jnp.result_type(x, y, z))
+    return x[..., None] * e[0] + y[..., None] * e[1] + z[..., None] * e[2]
+
+
 def _from_polar(cos_t, sin_t, psi):
-    return jnp.stack([sin_t * jnp.cos(psi), sin_t * jnp.sin(psi), cos_t], -1)
+    return _vec3(sin_t * jnp.cos(psi), sin_t * jnp.sin(psi), cos_t)
 
 
 def _split(u):
@@ -539,7 +551,7 @@ class Beckmann(_VisibleMicrofacet):
         y = jax.scipy.special.erfinv(jnp.clip(2.0 * u2 - 1.0, eps - 1.0, 1.0 - eps))
         sx, sy = a * (cos_v * x - sin_v * y), a * (sin_v * x + cos_v * y)
         c = jax.lax.rsqrt(1.0 + sx * sx + sy * sy)
-        return jnp.stack([-sx * c, -sy * c, c], -1)
+        return _vec3(-sx * c, -sy * c, c)
 
 
 def _smith_g1_ggx(cos_theta, alpha):
@@ -593,7 +605,7 @@ class GGX(_VisibleMicrofacet):
         psi = 2 * jnp.pi * u2
         mx, my, mz = a * (s * jnp.cos(psi) + wx), a * (s * jnp.sin(psi) + wy), jnp.maximum(z + wz, 0.0)
         m = jax.lax.rsqrt(jnp.maximum(mx * mx + my * my + mz * mz, float(jnp.finfo(V.dtype).tiny)))
-        return jnp.stack([mx * m, my * m, mz * m], -1)
+        return _vec3(mx * m, my * m, mz * m)
 
     def sample_h(self, u):
         u1, u2 = _split(u)
