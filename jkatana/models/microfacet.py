@@ -13,6 +13,11 @@
   G = min(1, 2(N·H)(N·V)/(V·H), 2(N·H)(N·L)/(V·H)).
 - :func:`smith_beckmann` — separable Smith G with Walter et al.'s (2007)
   rational approximation of the Beckmann G1.
+- :func:`beckmann_visible_area`, :func:`ggx_visible_area` — the projected
+  area cos θ (1 + Λ(θ)) of a unit patch of microsurface seen from θ, with
+  Smith's exact Λ (Heitz 2014, "Understanding the masking-shadowing function
+  in microfacet-based BRDFs", JCGT 3(2), §5.1 and §5.2): the normalisation of
+  the distribution of visible normals (Heitz & d'Eon 2014).
 
 Guards: μ → 0 (the exponent is cut where exp underflows, so neither the
 value nor the derivative sees inf), cos φ → 0 (Beckmann's tan²), V·H → 0 and
@@ -23,7 +28,9 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
+import jax.scipy.special
 import numpy as np
 
 from jkatana.models._safe import ratio, safe_sqrt
@@ -216,6 +223,40 @@ def smith_g1_beckmann(cos_theta, alpha):
     a = jnp.where(high, 1.0, c / jnp.where(high, 1.0, alpha * s))
     g1 = (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a)
     return jnp.where(c > 0, jnp.where(high, 1.0, g1), 0.0)
+
+
+def beckmann_visible_area(cos_theta, alpha):
+    """∫ max(0, ω·h) D(h) dω_h = cos θ (1 + Λ(θ)) for Beckmann D with Smith's exact Λ.
+
+    Λ = (erf(a) − 1)/2 + exp(−a²)/(2a√π), a = 1/(α tan θ) (Heitz 2014, JCGT 3(2),
+    eq. 75; Walter et al. 2007, eq. 27 before its rational approximation), written
+    as (cos θ (1 + erf a) + α sin θ exp(−a²)/√π)/2 so that it has no division by
+    a: finite at grazing view (α sin θ/(2√π) at cos θ = 0) and at normal view
+    (cos θ). ``cos_theta`` is clipped to [0, 1]. G1 = cos θ / this area, so the
+    density of visible normals D_ω(h) = max(0, ω·h) D(h) / this area integrates
+    to 1 (Heitz & d'Eon 2014, "Importance sampling microfacet-based BSDFs using
+    the distribution of visible normals", EGSR, eq. 2).
+    """
+    c = jnp.clip(jnp.asarray(cos_theta), 0.0, 1.0)
+    alpha = jnp.asarray(alpha)
+    s = safe_sqrt(1.0 - c * c)
+    den = alpha * s
+    live = den > c * 1e-4  # a = c/(α s) < 1e4: elsewhere erf(a) = 1 and exp(−a²) = 0 in float64
+    a = jnp.where(live, c, 1.0) / jnp.where(live, den, 1.0)
+    tail = jnp.where(live, den * jnp.exp(-a * a) * (1.0 / math.sqrt(math.pi)), 0.0)
+    return 0.5 * (c * (1.0 + jnp.where(live, jax.scipy.special.erf(a), 1.0)) + tail)
+
+
+def ggx_visible_area(cos_theta, alpha):
+    """∫ max(0, ω·h) D(h) dω_h = cos θ (1 + Λ(θ)) for GGX D with Smith's exact Λ.
+
+    Λ = (√(1 + α² tan²θ) − 1)/2 (Heitz 2014, JCGT 3(2), eq. 72), so the area is
+    (cos θ + √(cos²θ + α² sin²θ))/2: no division, α sin θ/2 at grazing view.
+    ``cos_theta`` is clipped to [0, 1]; G1 = cos θ / this area (Walter et al.
+    2007, eq. 34).
+    """
+    c = jnp.clip(jnp.asarray(cos_theta), 0.0, 1.0)
+    return 0.5 * (c + safe_sqrt(c * c + alpha * alpha * (1.0 - c * c)))
 
 
 def smith_beckmann(cos_nv, cos_nl, alpha):
