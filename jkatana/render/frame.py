@@ -5,10 +5,12 @@ each call running :func:`jkatana.render.shading.shade` under
 ``jax.shard_map`` over a 1-D device mesh (on CPU, several host devices come
 from ``XLA_FLAGS=--xla_force_host_platform_device_count=N``, which the CLI
 sets to the core count). Fixed call shapes mean one compilation per
-(plan, chunk) whatever the view's coverage (a prefiltered frame's last call takes
-the smallest of a finer ladder of sizes that holds the remaining pixels: one
-program per size); JAX's asynchronous dispatch keeps both devices busy while
-Python queues the next call. A prefiltered frame's split caps (a sun) get a pass
+(plan, chunk) whatever the view's coverage (a frame whose pixels do not depend on
+the call layout — prefiltered, or MIS with pixel ids — takes for its last call the
+smallest of a finer ladder of sizes that holds the remaining pixels: one program
+per size); JAX's asynchronous dispatch keeps both devices busy while Python queues
+the next call. What frames of one view share (an immutable G-buffer's pixels, the
+environment and material on every device) is sent once (:func:`derived`). A prefiltered frame's split caps (a sun) get a pass
 of their own over the pixels they can reach (:func:`~jkatana.render.caps.cap_pixels`)
 when those are few (:data:`CAP_PASS_MAX`).
 """
