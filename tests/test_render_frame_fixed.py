@@ -124,6 +124,12 @@ def test_frames_of_one_view_reuse_its_pixels_and_follow_the_maps():
     fresh = F.GBuffer(g.mask, g.index.copy(), g.hit_position.copy(), g.hit_normal.copy(), g.hit_tangent.copy(),
                       g.hit_uv.copy(), g.hit_view.copy(), cam)  # writable: not kept
     d = F.render_frame(plan, mat, env, None, SPHERE, cam, maps, CMF, supersample=2, seed=3, gb=fresh)
+    keep = np.ones(len(g.index), bool)
+    px, ids = F._frame_pixels(g, keep, maps, jnp.float32, 2)
+    assert F._frame_pixels(g, keep, maps.copy(), jnp.float32, 2)[0] is px  # kept per (G-buffer, maps' values)
+    assert F._frame_pixels(fresh, keep, maps, jnp.float32, 2)[0] is not px  # a writable G-buffer: built anew
+    assert F._call_inputs(px, ids, (len(g.index),), F.NamedSharding(jax.make_mesh((1,), ("d",)), PS("d")))[0] is \
+        F._call_inputs(px, ids, (len(g.index),), F.NamedSharding(jax.make_mesh((1,), ("d",)), PS("d")))[0]
     m = a.mask
     assert not np.allclose(a.xyz[m], c.xyz[m], rtol=1e-3)
     np.testing.assert_array_equal(c.xyz[m], d.xyz[m])  # (d's background comes from host-made rays)

@@ -353,7 +353,7 @@ def _sphere_hits(camera: Camera, center: tuple, radius: float) -> GBuffer:
     mask = disc > 0
     t = -b - np.sqrt(np.maximum(disc, 0.0))
     mask &= t > 0
-    idx = np.flatnonzero(mask)
+    idx = np.flatnonzero(mask).copy()  # its own data: read-only below, not a view of a writable array
     d = dirs.reshape(-1, 3)[idx]
     pos = origin + t.reshape(-1)[idx][:, None] * d
     n = (pos - np.asarray(center)) / radius
