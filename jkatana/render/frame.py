@@ -5,10 +5,12 @@ each call running :func:`jkatana.render.shading.shade` under
 ``jax.shard_map`` over a 1-D device mesh (on CPU, several host devices come
 from ``XLA_FLAGS=--xla_force_host_platform_device_count=N``, which the CLI
 sets to the core count). Fixed call shapes mean one compilation per
-(plan, chunk) whatever the view's coverage (a prefiltered frame's last call takes
-the smallest of a finer ladder of sizes that holds the remaining pixels: one
-program per size); JAX's asynchronous dispatch keeps both devices busy while
-Python queues the next call. A prefiltered frame's split caps (a sun) get a pass
+(plan, chunk) whatever the view's coverage (a frame whose pixels do not depend on
+the call layout — prefiltered, or MIS with pixel ids — takes for its last call the
+smallest of a finer ladder of sizes that holds the remaining pixels: one program
+per size); JAX's asynchronous dispatch keeps both devices busy while Python queues
+the next call. What frames of one view share (an immutable G-buffer's pixels, the
+environment and material on every device) is sent once (:func:`derived`). A prefiltered frame's split caps (a sun) get a pass
 of their own over the pixels they can reach (:func:`~jkatana.render.caps.cap_pixels`)
 when those are few (:data:`CAP_PASS_MAX`).
 """
@@ -165,17 +167,21 @@ def _compiled_fold(rank: int):
 _DERIVED: dict = {}
 
 
-def derived(kind: str, sources: tuple, extra, build):
+def derived(kind: str, sources: tuple, extra, build, keep: int | None = None):
     """``build()``, computed once per identity of the ``sources`` arrays (and the hashable ``extra``).
 
     JAX arrays are immutable, so an array alive under the same identity holds the
     same values: what is derived from it (the environment folded to XYZ for the
     background, the Fresnel fold) need not be recomputed per frame. The cache holds
     weak references only; an entry is dropped when any source array is collected.
+    ``keep``: at most that many entries of this ``kind`` are held (the least recently used leaves first),
+    for values that are large beside their sources.
     """
     key = (kind, tuple(id(a) for a in sources), extra)
     hit = _DERIVED.get(key)
     if hit is not None and all(r() is a for r, a in zip(hit[0], sources)):
+        if keep is not None:  # most recently used last
+            _DERIVED[key] = _DERIVED.pop(key)
         return hit[1]
     value = build()
 
@@ -183,7 +189,33 @@ def derived(kind: str, sources: tuple, extra, build):
         _DERIVED.pop(k, None)
 
     _DERIVED[key] = (tuple(weakref.ref(a, drop) for a in sources), value)
+    if keep is not None:
+        same = [k for k in _DERIVED if k[0] == kind]
+        for k in same[:max(0, len(same) - keep)]:
+            _DERIVED.pop(k, None)
     return value
+
+
+def replicated(tree, sharding: NamedSharding):
+    """``jax.device_put(tree, sharding)`` with each JAX-array leaf's copy kept while the leaf lives
+    (:func:`derived`): an environment or material that frames share is put on every device once, not per
+    frame. Other leaves (NumPy arrays, which may change in place) are put on every call."""
+    leaves, treedef = jax.tree.flatten(tree)
+    where = (tuple(d.id for d in sharding.mesh.devices.flat), sharding.spec)
+    out, todo = list(leaves), []
+    for i, a in enumerate(leaves):
+        hit = _DERIVED.get(("replicated", (id(a),), where)) if isinstance(a, jax.Array) else None
+        if hit is not None and hit[0][0]() is a:
+            out[i] = hit[1]
+        else:
+            todo.append(i)
+    if todo:
+        put = jax.device_put([leaves[i] for i in todo], sharding)
+        for i, b in zip(todo, put):
+            out[i] = b
+            if isinstance(leaves[i], jax.Array) and b is not leaves[i]:  # (a copy: it holds no reference to its source)
+                derived("replicated", (leaves[i],), where, lambda b=b: b)
+    return jax.tree.unflatten(treedef, out)
 
 
 def _digest(a) -> str:
@@ -275,7 +307,7 @@ def background_camera(env: Environment, camera: Camera, cmf, dtype, n_devices: i
     rounding): the host neither builds nor sends the ``H × W`` rays."""
     n_dev = n_devices or len(jax.local_devices())
     f, mesh = _compiled_background_camera(n_dev, int(camera.width), int(camera.height))
-    env3 = jax.device_put(background_environment(env, np.asarray(cmf, dtype)), NamedSharding(mesh, PS()))
+    env3 = replicated(background_environment(env, np.asarray(cmf, dtype)), NamedSharding(mesh, PS()))
     return f(env3, *jax.device_put(_camera_axes(camera, dtype), NamedSharding(mesh, PS())))
 
 
@@ -292,7 +324,7 @@ def background_all(env: Environment, rays: np.ndarray, cmf, dtype, n_devices: in
     d = np.asarray(rays, dtype)
     if pad:
         d = np.concatenate([d, np.tile(np.asarray([[0.0, 0.0, 1.0]], dtype), (pad, 1))])
-    env3 = jax.device_put(background_environment(env, np.asarray(cmf, dtype)), NamedSharding(mesh, PS()))
+    env3 = replicated(background_environment(env, np.asarray(cmf, dtype)), NamedSharding(mesh, PS()))
     return f(env3, jax.device_put(d, NamedSharding(mesh, PS("d"))))
 
 
@@ -373,12 +405,15 @@ def _take(px: Pixels, idx: jax.Array) -> Pixels:
     return jax.tree.map(lambda a: a[idx], px)
 
 
-def _call_sizes(plan: Plan, P: int, n_dev: int, chunk: int) -> tuple[int, list[int]]:
+def _call_sizes(plan: Plan, P: int, n_dev: int, chunk: int, fine_tail: bool | None = None) -> tuple[int, list[int]]:
     """``(chunk, per-device pixels of each call)`` for ``P`` pixels: calls of ``chunk`` from a fixed ladder
     (1024 · 4^k, capped at ``chunk``), so that views with different coverage reuse one compiled program
-    instead of compiling per pixel count; a prefiltered frame's last call from the finer
-    :data:`_TAIL_LADDER` (steps ≤ 1.5×), padding the remainder instead of a whole call (the sampling modes
-    keep whole calls: their streams follow the call layout)."""
+    instead of compiling per pixel count; with ``fine_tail`` (default: a prefiltered ``plan``) the last call
+    from the finer :data:`_TAIL_LADDER` (steps ≤ 1.5×), padding the remainder instead of a whole call.
+
+    A frame may take the fine tail when its pixels' values do not depend on the call layout
+    (:func:`_layout_free`); else the calls stay whole, as the streams follow them."""
+    fine_tail = plan.mode == "prefiltered" if fine_tail is None else fine_tail
     need = -(-P // n_dev)
     size = 1024
     while size < need and size < chunk:
@@ -387,10 +422,20 @@ def _call_sizes(plan: Plan, P: int, n_dev: int, chunk: int) -> tuple[int, list[i
     call = n_dev * chunk
     n_calls = max(1, -(-P // call))
     sizes = [chunk] * n_calls
-    if plan.mode == "prefiltered":
+    if fine_tail:
         rest = -(-(P - (n_calls - 1) * call) // n_dev)
         sizes[-1] = min(s for s in _TAIL_LADDER + (chunk,) if s >= min(rest, chunk))
     return chunk, sizes
+
+
+def _layout_free(plan: Plan, ids: PixelIds | None) -> bool:
+    """Whether a pixel's value is independent of the call and device that shade it: the prefiltered mode
+    (deterministic), and the MIS modes (``"reference"``, ``"lowrank"``) with :class:`PixelIds` and
+    ``plan.subpixels > 1`` (their points come from the pixel index and the frame key:
+    :func:`~jkatana.render.points.mis_offset`). The paper's jittered rays and the MIS modes without pixel ids
+    draw per call."""
+    return plan.mode == "prefiltered" or (plan.mode in ("reference", "lowrank") and ids is not None
+                                          and plan.subpixels > 1)
 
 
 def _bucket(plan: Plan, n: int, n_dev: int, chunk: int) -> int:
@@ -403,35 +448,22 @@ def _dispatch(plan: Plan, mat: Material, env: Environment, lights: Light | None,
               chunk: int, occluders, ids: PixelIds | None, caps_only: bool = False) -> list:
     """:func:`shade_pixels`' sharded calls over ``px``, dispatched (asynchronous): their outputs."""
     P = px.normal.shape[0]
-    chunk, sizes = _call_sizes(plan, P, n_dev, chunk)
-    call = n_dev * chunk
+    chunk, sizes = _call_sizes(plan, P, n_dev, chunk, _layout_free(plan, ids))
     n_calls = len(sizes)
-    pad = sum(sizes) * n_dev - P
     dtype = px.normal.dtype
-
-    def padded(a, fill):
-        if pad == 0:
-            return a
-        fill_arr = jnp.broadcast_to(jnp.asarray(fill, a.dtype), (pad,) + a.shape[1:])
-        return jnp.concatenate([a, fill_arr])
-
-    calls = _split_calls(px, tuple(n_dev * s for s in sizes))
-    if ids is not None and plan.subpixels > 1:
-        ids = PixelIds(padded(jnp.asarray(ids.pixel, jnp.uint32), 0), padded(jnp.asarray(ids.subpixel, jnp.int32), 0))
-    else:
-        ids = None
+    ids = ids if ids is not None and plan.subpixels > 1 else None
     f, mesh = _compiled(plan, n_dev, chunk, caps_only)
     rep = NamedSharding(mesh, PS())
     split = NamedSharding(mesh, PS("d"))
-    mat, env, lights, cmf = jax.device_put((mat, env, lights, jnp.asarray(cmf, dtype)), rep)
+    calls, call_ids = _call_inputs(px, ids, tuple(n_dev * s for s in sizes), split)
+    mat, env, lights = replicated((mat, env, lights), rep)
+    cmf = jax.device_put(jnp.asarray(cmf, dtype), rep)
     outs = []
     rays_f = _compiled_rays(plan, n_dev, chunk) if plan.visibility else None
     for i in range(n_calls):
-        sl = slice(i * call, i * call + n_dev * sizes[i])
         if sizes[i] != chunk:
             f = _compiled(plan, n_dev, sizes[i], caps_only)[0]
-        chunk_px = jax.device_put(calls[i], split)
-        chunk_ids = None if ids is None else jax.device_put(jax.tree.map(lambda a: a[sl], ids), split)
+        chunk_px, chunk_ids = calls[i], call_ids[i]
         ckey = jax.device_put(key if ids is not None else jax.random.fold_in(key, i), rep)
         vis = None
         if rays_f is not None:
@@ -441,6 +473,35 @@ def _dispatch(plan: Plan, mat: Material, env: Environment, lights: Light | None,
                                                          np.asarray(chunk_px.normal))), split)
         outs.append(f(mat, env, lights, chunk_px, vis, cmf, ckey, chunk_ids))
     return outs
+
+
+def _call_inputs(px: Pixels, ids: PixelIds | None, counts: tuple, split: NamedSharding) -> tuple[list, list]:
+    """``(pixels, pixel ids or None)`` of each of :func:`_dispatch`'s calls (``counts`` rows each), padded and
+    split across the devices; kept while ``px`` and ``ids`` live (:func:`derived`), so that frames of one
+    view (:func:`_frame_pixels`) cut and send their pixels once."""
+    def build():
+        calls = jax.device_put(_split_calls(px, counts), split)
+        if ids is None:
+            return calls, [None] * len(counts)
+        pad = sum(counts) - px.normal.shape[0]
+        pid = np.concatenate([np.asarray(ids.pixel, np.uint32), np.zeros(pad, np.uint32)])
+        sub = np.concatenate([np.asarray(ids.subpixel, np.int32), np.zeros(pad, np.int32)])
+        starts = np.cumsum((0,) + counts)
+        return calls, jax.device_put([PixelIds(pid[a:b], sub[a:b]) for a, b in zip(starts[:-1], starts[1:])], split)
+
+    sources = tuple(px) + (() if ids is None else tuple(ids))
+    if not all(_immutable(a) for a in sources):
+        return build()
+    where = (counts, tuple(d.id for d in split.mesh.devices.flat))
+    return derived("call-inputs", sources, where, build, keep=4)
+
+
+def _immutable(a) -> bool:
+    """Whether ``a``'s values are fixed while it lives (a JAX array, or a read-only NumPy array that owns its
+    data): what is derived from it may be keyed by its identity (:func:`derived`)."""
+    if isinstance(a, jax.Array):
+        return True
+    return isinstance(a, np.ndarray) and not a.flags.writeable and a.flags.owndata
 
 
 def _collect(outs: list, px: Pixels, P: int | None = None):
@@ -465,6 +526,38 @@ def pixel_blocks(a: np.ndarray, s: int) -> np.ndarray:
     """``(H·s, W·s, …)`` subpixels viewed as ``(H, s, W, s, …)``: reduce axes (1, 3) to get pixels
     (``.mean`` for radiance, ``.all`` for the mask) of a frame rendered with ``supersample=s``."""
     return a.reshape(a.shape[0] // s, s, a.shape[1] // s, s, *a.shape[2:])
+
+
+def _frame_pixels(gb: GBuffer, keep: np.ndarray, maps, dtype, ss: int) -> tuple[Pixels, PixelIds | None]:
+    """The shaded pixels of ``gb`` (its hits where ``keep``) as :class:`Pixels` on the device, the reflectance
+    ``maps`` looked up at their UVs, and with ``ss > 1`` their :class:`PixelIds` (output pixel, subpixel).
+
+    An immutable G-buffer (:func:`~jkatana.render.gbuffer.gbuffer_sphere`'s) with every hit kept gives the
+    same pixels each frame for the same maps: they are kept (:func:`derived`, the maps by value unless a JAX
+    array), so that a batch of frames of one view sends them to the devices once."""
+    def build():
+        uv = jnp.asarray(gb.hit_uv[keep], dtype)
+        mp = _sample_map(jnp.asarray(maps, dtype), uv)
+        px = Pixels(jnp.asarray(gb.hit_position[keep], dtype), jnp.asarray(gb.hit_normal[keep], dtype),
+                    jnp.asarray(gb.hit_view[keep], dtype), mp[:, 0], mp[:, 1], mp[:, 2])
+        if ss == 1:
+            return px, None
+        W = gb.mask.shape[1]
+        row, col = np.divmod(gb.index[keep], W)
+        ids = PixelIds(((row // ss) * (W // ss) + col // ss).astype(np.uint32),
+                       ((row % ss) * ss + col % ss).astype(np.int32))
+        for a in ids:
+            a.flags.writeable = False
+        return px, ids
+
+    sources = (gb.index, gb.hit_position, gb.hit_normal, gb.hit_view, gb.hit_uv)
+    if not (keep.all() and all(_immutable(a) or a.base is not None and _immutable(a.base) for a in sources)):
+        return build()
+    if isinstance(maps, jax.Array):
+        sources, maps_key = sources + (maps,), None
+    else:
+        maps_key = _digest(maps)
+    return derived("frame-pixels", sources, (maps_key, np.dtype(dtype).str, ss), build, keep=4)
 
 
 def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | None, geometry,
@@ -529,15 +622,7 @@ def render_frame(plan: Plan, mat: Material, env: Environment, lights: Light | No
     key = jax.random.PRNGKey(seed)
     x = None
     if len(sel):
-        uv = jnp.asarray(gb.hit_uv[keep], dtype)
-        mp = _sample_map(jnp.asarray(maps, dtype), uv)
-        px = Pixels(jnp.asarray(gb.hit_position[keep], dtype), jnp.asarray(gb.hit_normal[keep], dtype),
-                    jnp.asarray(gb.hit_view[keep], dtype), mp[:, 0], mp[:, 1], mp[:, 2])
-        ids = None
-        if ss > 1:
-            row, col = np.divmod(sel, W)
-            ids = PixelIds(((row // ss) * (W // ss) + col // ss).astype(np.uint32),
-                           ((row % ss) * ss + col % ss).astype(np.int32))
+        px, ids = _frame_pixels(gb, keep, maps, dtype, ss)
         x, s = shade_pixels(plan, mat, env, lights, px, cmf, key, n_devices=n_devices, chunk=chunk,
                             occluders=occluders, ids=ids)
         if spectra is not None and s is not None:

@@ -10,6 +10,7 @@ benchmarks) gets an exact G-buffer.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -331,7 +332,18 @@ def _interpolate(f: np.ndarray, u: np.ndarray, v: np.ndarray, d: np.ndarray):
 
 
 def gbuffer_sphere(camera: Camera, center=(0.0, 0.0, 0.0), radius: float = 1.0) -> GBuffer:
-    """Exact G-buffer of a sphere (UV: u = longitude / 2π, v = colatitude / π)."""
+    """Exact G-buffer of a sphere (UV: u = longitude / 2π, v = colatitude / π).
+
+    A G-buffer depends on the camera and the sphere only, so one is kept per (camera, centre, radius)
+    (:func:`_sphere_hits`; a batch of frames of one view pays for it once). Its arrays are read-only.
+    """
+    return _sphere_hits(camera, tuple(float(x) for x in np.ravel(center)), float(radius))
+
+
+@functools.lru_cache(maxsize=8)
+def _sphere_hits(camera: Camera, center: tuple, radius: float) -> GBuffer:
+    """:func:`gbuffer_sphere`: the ray–sphere test on every primary ray (the nearer root of
+    |o + t·d − c|² = r², t > 0), the hit point's attributes on the hit rows only."""
     origin, dirs = camera.rays()
     H, W, _ = dirs.shape
     oc = origin - np.asarray(center, np.float64)
@@ -341,15 +353,20 @@ def gbuffer_sphere(camera: Camera, center=(0.0, 0.0, 0.0), radius: float = 1.0) 
     mask = disc > 0
     t = -b - np.sqrt(np.maximum(disc, 0.0))
     mask &= t > 0
-    pos = origin + t[..., None] * dirs
+    idx = np.flatnonzero(mask).copy()  # its own data: read-only below, not a view of a writable array
+    d = dirs.reshape(-1, 3)[idx]
+    pos = origin + t.reshape(-1)[idx][:, None] * d
     n = (pos - np.asarray(center)) / radius
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
-    u = 0.5 + np.arctan2(n[..., 0], n[..., 2]) / (2 * np.pi)
-    v = np.arccos(np.clip(n[..., 1], -1, 1)) / np.pi
-    tan = np.stack([n[..., 2], np.zeros_like(u), -n[..., 0]], -1)
+    u = 0.5 + np.arctan2(n[:, 0], n[:, 2]) / (2 * np.pi)
+    v = np.arccos(np.clip(n[:, 1], -1, 1)) / np.pi
+    tan = np.stack([n[:, 2], np.zeros_like(u), -n[:, 0]], -1)
     tl = np.linalg.norm(tan, axis=-1, keepdims=True)
     tan = np.where(tl > 1e-9, tan / np.maximum(tl, 1e-30), [1.0, 0.0, 0.0])
-    return GBuffer.from_dense(mask, pos, n, tan, np.stack([u, v], -1), -dirs, dirs)
+    gb = GBuffer(mask, idx, pos, n, tan, np.stack([u, v], -1), -d, camera, dirs)
+    for a in (mask, idx, pos, n, tan, gb.hit_uv, gb.hit_view, dirs):
+        a.flags.writeable = False
+    return gb
 
 
 class Occluders:
