@@ -108,8 +108,7 @@ def _vec3(x, y, z):
 
     Broadcast rather than ``jnp.stack``: XLA's CPU backend fuses a stack's
     operands into one loop over the ``(*b, 3)`` output that evaluates every
-    component's whole producer per output element, unvectorised (a Beckmann
-    visible-normal sample: 180 ns per normal stacked, 29 ns broadcast).
+    component's whole producer per output element, unvectorised.
     """
     e = jnp.eye(3, dtype=jnp.result_type(x, y, z))
     return x[..., None] * e[0] + y[..., None] * e[1] + z[..., None] * e[2]

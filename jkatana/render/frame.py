@@ -185,8 +185,8 @@ def derived(kind: str, sources: tuple, extra, build, keep: int | None = None):
         return hit[1]
     value = build()
 
-    def drop(_, k=key):
-        _DERIVED.pop(k, None)
+    def drop(_, k=key, cache=_DERIVED):  # the dict bound here: at interpreter exit the module's globals are gone
+        cache.pop(k, None)
 
     _DERIVED[key] = (tuple(weakref.ref(a, drop) for a in sources), value)
     if keep is not None:
