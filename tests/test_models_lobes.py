@@ -18,6 +18,7 @@
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -212,6 +213,15 @@ def test_sampled_facet_angles_follow_the_pdf_chi_square(kind, width, theta):
     np.testing.assert_array_equal(pdf[valid], np.asarray(lobe.pdf(jnp.asarray(L), Vb))[valid])
 
 
+# compiled once per lobe class (the lobe's parameters are traced arrays), not once per drawn example
+_sample_jit = eqx.filter_jit(lambda lobe, Vb, u, uc: lobe.sample(Vb, u, uc))
+_f_cos_jit = eqx.filter_jit(lambda lobe, L, V: lobe.f_cos(L, V))
+_value_grads_jit = eqx.filter_jit(lambda lobe, Ls, Vs: jax.grad(
+    lambda lb, Ls, Vs: jnp.sum(lb.f_cos(Ls, Vs)) + jnp.sum(jnp.log1p(lb.pdf(Ls, Vs))), argnums=(0, 1, 2))(lobe, Ls, Vs))
+_sample_grads_jit = eqx.filter_jit(lambda lobe, V, u, uc: jax.grad(
+    lambda lb: jnp.sum(lb.sample(V, u, uc)[0]))(lobe))
+
+
 def _check_f32(kind, log_w, cos_v, seed):
     lobe = make(kind, 10.0**log_w, jnp.float32)
     sin_v = np.sqrt(max(1.0 - cos_v * cos_v, 0.0))
@@ -221,7 +231,7 @@ def _check_f32(kind, log_w, cos_v, seed):
     Vb = jnp.broadcast_to(V, (n, 3))
     u = jax.random.uniform(ku, (n, 2), jnp.float32)
     uc = jax.random.uniform(kc, (n,), jnp.float32)
-    L, pdf = jax.jit(lambda Vb, u, uc: lobe.sample(Vb, u, uc))(Vb, u, uc)
+    L, pdf = _sample_jit(lobe, Vb, u, uc)
     L, pdf = np.asarray(L), np.asarray(pdf)
     assert L.dtype == np.float32 and pdf.dtype == np.float32
     assert np.isfinite(L).all() and np.isfinite(pdf).all() and (pdf >= 0).all()
@@ -236,7 +246,7 @@ def _check_f32(kind, log_w, cos_v, seed):
     h = s / np.maximum(np.linalg.norm(s, axis=1, keepdims=True), 1e-30)
     # f·cos/pdf bounded: the Gaussian lobes by N(μ)·2πσ² (the sampler's normalisation), microfacets
     # with Smith shadowing by cos θH/(cos θr cos φ)
-    f = np.asarray(lobe.f_cos(jnp.asarray(L), Vb))
+    f = np.asarray(_f_cos_jit(lobe, jnp.asarray(L), Vb))
     assert np.isfinite(f).all() and (f >= 0).all()
     ok = pdf > 0
     ratio = f[ok] / pdf[ok]
@@ -253,16 +263,12 @@ def _check_f32(kind, log_w, cos_v, seed):
         cos_th, cos_h = np.abs(h[ok] @ np.asarray(V)), h[ok, 2]
         assert (ratio <= 1.01 * cos_th / (cos_v * np.maximum(cos_h, 1e-6)) + 1e-5).all()
     # gradients w.r.t. the lobe's parameters and the directions are finite
-    idx = np.nonzero(ok)[0][:16] if ok.any() else np.arange(4)
+    idx = np.resize(np.nonzero(ok)[0], 16) if ok.any() else np.arange(16)  # 16 rows: one compiled program
     Ls, Vs = jnp.asarray(L[idx]), Vb[idx]
-
-    def loss(lb, Ls, Vs):
-        return jnp.sum(lb.f_cos(Ls, Vs)) + jnp.sum(jnp.log1p(lb.pdf(Ls, Vs)))
-
-    grads = jax.grad(loss, argnums=(0, 1, 2))(lobe, Ls, Vs)
+    grads = _value_grads_jit(lobe, Ls, Vs)
     for g in jax.tree.leaves(grads):
         assert np.isfinite(np.asarray(g)).all(), (kind, grads)
-    gs = jax.grad(lambda lb: jnp.sum(lb.sample(Vb[:8], u[:8], uc[:8])[0]))(lobe)
+    gs = _sample_grads_jit(lobe, Vb[:8], u[:8], uc[:8])
     for g in jax.tree.leaves(gs):
         assert np.isfinite(np.asarray(g)).all(), (kind, gs)
 
