@@ -523,17 +523,19 @@ def test_twenty_interrupts_at_random_moments(campaign, tmp_path):
         shutil.copy(tmp_path / "scene.toml", work / "scene.toml")
         return ["render", work / "scene.toml", "--views", "4", "-o", work / "out"]
 
-    # the moments lie within each command's own run time on this machine (measured once, uninterrupted)
-    moments = {}
+    # the moments lie within each command's own run time on this machine, measured uninterrupted on a second
+    # run (the first fills JAX's persistent compilation cache, which the interrupted runs then read)
+    moments, done_rc = {}, {}
     for kind in kinds:
-        work = tmp_path / f"timing-{kind}"
-        work.mkdir()
-        t0 = time.perf_counter()
-        r = subprocess.run(CLI + [str(a) for a in argv_for(kind, work)], cwd=work, env=cli_env(), capture_output=True,
-                           text=True, timeout=900)
-        assert r.returncode in (0, 1), r.stderr
-        t = time.perf_counter() - t0
-        moments[kind] = (0.15 * t, 0.85 * t)
+        for attempt in range(2):
+            work = tmp_path / f"timing-{kind}-{attempt}"
+            work.mkdir()
+            t0 = time.perf_counter()
+            r = subprocess.run(CLI + [str(a) for a in argv_for(kind, work)], cwd=work, env=cli_env(),
+                               capture_output=True, text=True, timeout=900)
+            assert r.returncode in (0, 1), r.stderr
+            t = time.perf_counter() - t0
+        moments[kind], done_rc[kind] = (0.15 * t, 0.85 * t), r.returncode
     landed = 0
     for k in range(20):
         kind = kinds[k % 3]
@@ -542,7 +544,7 @@ def test_twenty_interrupts_at_random_moments(campaign, tmp_path):
         argv = argv_for(kind, work)
         out = {"fit": [work / "f.json"], "measure": [work / "t.csv"], "render": []}[kind]
         rc, err = _interrupt(argv, work, after=rng.uniform(*moments[kind]))
-        if rc != 0:
+        if rc != done_rc[kind]:  # else the command had finished (fit: 1 = finished, not converged)
             _clean_interrupt(rc, err)
             landed += 1
             for p in out:  # nothing partial: absent, or complete (an interrupt just after the atomic rename)
