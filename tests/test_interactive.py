@@ -251,6 +251,7 @@ def test_shipped_tap_table_is_as_good_as_a_fresh_fit(iron):
     assert abs(float(np.mean(shipped_err - l1))) < 1e-3
 
 
+@pytest.mark.slow  # a tap fit over every μ level and view angle (≈ 45 s)
 def test_fitted_taps_match_the_oblique_lobe_better_than_its_moments(iron):
     """taps.tap_fit: three taps fitted to the hamon lobe (μ = 0.2 at θv ≈ 55°) reproduce it better than the
     moment-matched binomial taps — in L1, and in the weight a small source at the lobe's peak receives
