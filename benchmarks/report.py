@@ -340,7 +340,13 @@ def headline_markdown(results: dict) -> str:
 
 def machine_line(m: dict) -> str:
     gpu = m.get("gpu") or "no GPU"
-    return (f"{m.get('cpu_model', 'unknown CPU')}, {m.get('cores_usable') or m.get('cores')} cores, "
+    ident = [f"{k} {m[key]}" for k, key in (("family", "cpu_family"), ("model", "cpu_model_number"),
+                                            ("stepping", "cpu_stepping")) if m.get(key) is not None]
+    if m.get("cpu_simd"):
+        ident.append(m["cpu_simd"].upper())
+    cpu = m.get("cpu_model") or "unknown CPU"
+    cpu = f"{cpu} ({', '.join(ident)})" if ident else cpu
+    return (f"{cpu}, {m.get('cores_usable') or m.get('cores')} cores, "
             f"{m.get('memory_gib', '?')} GiB, JAX {m.get('jax_version', '?')} on "
             f"{m.get('jax_backend', '?')}, {gpu}")
 

@@ -98,6 +98,12 @@ def test_runner_and_report_end_to_end(tmp_path):
 
     md = (rep / "report.md").read_text()
     assert machine_line(m) in md and m.get("cpu_model", "unknown CPU") in md
+    # the CPU's generation, not only its (possibly bare) name, is in the report
+    for word, key in (("family", "cpu_family"), ("model", "cpu_model_number"), ("stepping", "cpu_stepping")):
+        if m.get(key) is not None:
+            assert f"{word} {m[key]}" in md
+    if m.get("cpu_simd"):
+        assert m["cpu_simd"].upper() in md
     assert "bench_broken" in md and "failed" in md and "broken on purpose" in md
     # the numbers in the study table are the measured ones
     assert _fmt(schlick_err) in md
