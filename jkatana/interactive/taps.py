@@ -49,6 +49,22 @@ def prefilter_kernel(sin2_half, mu_e, family: LobeFamily = Gaussian, n_quad: int
     return reflected_lobe(lobe, jnp.asarray(sin2_half, mu_e.dtype)) / norm
 
 
+def view_frame(cos_v):
+    """The frame the lobe kernels are tabulated in, for a view at ``cos_v`` (a scalar) in the x–z plane:
+    ``(V, R, t, y)`` with V = (sin θv, 0, cos θv), R its mirror direction about N = z, t the unit vector
+    in the plane of incidence orthogonal to R, towards N (the direction of positive ``a_par``; x at
+    normal incidence, where N = R), and y = R × t across the plane."""
+    dt = jnp.asarray(cos_v).dtype
+    cv = jnp.asarray(cos_v)
+    sv = jnp.sqrt(jnp.maximum(1.0 - cv ** 2, 0.0))
+    V = jnp.stack([sv, jnp.zeros_like(sv), cv])
+    R = jnp.stack([-sv, jnp.zeros_like(sv), cv])
+    tt = jnp.asarray([0.0, 0.0, 1.0], dt) - cv * R
+    tn = jnp.linalg.norm(tt)
+    t = jnp.where(tn > 1e-9, tt / jnp.maximum(tn, 1e-12), jnp.asarray([1.0, 0.0, 0.0], dt))
+    return V, R, t, jnp.cross(R, t)
+
+
 def lobe_kernel(model, conductor: Conductor, cos_v, n: int = 64, width=None):
     """The reflected lobe of ``model`` as a normalised kernel around the mirror direction R, on a grid.
 
@@ -64,13 +80,7 @@ def lobe_kernel(model, conductor: Conductor, cos_v, n: int = 64, width=None):
     dt = conductor.n.dtype
     mu = jnp.asarray(model.mu if width is None else width, dt)
     cv = jnp.asarray(cos_v, dt)
-    sv = jnp.sqrt(jnp.maximum(1.0 - cv ** 2, 0.0))
-    V = jnp.stack([sv, jnp.zeros_like(sv), cv])
-    R = jnp.stack([-sv, jnp.zeros_like(sv), cv])
-    tt = jnp.asarray([0.0, 0.0, 1.0], dt) - cv * R
-    tn = jnp.linalg.norm(tt)
-    t = jnp.where(tn > 1e-9, tt / jnp.maximum(tn, 1e-12), jnp.asarray([1.0, 0.0, 0.0], dt))
-    y = jnp.cross(R, t)
+    V, R, t, y = view_frame(cv)
     lim_par = jnp.minimum(14.0 * mu, jnp.pi)
     lim_perp = jnp.minimum(14.0 * mu * jnp.maximum(cv, 0.15), jnp.pi / 2)
     u = (jnp.arange(n, dtype=dt) + 0.5) / n * 2 - 1
@@ -208,13 +218,7 @@ def polar_lobe_kernel(model, conductor: Conductor, cos_v, n_psi: int = 48, n_chi
     dt = conductor.n.dtype
     mu = jnp.asarray(model.mu if width is None else width, dt)
     cv = jnp.asarray(cos_v, dt)
-    sv = jnp.sqrt(jnp.maximum(1.0 - cv ** 2, 0.0))
-    V = jnp.stack([sv, jnp.zeros_like(sv), cv])
-    R = jnp.stack([-sv, jnp.zeros_like(sv), cv])
-    tt = jnp.asarray([0.0, 0.0, 1.0], dt) - cv * R
-    tn = jnp.linalg.norm(tt)
-    t = jnp.where(tn > 1e-9, tt / jnp.maximum(tn, 1e-12), jnp.asarray([1.0, 0.0, 0.0], dt))
-    y = jnp.cross(R, t)
+    V, R, t, y = view_frame(cv)
     top = jnp.minimum(TAIL_REACH * mu, jnp.pi)
     u = (jnp.arange(n_psi, dtype=dt) + 0.5) / n_psi
     chi = (jnp.arange(n_chi, dtype=dt) + 0.5) / n_chi * 2 * jnp.pi
@@ -322,7 +326,7 @@ def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int =
 
 
 #: The functions whose source text keys the tail table (:func:`jkatana.interactive.tables.cached_tail_fit`).
-TAIL_SOURCES = (polar_lobe_kernel, tail_kernel, _ring_energy, _tail_rows, tail_fit)
+TAIL_SOURCES = (view_frame, polar_lobe_kernel, tail_kernel, _ring_energy, _tail_rows, tail_fit)
 
 
 #: The fitted pattern is used where its filter width μ_e spans at least this many texels of the map.
@@ -350,4 +354,4 @@ def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int, tail: 
 
 
 #: The functions whose source text keys the tap table (:func:`jkatana.interactive.tables.tap_fit_key`).
-FIT_SOURCES = (reflected_lobe, prefilter_kernel, lobe_kernel, tap_kernel, _lobe_kernels, _fit_scan, tap_fit)
+FIT_SOURCES = (reflected_lobe, prefilter_kernel, view_frame, lobe_kernel, tap_kernel, _lobe_kernels, _fit_scan, tap_fit)
