@@ -18,7 +18,7 @@ from jkatana.interactive import lobe_tables as LT
 from jkatana.interactive import tables as T
 from jkatana.interactive import taps as TP
 from jkatana.interactive import scene as S
-from jkatana.interactive.gl import GLUnavailable, missing_package
+from jkatana.interactive.gl import missing_package
 from jkatana.light.envmap import texel_directions_np
 from jkatana.models import Conductor, Hamon, Hiraji
 from validation import gl_agreement as A
@@ -101,15 +101,6 @@ def test_builtin_environments_are_positive_spectral_maps():
 
 
 # ------------------------------------------------------------------ GL (EGL llvmpipe here; CI too)
-
-
-@pytest.fixture(scope="module")
-def glr():
-    try:
-        from jkatana.interactive import glrender
-    except GLUnavailable as err:  # pragma: no cover - only without the Debian packages
-        pytest.skip(f"no OpenGL: {err}")
-    return glrender
 
 
 @pytest.fixture(scope="module")

@@ -99,17 +99,6 @@ def test_resolved_taps_drop_the_tail_where_the_moments_are_used():
     np.testing.assert_array_equal(tail_f, tail)
 
 
-@pytest.fixture(scope="module")
-def glr():
-    from jkatana.interactive.gl import GLUnavailable
-
-    try:
-        from jkatana.interactive import glrender
-    except GLUnavailable as err:                       # pragma: no cover - depends on the machine
-        pytest.skip(str(err))
-    return glrender
-
-
 @pytest.mark.gl
 def test_tail_tap_in_the_shader(glr):
     """The paper's lobes: no tail, the shader's ``JK_TAIL`` 0 and the 8-layer table. A tail in the bake: 10
