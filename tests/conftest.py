@@ -17,7 +17,8 @@ checked at run time, hypothesis profiles, one cache folder per test run, the GL 
   ``~/.cache/jkatana``. Tests of the caches themselves point ``$JKATANA_CACHE`` at their own ``tmp_path``.
 - JAX's persistent compilation cache in the folder ``jax`` under it (the folder ``jkatana fit`` uses under
   the same ``$JKATANA_CACHE``, :mod:`jkatana.fit.commands`): a program compiled by one
-  worker, or by a command a test runs, is read back by the others instead of compiled again. It holds
+  worker, or by a command a test runs, is read back by the others instead of compiled again (programs that
+  take at least 0.1 s to compile, so not each of the many tiny ones of eager operations). It holds
   compiled XLA programs keyed by the program, the options and the backend, so a hit runs the program
   a miss would compile: no result depends on it. ``JKATANA_NO_JAX_CACHE=1`` switches it off (as for
   ``jkatana fit``), e.g. to time compilation.
