@@ -59,6 +59,7 @@ def selection_rates(g, generators, candidates, count, seed=0):
     return rates
 
 
+@pytest.mark.slow
 def test_selection_picks_the_generating_lobe_small(geometry):
     """GTR nests GGX (γ = 2): the selection must not prefer the bigger model on GGX data, nor GGX on GTR data."""
     rates = selection_rates(geometry, ["ggx", "gtr"], ["ggx", "gtr"], 6, seed=11)
