@@ -2,17 +2,18 @@
 
 from __future__ import annotations
 
+import colour
 import numpy as np
 import pytest
 
 from jkatana.spectral import delta_e_2000, delta_e_2000_8bit, delta_e_2000_display, display8, to_display
 from jkatana.spectral.colorimetry import to_png8, xyz_to_rgb_matrix
 
+D65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+
+
 def test_in_gamut_it_is_colour_sciences_ciede2000_of_the_colours():
     """Inside the display gamut the display round trip is the identity: ΔE is CIEDE2000 of the XYZ."""
-    import colour  # colour-science: imported by the tests that compare with it (seconds per process)
-
-    D65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
     rng = np.random.default_rng(1)
     to_xyz = np.linalg.inv(xyz_to_rgb_matrix("sRGB"))
     rgb = rng.uniform(0.05, 0.85, (200, 3))

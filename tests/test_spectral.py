@@ -2,7 +2,6 @@
 
 References are computed independently in the tests (the YAML files are parsed
 here by hand; colour-science is called directly), never copied from jkatana.
-colour-science is imported by the tests that call it, not at collection (seconds per process).
 """
 
 from __future__ import annotations
@@ -11,6 +10,7 @@ import re
 from importlib import resources
 from pathlib import Path
 
+import colour
 import numpy as np
 import pytest
 
@@ -207,8 +207,6 @@ def test_user_yaml_roundtrip(tmp_path):
 
 
 def _shape(grid):
-    import colour
-
     return colour.SpectralShape(grid.start, grid.stop, grid.step)
 
 
@@ -221,8 +219,6 @@ def test_d65_xyz_equals_colour_science(grid):
     Σ S x̄ Δλ, the same sum as eq. (6) with k = 1. The SPD is colour-science's
     own D65 aligned to the grid, not jkatana's.
     """
-    import colour
-
     shape = _shape(grid)
     sd = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
     cm = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
@@ -239,8 +235,6 @@ def test_d65_xyz_equals_colour_science(grid):
 
 
 def test_cmfs_on_grid_equal_colour_table():
-    import colour
-
     table = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     np.testing.assert_allclose(cmfs(DEFAULT_GRID), table[DEFAULT_GRID.wavelengths], rtol=1e-12)
 
@@ -261,8 +255,6 @@ def test_srgb_of_d65_is_white():
 
 
 def test_illuminants_a_and_cct():
-    import colour
-
     a = illuminant("A")
     ref = colour.SDS_ILLUMINANTS["A"][DEFAULT_GRID.wavelengths]
     np.testing.assert_allclose(a, ref / np.interp(560, DEFAULT_GRID.wavelengths, ref) * 100, rtol=1e-9)
@@ -278,8 +270,6 @@ def test_illuminants_a_and_cct():
 @pytest.mark.parametrize("name,key", [("sRGB", "sRGB"), ("Display P3", "Display P3"),
                                       ("Adobe RGB", "Adobe RGB (1998)"), ("Rec.2020", "ITU-R BT.2020")])
 def test_matrices_equal_colour_science(name, key):
-    import colour
-
     m = xyz_to_rgb_matrix(name)
     np.testing.assert_array_equal(m, colour.RGB_COLOURSPACES[key].matrix_XYZ_to_RGB)
     xyz = np.array([[0.2, 0.3, 0.4], [0.9505, 1.0, 1.089]])
