@@ -59,6 +59,7 @@ def selection_rates(g, generators, candidates, count, seed=0):
     return rates
 
 
+@pytest.mark.slow
 def test_selection_picks_the_generating_lobe_small(geometry):
     """GTR nests GGX (γ = 2): the selection must not prefer the bigger model on GGX data, nor GGX on GTR data."""
     rates = selection_rates(geometry, ["ggx", "gtr"], ["ggx", "gtr"], 6, seed=11)
@@ -363,11 +364,15 @@ def test_model_jacobian_is_the_direct_one(geometry, spec):
     terms = prepare(spec.model, geometry["ti"], geometry["tr"], geometry["n"], geometry["k"], geometry["w"])
     at = evaluation_point(terms, spec)
     away = {k: 0.6 * v for k, v in TRUTH[spec.model].items()} | dict(weight=0.3, gamma=2.5)
+    # compiled once for both points (a function made inside the loop would be traced and compiled per point)
+    direct = eqx.filter_jit(lambda p, terms: jax.jacfwd(_green_direct)(p, terms, spec))
+    forward = jax.jit(jax.jacfwd(lambda p: green(p, terms, spec, at)))
+    reverse = jax.jit(jax.jacrev(lambda p: green(p, terms, spec, at)))  # reverse mode: emcee, sandwich
     for values in (TRUTH[spec.model] | dict(floor=5.0), away):
         values = {k: v for k, v in values.items() if k in spec.names}
         p = jnp.asarray(from_natural(values, spec))
-        want = np.asarray(eqx.filter_jit(lambda p, terms: jax.jacfwd(_green_direct)(p, terms, spec))(p, terms))
-        got = np.asarray(jax.jit(jax.jacfwd(lambda p: green(p, terms, spec, at)))(p))
+        want = np.asarray(direct(p, terms))
+        got = np.asarray(forward(p))
         np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10 * np.max(np.abs(want)))
-        got_rev = np.asarray(jax.jit(jax.jacrev(lambda p: green(p, terms, spec, at)))(p))  # reverse mode: emcee, sandwich
+        got_rev = np.asarray(reverse(p))
         np.testing.assert_allclose(got_rev, want, rtol=1e-10, atol=1e-10 * np.max(np.abs(want)))

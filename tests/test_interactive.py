@@ -18,7 +18,7 @@ from jkatana.interactive import lobe_tables as LT
 from jkatana.interactive import tables as T
 from jkatana.interactive import taps as TP
 from jkatana.interactive import scene as S
-from jkatana.interactive.gl import GLUnavailable, missing_package
+from jkatana.interactive.gl import missing_package
 from jkatana.light.envmap import texel_directions_np
 from jkatana.models import Conductor, Hamon, Hiraji
 from validation import gl_agreement as A
@@ -92,6 +92,23 @@ def test_missing_package_names_the_debian_package(monkeypatch, tmp_path):
     assert missing_package("egl") is None      # set-up installed it
 
 
+def test_package_names_resolve_lazily():
+    """The package's re-exports are its submodules' objects, and importing the view command's module does not
+    import the bake, JAX or pyrender (the command line answers a bad option without them)."""
+    import jkatana.interactive as I
+    from jkatana.interactive import Baked, GLUnavailable, cached_bake
+    from jkatana.interactive import gl
+
+    assert (Baked, cached_bake, GLUnavailable) == (B.Baked, B.cached_bake, gl.GLUnavailable)
+    assert set(I.__all__) <= set(dir(I))
+    with pytest.raises(AttributeError, match="no_such_name"):
+        I.no_such_name
+    code = ("import sys, jkatana.interactive.commands\n"
+            "print(sorted(m for m in ('jax', 'pyrender', 'jkatana.interactive.bake') if m in sys.modules))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert res.returncode == 0 and res.stdout.strip() == "[]", (res.stdout, res.stderr[-2000:])
+
+
 def test_builtin_environments_are_positive_spectral_maps():
     for name in S.ENVIRONMENTS:
         e = S.environment(name, height=16)
@@ -101,15 +118,6 @@ def test_builtin_environments_are_positive_spectral_maps():
 
 
 # ------------------------------------------------------------------ GL (EGL llvmpipe here; CI too)
-
-
-@pytest.fixture(scope="module")
-def glr():
-    try:
-        from jkatana.interactive import glrender
-    except GLUnavailable as err:  # pragma: no cover - only without the Debian packages
-        pytest.skip(f"no OpenGL: {err}")
-    return glrender
 
 
 @pytest.fixture(scope="module")
@@ -139,6 +147,7 @@ def test_rank_2_lobe_table_carries_the_tap_weights(glr, sky_scene):
 
 
 @pytest.mark.gl
+@pytest.mark.slow          # a 256-spp reference frame; test_gl_frame_agrees_with_jkatana_render is the everyday one
 def test_gl_frame_agrees_with_the_reference_renderer_under_the_sky(glr, sky_scene, tmp_path):
     """The built-in sky from an orbit view, against jkatana.render (reference mode, 256 samples)."""
     sc = sky_scene
@@ -157,8 +166,14 @@ def test_gl_frame_agrees_with_the_reference_renderer_under_the_sky(glr, sky_scen
     # a wrong shader would not pass: drop the blend and the roughness → visibly different
     st2 = glr.ShadingState(baked, sc.refl_map, rough=False, rank=1)
     assert A.compare(A.gl_frame(st2, sc.view, sc.mesh), ref, m)[0]["mean"] > stats["mean"]
-    # every combination of the static switches compiles and links (unused uniforms are allowed
-    # only where the switch removes them)
+
+
+@pytest.mark.gl
+def test_every_combination_of_the_static_switches_compiles_and_links(glr, sky_scene):
+    """Each shader variant of the static switches (rough, blend, two-tap) compiles and links (unused
+    uniforms are allowed only where the switch removes them)."""
+    sc = sky_scene
+    baked = B.cached_bake(sc.radiance, sc.grid, rank=3)
     for rough in (False, True):
         for blend in (False, True):
             for two_tap in (False, True):

@@ -11,17 +11,6 @@ from jkatana.interactive import bake as B
 from jkatana.interactive import scene as S
 
 
-@pytest.fixture(scope="module")
-def glr():
-    from jkatana.interactive.gl import GLUnavailable
-
-    try:
-        from jkatana.interactive import glrender
-    except GLUnavailable as err:                       # pragma: no cover - depends on the machine
-        pytest.skip(str(err))
-    return glrender
-
-
 @pytest.mark.gl
 @pytest.mark.parametrize("closeup", [False, True])
 def test_deferred_frame_is_the_forward_frame(glr, closeup):

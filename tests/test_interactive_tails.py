@@ -31,7 +31,9 @@ def _shape_key(model: str, values: dict):
 
 @functools.lru_cache(maxsize=None)
 def _fit():
-    """GGX (α = μ) in hiraji, the paper's hamon lobe: the three fitted taps (tap_fit) and the tail tap."""
+    """GGX (α = μ) in hiraji, the paper's hamon lobe: the three fitted taps (tap_fit) and the tail tap.
+
+    Shared by the three checks of the fit below; the two fits are long, so those checks run with the slow tests."""
     iron = Conductor.from_table("Fe-Johnson", DEFAULT_GRID, dtype=jnp.float64)
     lobes = (region_lobes({"hiraji": _shape_key("ggx", {"scale": 2000.0, "alpha": 0.05})})[0], PAPER_LOBES[1])
     _, start, _, _ = TP.tap_fit(iron, MUS, n_cos=N_COS, lobes=lobes)
@@ -43,6 +45,7 @@ def _energy_beyond(F, dw, psi, r):
     return float(np.sum((F * dw)[psi > r]))
 
 
+@pytest.mark.slow
 def test_tail_tap_puts_ggx_tail_energy_where_the_lobe_has_it():
     """GGX keeps 1/(1 + k²) of its facet mass beyond a half-angle k α: ≥ 10 % of the reflected light lies beyond
     4 μ from R. With the tail tap (at μ = 0.05, where the widest level leaves it room) the fitted kernel holds
@@ -71,6 +74,7 @@ def test_tail_tap_puts_ggx_tail_energy_where_the_lobe_has_it():
             assert abs(_energy_beyond(F, dw, psi, 8 * mu) - lobe8) < 0.6 * (lobe8 - _energy_beyond(F0, dw, psi, 8 * mu))
 
 
+@pytest.mark.slow
 def test_tail_fit_weights_and_the_paper_region():
     """The three taps are kept; the tail's weight lies in (0, 0.9] for GGX off grazing where a wider level exists and is 0
     at the widest level (nothing wider to read); a region holding the paper's lobe has no tail (w_t = 0); with
@@ -86,6 +90,7 @@ def test_tail_fit_weights_and_the_paper_region():
     np.testing.assert_array_equal(none, 0.0)
 
 
+@pytest.mark.slow
 def test_resolved_taps_drop_the_tail_where_the_moments_are_used():
     """Where the map does not resolve the fitted taps the moment pattern (the whole lobe's) is read, and the
     tail's weight is 0 there."""
@@ -97,17 +102,6 @@ def test_resolved_taps_drop_the_tail_where_the_moments_are_used():
     fine, tail_f = TP.resolved_taps(taps, spread, MUS, 100000, tail)
     np.testing.assert_array_equal(fine, taps)
     np.testing.assert_array_equal(tail_f, tail)
-
-
-@pytest.fixture(scope="module")
-def glr():
-    from jkatana.interactive.gl import GLUnavailable
-
-    try:
-        from jkatana.interactive import glrender
-    except GLUnavailable as err:                       # pragma: no cover - depends on the machine
-        pytest.skip(str(err))
-    return glrender
 
 
 @pytest.mark.gl

@@ -173,6 +173,7 @@ def test_constant_map_stays_constant():
         np.testing.assert_allclose(np.asarray(lvl.radiance), 2.5, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_prefilter_matches_brute_force_rough():
     """μ = 0.05–0.3 rad on a 64×128 sky with sun, levels up to 4× finer than the source.
     Stated error: ≤ 1.5 % (max over 8 probe directions incl. the sun, the pole and the ground)."""

@@ -186,6 +186,7 @@ def _configs(env):
     return V, n_sun, n_sky
 
 
+@pytest.mark.slow  # the all-maps test below checks this configuration too (sky, μ = 0.05, sun), with 256 estimates
 def test_reflected_radiance_unbiased_and_mis_sky_with_sun():
     env = _sky()
     V, n_sun, _ = _configs(env)

@@ -200,6 +200,7 @@ def test_paper_mode_keeps_the_glint_that_the_published_rays_miss(sun_map):
 # ---------------------------------------------------------------- energy
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rule", ["nodes", "stroud"])
 def test_cap_power_reflected_by_a_white_wide_lobe_equals_its_irradiance_times_the_albedo(rule):
     """White (F ≡ 1) wide lobe (μ = 0.3) lit by a 1° cap of unit radiance 40° off the normal, nothing
@@ -251,6 +252,7 @@ def _sphere_pixels(n=None):
     return px
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["prefiltered", "reference"])
 def test_the_cap_centre_ray_carries_the_caps_visibility(mode, sun_map):
     """``ray_directions`` adds one ray per cap toward its centre after the lights; all visible: the frame
@@ -284,6 +286,7 @@ def test_the_cap_centre_ray_carries_the_caps_visibility(mode, sun_map):
         np.testing.assert_allclose(y_b, np.asarray(rem[:, 1]), rtol=1e-5, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_lowrank_mode_with_the_split_agrees_with_the_reference(sun_map):
     """Low rank (3 principal spectra of the whole map, the cap projected on them) with the cap's MIS
     strategy: mean luminance of the sphere within 2 % of the full-spectrum reference mode (both split,
@@ -318,6 +321,7 @@ def test_tabulated_normalisation_matches_the_quadrature():
                                rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_cap_rule_per_lobe_keeps_each_lobes_rule():
     """A narrow hiraji lobe (under 8 cap radii) beside a wide hamon lobe: :func:`cap_rule_for` picks the nodes
     for the first and Stroud's 4 directions for the second, and the mixed rule's terms are, lobe by lobe,

@@ -75,6 +75,7 @@ def test_mirror_pixels_that_see_the_box_go_black_and_the_rest_are_identical():
     assert f1.stats["occluded_pixels"] == 0 and f1.timing["visibility_rays"] > 0
 
 
+@pytest.mark.slow
 def test_rough_lobe_is_darker_where_it_sees_the_box_and_identical_where_no_ray_does():
     env, fac, _ = build_environment(_sky())
     mat = _mat()

@@ -22,8 +22,41 @@
 - :mod:`~jkatana.interactive.viewer`: the windowed Viewer (``jkatana view``).
 
 Nothing here imports pyrender at package import time: the GL platform must be
-chosen first (see :mod:`jkatana.interactive.gl`).
+chosen first (see :mod:`jkatana.interactive.gl`). The package's own names are
+re-exported lazily (PEP 562 module ``__getattr__``): importing a submodule, as
+the ``jkatana view`` command does, imports that submodule and what it needs,
+not the bake and its JAX models; ``from jkatana.interactive import Baked``
+imports :mod:`~jkatana.interactive.bake` on first use.
 """
 
-from jkatana.interactive.bake import Baked as Baked, cached_bake as cached_bake
-from jkatana.interactive.gl import GLUnavailable as GLUnavailable
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from jkatana.interactive.bake import Baked as Baked, cached_bake as cached_bake
+    from jkatana.interactive.gl import GLUnavailable as GLUnavailable
+
+#: re-exported name → the submodule that defines it
+_EXPORTS = {
+    "Baked": "jkatana.interactive.bake",
+    "cached_bake": "jkatana.interactive.bake",
+    "GLUnavailable": "jkatana.interactive.gl",
+}
+
+__all__ = ["Baked", "GLUnavailable", "cached_bake"]
+
+
+def __getattr__(name: str):
+    """A re-exported name, its submodule imported on first use (then kept in the package's namespace)."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
