@@ -186,7 +186,8 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
     ``seed``: jkatana's sampling key. ``env_samples``: environment samples per subpixel of the rough
     sphere (``Plan.env_samples``; ``None``: one beside each of the ``samples`` lobe samples).
     ``fresnel_rank``: rank of the folded Fresnel table of the rough sphere (``Plan.fresnel_rank``;
-    ``None``: the frame's choice, exact to :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL`).
+    ``None``: the frame's choice, for this reference-mode sphere within
+    :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL_SAMPLED` of the table; 0: full spectra).
     """
     import jax.numpy as jnp
 

@@ -461,46 +461,59 @@ def _view_azimuth(V):
     return r, jnp.where(flat, V[..., 0] / r_s, 1.0), jnp.where(flat, V[..., 1] / r_s, 0.0)
 
 
-#: Newton steps of the Beckmann visible-slope inversion: |CDF(x) − u| ≤ 2.5e-6 after three over
-#: cot θ ∈ [0, 1e4], u ∈ [0, 1) in float64 (at float32's own resolution, 2.4e-7, after four).
-BECKMANN_NEWTON_STEPS = 3
+#: Halley steps of the Beckmann visible-slope inversion from Jakob's start: the first in the erf domain, the
+#: second on the slope itself. |CDF(x) − u| ≤ 5e-9 after both over cot θ ∈ [0, 1e4], u ∈ [0, 1) in float64
+#: (≤ 2e-6 in float32, whose own resolution is 6e-8); 5e-2 from the start alone, 1e-4 after one step.
+BECKMANN_HALLEY_STEPS = 2
 _COT_MAX = 1e4  # beyond it the view is normal for the slope sampler: erf(cot) = 1, exp(−cot²) = 0
 
 
-def _beckmann_visible_slope(cot, u):
+def _beckmann_visible_slope(cot, u, steps: int = BECKMANN_HALLEY_STEPS):
     """The slope x̃ ≤ cot θ of a Beckmann (α = 1) facet visible from a view at cot θ, from a uniform ``u``.
 
-    Its CDF is (cot θ (1 + erf x̃) + exp(−x̃²)/√π) / (cot θ (1 + erf cot θ) + exp(−cot²θ)/√π)
-    (Heitz & d'Eon 2014, supplemental; written times cot θ so that it is finite at
-    grazing view), inverted in the erf domain b = erf x̃ by Newton steps from
-    Jakob's (2014, "An improved visible normal sampling routine for the Beckmann
-    distribution", Mitsuba 0.5 / pbrt-v3's ``BeckmannSample11``) fitted start and
-    bisection bracket. b is kept within eps of ±1, so the float32 tails beyond
-    |x̃| ≈ 3.9 (mass < 3e-7) are drawn at that slope.
+    Its CDF is P(x̃) = (cot θ (1 + erf x̃) + exp(−x̃²)/√π) / (cot θ (1 + erf cot θ) + exp(−cot²θ)/√π)
+    (Heitz & d'Eon 2014, "Importance sampling microfacet-based BSDFs using the distribution of
+    visible normals", EGSR, supplemental; written times cot θ so that it is finite at grazing view).
+    Start: Jakob's (2014, "An improved visible normal sampling routine for the Beckmann distribution",
+    Mitsuba 0.5 / pbrt-v3's ``BeckmannSample11``) fitted b = erf x̃, within 5e-2 of u in P. Then
+    Halley's cubically convergent steps on P(x̃) − u, whose derivatives need no transcendental beyond
+    P's own: in the erf domain P' = (cot θ − x̃)/den and P'' = −(√π/2) exp(x̃²)/den (first step, inside
+    Jakob's bisection bracket [−1, erf cot θ], so a step leaving it falls back to the midpoint); on the
+    slope P' = (2/√π) exp(−x̃²)(cot θ − x̃)/den and P''/P' = −2x̃ − 1/(cot θ − x̃) (second step, from
+    the erfinv the first one needs anyway, so no erfinv after it; kept only where its Halley
+    denominator is positive, i.e. the step is in its convergent regime). b is kept within eps of ±1,
+    so the float32 tails beyond |x̃| ≈ 3.9 (mass < 3e-7) are drawn at that slope. ``steps``: 0, 1 or 2.
     """
     dtype = cot.dtype
     eps = float(jnp.finfo(dtype).eps)
+    sqrt_pi = math.sqrt(math.pi)
     cot = jnp.minimum(cot, _COT_MAX)
     c = jax.scipy.special.erf(cot)
-    den = cot * (1.0 + c) + jnp.exp(-cot * cot) * (1.0 / math.sqrt(math.pi))
+    den = cot * (1.0 + c) + jnp.exp(-cot * cot) * (1.0 / sqrt_pi)
     # the start's view angle θ = atan(1/cot θ) to ±0.004 rad (a start only: the steps correct it)
     z = jnp.where(cot >= 1.0, 1.0 / jnp.maximum(cot, 1.0), cot)
     at = z * (math.pi / 4 + 0.273 * (1.0 - z))
     theta = jnp.where(cot >= 1.0, at, math.pi / 2 - at)
     fit = 1.0 + theta * (-0.876 + theta * (0.4265 - 0.0594 * theta))
     u = jnp.clip(u, 0.0, U_MAX)
-    b = c - (1.0 + c) * jnp.exp(fit * jnp.log1p(-u))
-    lo, hi = jnp.full_like(b, -1.0), c
-    for _ in range(BECKMANN_NEWTON_STEPS):
-        b = jnp.clip(jnp.where((b >= lo) & (b <= hi), b, 0.5 * (lo + hi)), eps - 1.0, 1.0 - eps)
+    b = jnp.clip(c - (1.0 + c) * jnp.exp(fit * jnp.log1p(-u)), eps - 1.0, 1.0 - eps)
+    x = jax.scipy.special.erfinv(b)
+    if steps >= 1:  # Halley in b = erf x̃: b ← b − g d / (d² + g (√π/4) exp(x̃²)), g = den (P − u), d = cot θ − x̃
+        e = jnp.exp(-x * x)
+        g = cot * (1.0 + b) + e * (1.0 / sqrt_pi) - u * den
+        d = cot - x
+        lo, hi = jnp.where(g > 0, -1.0, b), jnp.where(g > 0, b, c)
+        q = d * d * e + g * (sqrt_pi / 4)  # the Halley denominator times exp(−x̃²) (> 0)
+        b = b - g * d * e / jnp.where(q > 0, q, 1.0)
+        b = jnp.clip(jnp.where((b >= lo) & (b <= hi) & (q > 0), b, 0.5 * (lo + hi)), eps - 1.0, 1.0 - eps)
         x = jax.scipy.special.erfinv(b)
-        value = (cot * (1.0 + b) + jnp.exp(-x * x) * (1.0 / math.sqrt(math.pi))) / den - u
-        slope = (cot - x) / den  # dCDF/db
-        hi = jnp.where(value > 0, b, hi)
-        lo = jnp.where(value > 0, lo, b)
-        b = b - value / jnp.where(slope > 0, slope, 1.0)
-    b = jnp.clip(jnp.where((b >= lo) & (b <= hi), b, 0.5 * (lo + hi)), eps - 1.0, 1.0 - eps)
-    return jax.scipy.special.erfinv(b)
+    if steps >= 2:  # Halley in x̃: x̃ ← x̃ − g √π d / (2 exp(−x̃²) d² + g √π (x̃ d + ½)), erf x̃ = b
+        e = jnp.exp(-x * x)
+        g = cot * (1.0 + b) + e * (1.0 / sqrt_pi) - u * den
+        d = cot - x
+        q = 2.0 * e * d * d + g * sqrt_pi * (x * d + 0.5)
+        x = jnp.minimum(jnp.where(q > 0, x - g * sqrt_pi * d / jnp.where(q > 0, q, 1.0), x), cot)
+    return x
 
 
 class Beckmann(_VisibleMicrofacet):

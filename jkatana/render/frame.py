@@ -32,7 +32,9 @@ from jax.sharding import NamedSharding, PartitionSpec as PS
 from jkatana.render.camera import Camera
 from jkatana.render.caps import _caps, cap_pixels
 from jkatana.render.environment import xyz_environment
+from jkatana.render.fresnel_fold import FRESNEL_RANK_TOL, FRESNEL_RANK_TOL_SAMPLED
 from jkatana.render.gbuffer import GBuffer, gbuffer_mesh, gbuffer_sphere
+from jkatana.render.plan import SAMPLED_MODES
 from jkatana.render.shading import (Environment, Light, Material, PixelIds, Pixels, Plan, Visibility, background,
                                     cap_rule_for, fold_fresnel, fresnel_rank_for, ray_directions, shade, shade_caps)
 
@@ -255,12 +257,16 @@ def background_environment(env: Environment, cmf) -> Environment:
 
 def resolve_plan(plan: Plan, mat: Material) -> Plan:
     """``plan`` with ``fresnel_rank=None`` decided on the host: the smallest rank of the material's
-    Fresnel table within :data:`~jkatana.render.shading.FRESNEL_RANK_TOL` where the plan allows folding
-    (no spectral output, no lights, not ``factored``, a lobe or mirror to shade), else 0 (full spectra)."""
+    Fresnel table within :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL_SAMPLED` in the sampled modes
+    (:data:`~jkatana.render.plan.SAMPLED_MODES`, whose Monte Carlo noise dwarfs that bias) and
+    :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL` in the others, where the plan allows folding
+    (no spectral output, no lights, not ``factored``, a lobe or mirror to shade), else 0 (full spectra).
+    An explicit ``fresnel_rank`` (0: full spectra) is kept."""
     if plan.fresnel_rank is not None:
         return plan
     ok = not (plan.spectral or plan.lights or plan.factored)
-    return dataclasses.replace(plan, fresnel_rank=fresnel_rank_for(mat.ftable) if ok else 0)
+    tol = FRESNEL_RANK_TOL_SAMPLED if plan.mode in SAMPLED_MODES else FRESNEL_RANK_TOL
+    return dataclasses.replace(plan, fresnel_rank=fresnel_rank_for(mat.ftable, tol) if ok else 0)
 
 
 @functools.lru_cache(maxsize=1)

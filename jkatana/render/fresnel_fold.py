@@ -29,6 +29,14 @@ if TYPE_CHECKING:
 FRESNEL_TABLE = 1024
 #: Largest |F − F_R| (absolute reflectance) accepted for a rank-R Fresnel table (:func:`fresnel_rank_for`).
 FRESNEL_RANK_TOL = 1e-5
+#: The same bound for the sampled modes (:data:`~jkatana.render.plan.SAMPLED_MODES`). Their frames carry
+#: Monte Carlo noise, so the table need not be exact to 1e-5: 5e-3 in reflectance (under 1 % of a
+#: metal's F ≥ 0.5) is a colour bias well below the noise of a sampled frame, and each rank fewer removes
+#: three channels from every sample's lookup and one coefficient from its Fresnel row (iron: rank 3,
+#: not 5). The bias is bounded per pixel by max |F − F_R| / min F of the frame itself, since every
+#: sample's weight and radiance are non-negative. ``Plan(fresnel_rank=0)`` keeps full spectra, an
+#: explicit rank that rank.
+FRESNEL_RANK_TOL_SAMPLED = 5e-3
 
 
 class Material(eqx.Module):

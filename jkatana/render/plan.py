@@ -20,6 +20,10 @@ MODES = ("reference", "paper", "prefiltered", "lowrank", "paper-published")
 #: The modes that render a lobe other than the paper's: the sampling modes (through the lobe's own
 #: ``sample``/``pdf``) and the prefiltered mode (levels convolved with the region's own lobe).
 LOBE_MODES = ("reference", "lowrank", "prefiltered")
+#: The Monte Carlo modes (lobe and environment samples combined by MIS): their default Fresnel rank is
+#: chosen to :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL_SAMPLED`, the other modes' to
+#: :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL`.
+SAMPLED_MODES = frozenset({"reference", "lowrank"})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,8 +52,9 @@ class Plan:
       ``R`` Fresnel coefficients instead of ``wl`` bands; the caller passes the
       folded material and environment). ``0``: full spectra. ``None`` (default):
       :func:`jkatana.render.frame.shade_pixels` picks the smallest ``R`` whose
-      Fresnel table residual is below :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL` when the plan
-      allows it (no spectral output, no lights, not ``factored``), else 0;
+      Fresnel table residual is below :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL_SAMPLED` in the
+      modes of :data:`SAMPLED_MODES` and :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL` in the others,
+      when the plan allows it (no spectral output, no lights, not ``factored``), else 0;
       :func:`~jkatana.render.shading.shade` called directly treats ``None`` as 0.
     - `lights`: number of point/directional lights (0: none evaluated).
     - `calibration`: ``None`` for the normalised convention, else K (see models).

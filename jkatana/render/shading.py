@@ -68,7 +68,9 @@ Sampling design of the MIS modes:
   :class:`~jkatana.models.lobes.Mixture` with weights w, 1 − w;
 - the Fresnel factor is folded into the environment (:func:`fold_fresnel`,
   ``Plan.fresnel_rank``): per sample a ``3R``-channel lookup instead of one per
-  wavelength, exact up to the rank of F(cos θ, λ);
+  wavelength, exact up to the rank of F(cos θ, λ); by default these modes take the
+  rank within :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL_SAMPLED` (a bias
+  far below their noise, bounded per pixel by max|F − F_R| / min F);
 - per-pixel points are a 3D Sobol sequence (Joe & Kuo 2008) with random
   digital shifts (Owen 2003), the environment warp taking 2 of them
   (:meth:`~jkatana.light.sampling.EnvSampler.sample_uniform2`), so that each
