@@ -121,6 +121,12 @@ class FitModel:
         return out
 
 
+@functools.partial(jax.jit, static_argnums=0)
+def build_lobe(fit_model: FitModel, q):
+    """:meth:`FitModel.build` as one compiled program per model (for callers outside a compiled fit)."""
+    return fit_model.build(q)
+
+
 FIT_MODELS: dict[str, FitModel] = {m.name: m for m in (
     FitModel("hiraji", "gaussian", "chi", ("mu",), ()),
     FitModel("hamon", "gaussian-vcavity", "beta", ("mu",), ()),
