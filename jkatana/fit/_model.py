@@ -64,10 +64,6 @@ def _sigmoid(t):
     return jax.nn.sigmoid(t)
 
 
-def _logit(x):
-    return math.log(x / (1.0 - x))
-
-
 @dataclasses.dataclass(frozen=True)
 class FitModel:
     """How one lobe is fitted: its natural parameter names and the maps to/from the fit vector."""
@@ -109,16 +105,33 @@ class FitModel:
             out["weight"] = float(expit(q[2]))
         return out
 
-    def shape_from_natural(self, values: dict) -> list[float]:
-        width = float(values[self.names[0]])
-        out = [math.log(width)]
+    def encode(self, log_width, extra=(), xp=jnp):
+        """The fit-space shape vector (:meth:`build`'s argument, the inverse of its map) at width
+        ``exp(log_width)`` and the extra shape parameters ``extra`` in natural units, missing ones at
+        :attr:`defaults`: γ for ``gtr`` (→ logit((γ − 1)/3)); the haze ratio α_haze/α and the weight w for
+        ``two-lobe`` (→ log(ratio − 1), logit w). ``xp``: :mod:`jax.numpy` (traceable, the default) or
+        :mod:`math` (floats for parameter files, no compiled program)."""
+        extra = tuple(extra) + tuple(self.defaults[len(tuple(extra)):])
+        out = [log_width]
         if self.name == "gtr":
-            out.append(_logit((float(values.get("gamma", self.defaults[0])) - 1.0) / 3.0))
+            x = (extra[0] - 1.0) / 3.0
+            out.append(xp.log(x / (1.0 - x)))
         if self.name == "two-lobe":
-            haze = float(values.get("alpha_haze", width * 10.0))
-            out.append(math.log(max(haze / width - 1.0, 1e-12)))
-            out.append(_logit(float(values.get("weight", self.defaults[1]))))
+            ratio, w = extra
+            out.append(xp.log((max if xp is math else xp.maximum)(ratio - 1.0, 1e-12)))
+            out.append(xp.log(w / (1.0 - w)))
         return out
+
+    def shape_from_natural(self, values: dict) -> list[float]:
+        """:meth:`encode` of natural values by name (the two-lobe haze as the width ``alpha_haze``)."""
+        width = float(values[self.names[0]])
+        extra = []
+        if self.name == "gtr":
+            extra = [float(values.get("gamma", self.defaults[0]))]
+        if self.name == "two-lobe":
+            extra = [float(values.get("alpha_haze", width * self.defaults[0])) / width,
+                     float(values.get("weight", self.defaults[1]))]
+        return self.encode(math.log(width), extra, xp=math)
 
 
 @functools.partial(jax.jit, static_argnums=0)

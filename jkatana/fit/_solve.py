@@ -281,8 +281,8 @@ def pair_start(terms: Terms, y, w, spec: ModelSpec, width):
     a1 = jnp.where(fitted, jnp.where(ok, a1, 1.0)[k], weight * s0[k])
     a2 = jnp.where(fitted, jnp.where(ok, a2, 1.0)[k], (1.0 - weight) * s0[k])
     tail = jnp.zeros(int(spec.tilt) + int(spec.floor), dtype)
-    return jnp.concatenate([jnp.stack([jnp.log(a1 + a2), sharp[k], jnp.asarray(math.log(haze - 1.0), dtype),
-                                       jnp.log(a1 / a2)]), tail])
+    shape = spec.fit_model.encode(sharp[k], (haze, a1 / (a1 + a2)))
+    return jnp.concatenate([jnp.stack([jnp.log(a1 + a2), *(jnp.asarray(v, dtype) for v in shape)]), tail])
 
 
 #: Width grid of :func:`grid_start` (radians for the paper's μ, the microfacet α otherwise).
