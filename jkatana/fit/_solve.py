@@ -548,6 +548,6 @@ def laplace(jtj, cost: float, n_eff: int, p, spec: ModelSpec, *, birge: bool = T
                 chi2_dof=chi2_dof, covariance_scale=scale)
 
 
-__all__ = ["NoiseModel", "estimate_noise", "residuals", "weighted_residuals", "model_values", "closed_form_start", "grid_start", "two_level_start",
-           "moment_start", "pair_start", "start_vector", "solve",
+__all__ = ["NoiseModel", "estimate_noise", "residuals", "weighted_residuals", "model_values", "closed_form_start",
+           "grid_start", "two_level_start", "moment_start", "pair_start", "start_vector", "solve",
            "verdict", "laplace", "natural_intervals", "SOLVERS", "to_natural"]
