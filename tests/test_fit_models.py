@@ -245,6 +245,45 @@ def test_second_fit_of_another_table_does_not_recompile(geometry):
     assert (solve._cache_size(), start_vector._cache_size()) == before
 
 
+def test_second_full_fit_of_another_table_compiles_no_program(geometry):
+    """Every program of a full fit (start, solve, IRLS, noise weights, sandwich, per-incidence refits, the
+    parameter file's lobe) is compiled once per model and table shape: a fit of another table of that shape,
+    with another estimated noise model, compiles nothing (no data-dependent constant in a trace, no eager
+    array operation of a new shape)."""
+    from jkatana.fit.params import to_dict
+
+    _, _, Y = campaigns(geometry, "hiraji", TRUTH["hiraji"], 2, seed=21)
+    to_dict(fit_region(FitData(geometry["ti"], geometry["tr"], Y[0]), model="hiraji"))
+    compiled = []
+
+    def listen(event, duration, **kw):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        fit = fit_region(FitData(geometry["ti"], geometry["tr"], 1.3 * Y[1]), model="hiraji")
+        to_dict(fit)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert fit.converged
+    assert compiled == []
+
+
+def test_encode_is_the_inverse_of_the_fit_models_map():
+    """:meth:`FitModel.encode` (traced, what the two-lobe start uses) and the parameter files' float form give
+    the same fit vector, and :meth:`FitModel.shape_to_natural` maps it back."""
+    for name, fm in FIT_MODELS.items():
+        vals = TRUTH[name]
+        width = vals[fm.names[0]]
+        extra = {"gtr": (vals.get("gamma"),), "two-lobe": (vals.get("alpha_haze", 0) / width, vals.get("weight"))}
+        q = np.asarray(fm.encode(jnp.log(width), extra.get(name, ())), np.float64)
+        np.testing.assert_allclose(q, fm.shape_from_natural(vals), rtol=1e-15, atol=0)
+        back = fm.shape_to_natural(q)
+        for k_ in fm.names:
+            assert back[k_] == pytest.approx(vals[k_], rel=1e-12), (name, k_)
+
+
 @pytest.mark.parametrize("model", ["beckmann", "ggx", "gtr", "two-lobe"])
 def test_moment_start_reaches_the_wide_grid_start_optimum(geometry, model):
     """The moment start changes where the solver begins, not where it ends: the same optimum (≪ 1e-3 SE)

@@ -64,10 +64,6 @@ def _sigmoid(t):
     return jax.nn.sigmoid(t)
 
 
-def _logit(x):
-    return math.log(x / (1.0 - x))
-
-
 @dataclasses.dataclass(frozen=True)
 class FitModel:
     """How one lobe is fitted: its natural parameter names and the maps to/from the fit vector."""
@@ -109,16 +105,39 @@ class FitModel:
             out["weight"] = float(expit(q[2]))
         return out
 
-    def shape_from_natural(self, values: dict) -> list[float]:
-        width = float(values[self.names[0]])
-        out = [math.log(width)]
+    def encode(self, log_width, extra=(), xp=jnp):
+        """The fit-space shape vector (:meth:`build`'s argument, the inverse of its map) at width
+        ``exp(log_width)`` and the extra shape parameters ``extra`` in natural units, missing ones at
+        :attr:`defaults`: γ for ``gtr`` (→ logit((γ − 1)/3)); the haze ratio α_haze/α and the weight w for
+        ``two-lobe`` (→ log(ratio − 1), logit w). ``xp``: :mod:`jax.numpy` (traceable, the default) or
+        :mod:`math` (floats for parameter files, no compiled program)."""
+        extra = tuple(extra) + tuple(self.defaults[len(tuple(extra)):])
+        out = [log_width]
         if self.name == "gtr":
-            out.append(_logit((float(values.get("gamma", self.defaults[0])) - 1.0) / 3.0))
+            x = (extra[0] - 1.0) / 3.0
+            out.append(xp.log(x / (1.0 - x)))
         if self.name == "two-lobe":
-            haze = float(values.get("alpha_haze", width * 10.0))
-            out.append(math.log(max(haze / width - 1.0, 1e-12)))
-            out.append(_logit(float(values.get("weight", self.defaults[1]))))
+            ratio, w = extra
+            out.append(xp.log((max if xp is math else xp.maximum)(ratio - 1.0, 1e-12)))
+            out.append(xp.log(w / (1.0 - w)))
         return out
+
+    def shape_from_natural(self, values: dict) -> list[float]:
+        """:meth:`encode` of natural values by name (the two-lobe haze as the width ``alpha_haze``)."""
+        width = float(values[self.names[0]])
+        extra = []
+        if self.name == "gtr":
+            extra = [float(values.get("gamma", self.defaults[0]))]
+        if self.name == "two-lobe":
+            extra = [float(values.get("alpha_haze", width * self.defaults[0])) / width,
+                     float(values.get("weight", self.defaults[1]))]
+        return self.encode(math.log(width), extra, xp=math)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def build_lobe(fit_model: FitModel, q):
+    """:meth:`FitModel.build` as one compiled program per model (for callers outside a compiled fit)."""
+    return fit_model.build(q)
 
 
 FIT_MODELS: dict[str, FitModel] = {m.name: m for m in (
@@ -221,26 +240,61 @@ class Terms(eqx.Module):
     geo: Geometry
 
 
-def _fbar_numpy(cos_theta, n, k, w):
-    """F̄(θ) = F(n, k, θ) @ w in float64 with jkatana.models' exact conductor Fresnel."""
+@jax.jit
+def _fresnel_jax(cos_theta, n, k):
     from jkatana.models.fresnel import fresnel_conductor
 
-    f = fresnel_conductor(jnp.asarray(cos_theta, jnp.float64)[..., None],
-                          jnp.asarray(n, jnp.float64), jnp.asarray(k, jnp.float64))
+    return fresnel_conductor(cos_theta[..., None], n, k)
+
+
+def _fbar_numpy(cos_theta, n, k, w):
+    """F̄(θ) = F(n, k, θ) @ w in float64 with jkatana.models' exact conductor Fresnel (one compiled program per
+    shape of ``cos_theta``: a table's every lookup goes through one call of :func:`_fbar_many`)."""
+    with jax.enable_x64(True):
+        f = _fresnel_jax(*(jnp.asarray(a, jnp.float64) for a in (cos_theta, n, k)))
     return np.asarray(f, np.float64) @ np.asarray(w, np.float64)
 
 
-def _amplitude_numpy(model, theta_i, theta_r, fbar):
-    """Amplitude a(θi, θr) of the paper's models (numpy float64) for the closed-form start."""
+def _fbar_many(cosines, n, k, w) -> list[np.ndarray]:
+    """:func:`_fbar_numpy` at each array of ``cosines``, evaluated as one array (one compilation per total size)."""
+    flat = [np.ravel(np.asarray(c, np.float64)) for c in cosines]
+    out = _fbar_numpy(np.concatenate(flat), n, k, w)
+    return [part.reshape(np.shape(c)) for part, c in
+            zip(np.split(out, np.cumsum([f.size for f in flat])[:-1]), cosines)]
+
+
+def _amplitude_cos(model, theta_i, theta_r):
+    """The cosine at which the paper's model ``model`` takes F̄ (cos θi for hiraji, cos θH for hamon), else None."""
     if model == "hiraji":
-        return fbar(np.cos(theta_i))
+        return np.cos(theta_i)
+    if model == "hamon":
+        return np.cos(0.5 * (theta_i + theta_r))
+    return None
+
+
+@jax.jit
+def _vcavity_numpy(cos_phi, cos_r, cos_i, cos_h):
+    return vcavity_over_cos(cos_phi, cos_r, cos_i, cos_h)
+
+
+def _amplitude_numpy(model, theta_i, theta_r, fbar):
+    """Amplitude a(θi, θr) of the paper's models (numpy float64) for the closed-form start; ``fbar`` F̄ at
+    :func:`_amplitude_cos` (None for other models)."""
+    if model == "hiraji":
+        return fbar
     if model != "hamon":
         return np.ones_like(theta_i)
     phi = 0.5 * (theta_r - theta_i)
     theta_h = 0.5 * (theta_i + theta_r)
-    g = np.asarray(vcavity_over_cos(np.cos(phi), np.maximum(np.cos(theta_r), 0.0),
-                                    np.maximum(np.cos(theta_i), 0.0), np.cos(theta_h)))
-    return fbar(np.cos(theta_h)) * g
+    with jax.enable_x64(True):
+        g = np.asarray(_vcavity_numpy(np.cos(phi), np.maximum(np.cos(theta_r), 0.0),
+                                      np.maximum(np.cos(theta_i), 0.0), np.cos(theta_h)))
+    return fbar * g
+
+
+@functools.partial(jax.jit, static_argnames=("dtype",))
+def _geometry(L, V, dtype):
+    return Geometry.of(L.astype(dtype), V.astype(dtype))
 
 
 def prepare(model: str, theta_i_deg, theta_r_deg, n, k, weights, dtype=jnp.float64, *,
@@ -267,21 +321,25 @@ def prepare(model: str, theta_i_deg, theta_r_deg, n, k, weights, dtype=jnp.float
     tr = np.deg2rad(np.asarray(theta_r_deg, np.float64))
     az = np.zeros_like(ti) if azimuth_deg is None else np.asarray(azimuth_deg, np.float64)
     grid_cos = np.linspace(0.0, 1.0, _TABLE_NODES)
-    with jax.enable_x64(True):
-        table = _fbar_numpy(grid_cos, n, k, weights)
-        amp = np.asarray(_amplitude_numpy(model, ti, tr, lambda c: _fbar_numpy(c, n, k, weights)), np.float64)
     visible = (np.cos(ti) >= 0) & (np.cos(tr) >= 0)
-    amp = np.where(visible, amp, 0.0)
     Lv, Vv = goniometer_vectors(np.rad2deg(ti), np.rad2deg(tr), az)
     with jax.enable_x64(True):
-        geo = Geometry.of(jnp.asarray(Lv, dtype), jnp.asarray(Vv, dtype))
-        exact = []
-        for c in (geo.cos_i, geo.cos_th):
-            c = np.asarray(c, np.float64)
-            h = 1e-6
-            d = (_fbar_numpy(np.minimum(c + h, 1.0), n, k, weights) - _fbar_numpy(np.maximum(c - h, 0.0), n, k, weights)
-                 ) / (np.minimum(c + h, 1.0) - np.maximum(c - h, 0.0))
-            exact.append(np.stack([c, _fbar_numpy(c, n, k, weights), d]))
+        geo = _geometry(Lv, Vv, np.dtype(dtype))
+    h = 1e-6
+    nominal = [np.asarray(c, np.float64) for c in (geo.cos_i, geo.cos_th)]
+    amp_cos = _amplitude_cos(model, ti, tr)
+    cosines = [grid_cos, *([] if amp_cos is None else [amp_cos])]
+    for c in nominal:
+        cosines += [np.minimum(c + h, 1.0), np.maximum(c - h, 0.0), c]
+    fb = _fbar_many(cosines, n, k, weights)  # every lookup of this table in one compiled program
+    table = fb[0]
+    amp = np.asarray(_amplitude_numpy(model, ti, tr, None if amp_cos is None else fb[1]), np.float64)
+    amp = np.where(visible, amp, 0.0)
+    exact = []
+    for j, c in enumerate(nominal):
+        up, down, at = fb[len(fb) - 6 + 3 * j: len(fb) - 3 + 3 * j]
+        d = (up - down) / (np.minimum(c + h, 1.0) - np.maximum(c - h, 0.0))
+        exact.append(np.stack([c, at, d]))
     return Terms(f_exact=jnp.asarray(np.stack(exact), dtype), phi=jnp.asarray(0.5 * (tr - ti), dtype), amp=jnp.asarray(amp, dtype),
                  theta_i=jnp.asarray(ti, dtype), theta_r=jnp.asarray(tr, dtype),
                  f_table=jnp.asarray(table, dtype), L=jnp.asarray(Lv, dtype), V=jnp.asarray(Vv, dtype),

@@ -90,8 +90,14 @@ class NoiseModel:
     def sigma(self, rho):
         """σ at ``rho``: a jax array for a jax input, numpy float64 otherwise."""
         xp = jnp if isinstance(rho, jax.Array) else np
-        rho = xp.abs(rho if xp is jnp else np.asarray(rho, np.float64))
-        return xp.sqrt((self.relative * rho) ** 2 + self.shot * rho + self.absolute**2)
+        return _sigma(xp, rho if xp is jnp else np.asarray(rho, np.float64), self.relative, self.shot,
+                      self.absolute)
+
+    def weights(self, rho, use, dtype):
+        """1/σ(ρ) at the points ``use`` marks, 0 elsewhere: one compiled program per shape and dtype (the noise
+        terms are its arguments, so a fit of another table with another noise model compiles nothing)."""
+        return _inverse_sigma(jnp.asarray(rho, dtype), use, *(np.asarray(v, dtype) for v in
+                                                             (self.relative, self.shot, self.absolute)))
 
     @property
     def is_zero(self) -> bool:
@@ -99,6 +105,16 @@ class NoiseModel:
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+def _sigma(xp, rho, relative, shot, absolute):
+    rho = xp.abs(rho)
+    return xp.sqrt((relative * rho) ** 2 + shot * rho + absolute**2)
+
+
+@jax.jit
+def _inverse_sigma(rho, use, relative, shot, absolute):
+    return jnp.where(use, 1.0 / _sigma(jnp, rho, relative, shot, absolute), 0.0).astype(rho.dtype)
 
 
 def estimate_noise(value, sigma=None, *, floor_fraction: float = 1e-4) -> NoiseModel:
@@ -144,6 +160,18 @@ def residuals(p, args):
     """
     terms, y, w, spec, *at = args
     return (green(p, terms, spec, at[0] if at else None) - y) * w
+
+
+@functools.partial(jax.jit, static_argnames=("spec",))
+def weighted_residuals(p, terms: Terms, y, w, spec: ModelSpec):
+    """:func:`residuals` as one compiled program per spec and table shape, for callers outside a solver."""
+    return residuals(p, (terms, y, w, spec))
+
+
+@functools.partial(jax.jit, static_argnames=("spec",))
+def model_values(p, terms: Terms, spec: ModelSpec):
+    """:func:`~jkatana.fit._model.green` as one compiled program per spec and table shape."""
+    return green(p, terms, spec)
 
 
 def _jac(p, args):
@@ -253,8 +281,8 @@ def pair_start(terms: Terms, y, w, spec: ModelSpec, width):
     a1 = jnp.where(fitted, jnp.where(ok, a1, 1.0)[k], weight * s0[k])
     a2 = jnp.where(fitted, jnp.where(ok, a2, 1.0)[k], (1.0 - weight) * s0[k])
     tail = jnp.zeros(int(spec.tilt) + int(spec.floor), dtype)
-    return jnp.concatenate([jnp.stack([jnp.log(a1 + a2), sharp[k], jnp.asarray(math.log(haze - 1.0), dtype),
-                                       jnp.log(a1 / a2)]), tail])
+    shape = spec.fit_model.encode(sharp[k], (haze, a1 / (a1 + a2)))
+    return jnp.concatenate([jnp.stack([jnp.log(a1 + a2), *(jnp.asarray(v, dtype) for v in shape)]), tail])
 
 
 #: Width grid of :func:`grid_start` (radians for the paper's μ, the microfacet α otherwise).
@@ -520,6 +548,6 @@ def laplace(jtj, cost: float, n_eff: int, p, spec: ModelSpec, *, birge: bool = T
                 chi2_dof=chi2_dof, covariance_scale=scale)
 
 
-__all__ = ["NoiseModel", "estimate_noise", "residuals", "closed_form_start", "grid_start", "two_level_start",
-           "moment_start", "pair_start", "start_vector", "solve",
+__all__ = ["NoiseModel", "estimate_noise", "residuals", "weighted_residuals", "model_values", "closed_form_start",
+           "grid_start", "two_level_start", "moment_start", "pair_start", "start_vector", "solve",
            "verdict", "laplace", "natural_intervals", "SOLVERS", "to_natural"]

@@ -56,11 +56,11 @@ def _clean(x):
 
 def to_dict(fit, table_path: str | None = None) -> dict:
     """The parameter-file dict of a :class:`~jkatana.fit.region.RegionFit`."""
-    import jax.numpy as jnp
+    from jkatana.fit._model import build_lobe
 
     setup = fit.setup.describe()
     spec = fit.spec
-    lobe = spec.fit_model.build(jnp.asarray(fit.p[1:1 + spec.n_shape])).to_params()
+    lobe = build_lobe(spec.fit_model, fit.p[1:1 + spec.n_shape]).to_params()
     return _clean(dict(
         format=FORMAT, region=fit.region, model=spec.model, lobe=lobe, values=fit.values,
         robust=getattr(fit, "robust", None), bootstrap=getattr(fit, "bootstrap", None),

@@ -17,19 +17,18 @@ solver.
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 import numpy as np
 
 from jkatana.fit._model import to_natural
-from jkatana.fit._solve import laplace, residuals, verdict
+from jkatana.fit._solve import laplace, verdict, weighted_residuals
 
 
 def per_incidence(fit, *, solver: str = "lm", max_steps: int = 200, refit: bool = True) -> list[dict]:
     """Per-incidence quality and refits for a :class:`~jkatana.fit.region.RegionFit`."""
     data, spec, terms = fit.data, fit.spec, fit.terms
-    w = jnp.asarray(fit.weight)
-    y = jnp.asarray(np.where(data.usable, data.value, 0.0), w.dtype)
-    r = np.asarray(residuals(jnp.asarray(fit.p, w.dtype), (terms, y, w, spec)))
+    w = np.asarray(fit.weight)
+    y = np.where(data.usable, data.value, 0.0).astype(w.dtype)
+    r = np.asarray(weighted_residuals(fit.p.astype(w.dtype), terms, y, w, spec))
     m = fit.model()
     incs = data.incidences
     masks = np.stack([np.isclose(data.theta_i_deg, inc) & data.usable for inc in incs])
@@ -46,8 +45,8 @@ def per_incidence(fit, *, solver: str = "lm", max_steps: int = 200, refit: bool 
     from jkatana.fit.uncertainty import _refits
 
     # the one compiled batch of refits that leave-one-incidence-out (jkatana.fit.compare) also runs
-    W = jnp.where(jnp.asarray(masks), w[None, :], 0.0)
-    outs = _refits(terms, y, W, jnp.asarray(fit.p, w.dtype), spec=spec, solver=solver, max_steps=max_steps)
+    W = np.where(masks, w[None, :], 0.0)
+    outs = _refits(terms, y, W, fit.p.astype(w.dtype), spec=spec, solver=solver, max_steps=max_steps)
     outs = {k: np.asarray(v) for k, v in outs.items()}
     for i, row in enumerate(rows):
         o = {k: v[i] for k, v in outs.items()}

@@ -18,9 +18,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.errors import InputError
-from jkatana.fit._model import MODELS, ModelSpec, Terms, from_natural, green, prepare, to_natural
-from jkatana.fit._solve import (NoiseModel, estimate_noise, grid_start, laplace, residuals, solve, start_vector,
-                                verdict)
+from jkatana.fit._model import MODELS, ModelSpec, Terms, from_natural, prepare, to_natural
+from jkatana.fit._solve import (NoiseModel, estimate_noise, grid_start, laplace, model_values, residuals, solve,
+                                start_vector, verdict, weighted_residuals)
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
 
 DEFAULT_CAMERA = "Nikon 5100 (NPL)"
@@ -206,7 +206,7 @@ class RegionFit:
 
     def model(self, p=None) -> np.ndarray:
         """Model green values at the data's geometry (at ``p`` or the optimum)."""
-        return np.asarray(green(jnp.asarray(self.p if p is None else p), self.terms, self.spec))
+        return np.asarray(model_values(np.asarray(self.p if p is None else p), self.terms, self.spec))
 
 
 def default_model(region: str) -> str:
@@ -314,19 +314,18 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
                                None if data.sigma is None else data.sigma[data.usable])
     y_np = np.where(data.usable, data.value, 0.0)
     y = jnp.asarray(y_np, dtype)
-    use = jnp.asarray(data.usable)
+    use = data.usable
     if given is not None:
-        w = jnp.where(use, 1.0 / jnp.asarray(given, dtype), 0.0).astype(dtype)
+        w = jnp.asarray(np.where(use, 1.0 / np.asarray(given, dtype), 0.0), dtype)
     else:
-        w = jnp.where(use, 1.0 / noise.sigma(y), 0.0).astype(dtype)
+        w = noise.weights(y, use, dtype)
     out = fit_arrays(terms, y, w, spec, start=start, solver=solver, max_steps=max_steps, multistart=multistart)
     steps = int(out["steps"])
     if irls and given is None and np.all(np.isfinite(out["p"])):
-        m = green(jnp.asarray(out["p"]), terms, spec)
-        w = jnp.where(use, 1.0 / noise.sigma(m), 0.0).astype(dtype)
+        w = noise.weights(model_values(jnp.asarray(out["p"], dtype), terms, spec), use, dtype)
         out2 = fit_arrays(terms, y, w, spec, start=out["p"], solver=solver, max_steps=max_steps)
         # the cost check compares with the very first start, under the final weights
-        r0 = np.asarray(residuals(jnp.asarray(out["p0"]), (terms, y, w, spec)))
+        r0 = np.asarray(weighted_residuals(jnp.asarray(out["p0"], dtype), terms, y, w, spec))
         out2["cost0"] = 0.5 * float(np.sum(r0 * r0))
         out2["p0"] = out["p0"]
         steps += int(out2["steps"])
@@ -334,12 +333,12 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
     if loss != "squared" and np.all(np.isfinite(out["p"])):
         w_base = w
         for _ in range(5):
-            r = residuals(jnp.asarray(out["p"]), (terms, y, w_base, spec))
+            r = weighted_residuals(jnp.asarray(out["p"], dtype), terms, y, w_base, spec)
             w = (w_base * jnp.sqrt(U.irls_weights(r, loss))).astype(dtype)
             nxt = fit_arrays(terms, y, w, spec, start=out["p"], solver=solver, max_steps=max_steps)
             steps += int(nxt["steps"])
             nxt["p0"] = out["p0"]
-            r0 = np.asarray(residuals(jnp.asarray(out["p0"]), (terms, y, w, spec)))
+            r0 = np.asarray(weighted_residuals(jnp.asarray(out["p0"], dtype), terms, y, w, spec))
             nxt["cost0"] = 0.5 * float(np.sum(r0 * r0))
             done = np.allclose(nxt["p"], out["p"], rtol=1e-8, atol=1e-10)
             out = nxt

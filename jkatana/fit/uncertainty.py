@@ -111,9 +111,9 @@ def difference_noise_scale(r, theta_i_deg, theta_r_deg, usable, azimuth_deg=None
 def sandwich(fit) -> dict:
     """Sandwich covariance and 95 % intervals of a :class:`~jkatana.fit.region.RegionFit` (module docstring)."""
     spec, terms = fit.spec, fit.terms
-    w = jnp.asarray(fit.weight)
-    y = jnp.asarray(np.where(fit.data.usable, fit.data.value, 0.0), w.dtype)
-    J, H, r = (np.asarray(a, np.float64) for a in _hessian_parts(jnp.asarray(fit.p, w.dtype), terms, y, w, spec))
+    w = np.asarray(fit.weight)
+    y = np.where(fit.data.usable, fit.data.value, 0.0).astype(w.dtype)
+    J, H, r = (np.asarray(a, np.float64) for a in _hessian_parts(fit.p.astype(w.dtype), terms, y, w, spec))
     s2, n_diff = difference_noise_scale(r, fit.data.theta_i_deg, fit.data.theta_r_deg, fit.data.usable,
                                         fit.data.azimuth_deg)
     jtj = J.T @ J

@@ -656,7 +656,12 @@ class GTR(_Microfacet):
     written as c = exprel(ln α²) / (π exprel((1 − γ) ln α²)) (exprel(x) = (eˣ − 1)/x),
     which is finite at γ = 1 (Berry's distribution) and α = 1 (uniform D = 1/π).
     γ = 2 is GGX; γ < 2 gives heavier tails (the haze of polished metal), γ > 2
-    lighter ones. Evaluated in log space (no underflow for α = 1e-6, γ ≤ 4).
+    lighter ones. Evaluated as exp(log c − γ log q) with one logarithm of the
+    bracket q = (α cos φ)² + sin²φ, sin φ taken as tan φ · cos φ (tan φ from
+    L + V, accurate near the peak where 1 − cos²φ is not): q lies in
+    [min(α², 1), 1], so neither q nor its power underflows or overflows
+    (α = 1e-6…1, γ ≤ 4, cos φ → 0; float32 and float64), and the gradients
+    stay finite.
     Sampled by D cos φ (Burley 2012, appendix B):
     cos²φ = (1 − [α^{2(1−γ)}(1 − u) + u]^{1/(1−γ)}) / (1 − α²), in a form that
     stays accurate at γ → 1 and α → 1. Shadowing: separable Smith G1 of GGX
@@ -677,12 +682,12 @@ class GTR(_Microfacet):
     def D_tan(self, tan_phi, cos_phi):
         a, l = self._a()
         g = self.gamma
-        t2, c = tan_phi * tan_phi, cos_phi
+        c = cos_phi
         live = c > 0
         c_s = jnp.where(live, c, 1.0)
-        t2_s = jnp.where(live, t2, 0.0)
+        ac, s = a * c_s, jnp.where(live, tan_phi, 0.0) * c_s  # α cos φ and sin φ = tan φ cos φ
         log_c = _log_exprel(l) - _log_exprel((1.0 - g) * l) - math.log(math.pi)
-        log_d = log_c - 2.0 * g * jnp.log(c_s) - g * jnp.log(a * a + t2_s)
+        log_d = log_c - g * jnp.log(ac * ac + s * s)
         return jnp.where(live, jnp.exp(jnp.minimum(log_d, 80.0)), 0.0)
 
     def G(self, cos_r, cos_i):
