@@ -329,6 +329,7 @@ def prepare(model: str, theta_i_deg, theta_r_deg, n, k, weights, dtype=jnp.float
     nominal = [np.asarray(c, np.float64) for c in (geo.cos_i, geo.cos_th)]
     amp_cos = _amplitude_cos(model, ti, tr)
     cosines = [grid_cos, *([] if amp_cos is None else [amp_cos])]
+    first = len(cosines)  # (c + h, c − h, c) per nominal cosine from here on
     for c in nominal:
         cosines += [np.minimum(c + h, 1.0), np.maximum(c - h, 0.0), c]
     fb = _fbar_many(cosines, n, k, weights)  # every lookup of this table in one compiled program
@@ -337,7 +338,7 @@ def prepare(model: str, theta_i_deg, theta_r_deg, n, k, weights, dtype=jnp.float
     amp = np.where(visible, amp, 0.0)
     exact = []
     for j, c in enumerate(nominal):
-        up, down, at = fb[len(fb) - 6 + 3 * j: len(fb) - 3 + 3 * j]
+        up, down, at = fb[first + 3 * j: first + 3 * j + 3]
         d = (up - down) / (np.minimum(c + h, 1.0) - np.maximum(c - h, 0.0))
         exact.append(np.stack([c, at, d]))
     return Terms(f_exact=jnp.asarray(np.stack(exact), dtype), phi=jnp.asarray(0.5 * (tr - ti), dtype), amp=jnp.asarray(amp, dtype),
