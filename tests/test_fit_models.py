@@ -270,6 +270,54 @@ def test_second_full_fit_of_another_table_compiles_no_program(geometry):
     assert compiled == []
 
 
+@pytest.mark.parametrize("model", ["hiraji", "gtr"])
+def test_per_incidence_refits_compile_no_program_beyond_the_region_fit(geometry, model):
+    """A region's fits share one compiled program: after the first fit and its IRLS refit, the per-incidence
+    refits (another start: the whole table's optimum where the default one has no peak) compile nothing."""
+    from jkatana.fit.quality import per_incidence
+
+    _, _, Y = campaigns(geometry, model, TRUTH[model], 1, seed=23)
+    fit = fit_region(FitData(geometry["ti"], geometry["tr"], Y[0]), model=model, per_incidence=False,
+                     robust=False)
+    compiled = []
+
+    def listen(event, duration, **kw):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        rows = per_incidence(fit)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert fit.converged and all(r["refit"]["converged"] for r in rows)
+    assert compiled == []
+
+
+@pytest.mark.parametrize("model", ["hiraji", "gtr", "two-lobe"])
+def test_refits_one_at_a_time_equal_the_batched_refits(geometry, model):
+    """:func:`refit_each` (the region fit's program once per row of weights) gives the batched :func:`_refits`'
+    fits: the same optimum to a tiny fraction of its standard error, the same verdicts."""
+    from jkatana.fit.uncertainty import refit_each
+
+    _, sig, Y = campaigns(geometry, model, TRUTH[model], 1, seed=24)
+    spec = ModelSpec(model)
+    terms = prepare(model, geometry["ti"], geometry["tr"], geometry["n"], geometry["k"], geometry["w"])
+    y, w = jnp.asarray(Y[0]), 1 / sig
+    masks = np.stack([geometry["ti"] == a for a in np.unique(geometry["ti"])])
+    W = np.where(masks, w[None], 0.0)
+    W[1] = w * (masks[1] | masks[2])  # a row that is not one incidence
+    p_hat = np.asarray(solve(terms, y, jnp.asarray(w), start_vector(terms, y, jnp.asarray(w), spec), spec=spec)["p"])
+    one = refit_each(terms, y, W, p_hat, spec=spec)
+    batch = {k: np.asarray(v) for k, v in _refits(terms, y, jnp.asarray(W), jnp.asarray(p_hat), spec=spec).items()}
+    for i in range(W.shape[0]):
+        a, b = ({k: v[i] for k, v in o.items()} for o in (one, batch))
+        assert verdict(a)[0] == verdict(b)[0], (i, verdict(a), verdict(b))
+        se = np.sqrt(np.diag(np.linalg.inv(b["jtj"])))
+        assert np.all(np.abs(a["p"] - b["p"]) <= 1e-4 * se), (i, a["p"], b["p"], se)
+        np.testing.assert_allclose(a["p0"], b["p0"], rtol=1e-9, atol=1e-12)
+
+
 def test_encode_is_the_inverse_of_the_fit_models_map():
     """:meth:`FitModel.encode` (traced, what the two-lobe start uses) and the parameter files' float form give
     the same fit vector, and :meth:`FitModel.shape_to_natural` maps it back."""

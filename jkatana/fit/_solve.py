@@ -220,6 +220,15 @@ def moment_start(terms: Terms, y, w, spec: ModelSpec, fallback=None):
     when one is given (a batch of refits passes the full fit's optimum: under ``vmap`` a ``lax.cond``
     becomes a select that compiles and runs both branches, so the batch keeps one branch).
     """
+    good, near = _moment_near(terms, y, w, spec)
+    if fallback is not None:
+        return jnp.where(good, near(), jnp.asarray(fallback, y.dtype))
+    return jax.lax.cond(good, near, lambda: two_level_start(terms, y, w, spec))
+
+
+def _moment_near(terms: Terms, y, w, spec: ModelSpec):
+    """:func:`moment_start`'s parts: whether the closed form measured a peak, and the start near it (a function,
+    so that a ``lax.cond`` evaluates it only where it is taken)."""
     from jkatana.models.lobes import Gaussian, Mixture
 
     p_cf, good = _log_quadratic(terms, y, w, spec.tilt, spec.floor)
@@ -233,12 +242,23 @@ def moment_start(terms: Terms, y, w, spec: ModelSpec, fallback=None):
     good = good & jnp.isfinite(width) & (width > 0)
     width = jnp.where(good, width, 1.0)
     if isinstance(lobe, Mixture):
-        near = lambda: pair_start(terms, y, w, spec, width)  # noqa: E731
+        return good, lambda: pair_start(terms, y, w, spec, width)
+    return good, lambda: grid_start(terms, y, w, spec, mus=width * factors)
+
+
+def _start_in_solve(terms: Terms, y, w, spec: ModelSpec, fallback):
+    """The start :func:`solve` computes itself (its ``p0`` not finite): :func:`start_vector`'s, with ``fallback``
+    where that has no peak to measure or is not finite, when ``fallback`` is finite (a refit of part of a table
+    from the whole table's optimum); else :func:`start_vector`'s own fallback, the two-level search.
+    ``lax.cond`` throughout: outside ``vmap`` only the branch taken runs."""
+    have = jnp.all(jnp.isfinite(fallback))
+    if spec.model in ("hiraji", "hamon"):
+        p = closed_form_start(terms, y, w, spec)
     else:
-        near = lambda: grid_start(terms, y, w, spec, mus=width * factors)  # noqa: E731
-    if fallback is not None:
-        return jnp.where(good, near(), jnp.asarray(fallback, y.dtype))
-    return jax.lax.cond(good, near, lambda: two_level_start(terms, y, w, spec))
+        good, near = _moment_near(terms, y, w, spec)
+        p = jax.lax.cond(good, near, lambda: jax.lax.cond(have, lambda: fallback,
+                                                          lambda: two_level_start(terms, y, w, spec)))
+    return jnp.where(jnp.all(jnp.isfinite(p)) | ~have, p, fallback)
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
@@ -407,8 +427,15 @@ def _solver(name: str, rtol: float, atol: float):
 
 @functools.partial(jax.jit, static_argnames=("spec", "solver", "max_steps", "rtol", "atol"))
 def solve(terms: Terms, y, w, p0, *, spec: ModelSpec, solver: str = "lm", max_steps: int = 200,
-          rtol: float | None = None, atol: float | None = None):
+          rtol: float | None = None, atol: float | None = None, fallback=None):
     """One weighted least-squares solve from ``p0``; returns a dict of arrays (jit-compiled).
+
+    With ``fallback`` (a parameter vector, finite or not) the start is part of the program: ``p0`` where it is
+    finite, else :func:`_start_in_solve`'s (:func:`start_vector`'s, or ``fallback`` where that has no peak to
+    measure). A region's fits (the first, the IRLS and robust refits from the previous optimum, the refits of
+    each incidence from the region's optimum: :func:`fit_program`) are then calls of one compiled program per
+    spec and table shape, each one dispatch, instead of a start program, a solve program and a batched program
+    of refits. Without ``fallback``, ``p0`` is the start as given.
 
     Keys: ``p`` (final parameters), ``p0``, ``cost0``/``cost`` (½Σr²),
     ``decrement`` (Gauss–Newton decrement at ``p``), ``grad_norm``,
@@ -423,6 +450,11 @@ def solve(terms: Terms, y, w, p0, *, spec: ModelSpec, solver: str = "lm", max_st
     linearisation, which is at the point it returns (its ``f_info`` follows every
     accepted step), so the check costs no further forward pass.
     """
+    if fallback is not None:
+        p0 = jnp.asarray(p0, y.dtype)
+        fallback = jnp.asarray(fallback, y.dtype)
+        p0 = jax.lax.cond(jnp.all(jnp.isfinite(p0)), lambda: p0,
+                          lambda: _start_in_solve(terms, y, w, spec, fallback))
     args = (terms, y, w, spec, None if spec.tilt else evaluation_point(terms, spec))
     if solver == "jaxopt":
         rtol = 1e-10 if rtol is None else rtol
@@ -455,6 +487,18 @@ def solve(terms: Terms, y, w, p0, *, spec: ModelSpec, solver: str = "lm", max_st
     dec = _decrement(jtj, g)
     return dict(p=p, p0=p0, cost0=0.5 * jnp.sum(r0 * r0), cost=0.5 * jnp.sum(r * r), decrement=dec,
                 grad_norm=jnp.max(jnp.abs(g)), steps=steps, solver_ok=solver_ok, jtj=jtj)
+
+
+def fit_program(terms: Terms, y, w, spec: ModelSpec, *, start=None, fallback=None, solver: str = "lm",
+                max_steps: int = 200) -> dict:
+    """:func:`solve` with its start in the same compiled program: from ``start`` (a parameter vector) or, when
+    None, from :func:`start_vector`'s start (``fallback``: the vector where that has no peak to measure, e.g.
+    a whole table's optimum for a refit of part of it). Every call of a spec and table shape (any start,
+    fallback or weights) runs one compiled program."""
+    nan = np.full(spec.size, np.nan, y.dtype)  # numpy: no eager program
+    p0 = nan if start is None else start
+    fb = nan if fallback is None else fallback
+    return solve(terms, y, w, p0, spec=spec, solver=solver, max_steps=max_steps, fallback=fb)
 
 
 def _decrement(jtj, g):
@@ -549,5 +593,5 @@ def laplace(jtj, cost: float, n_eff: int, p, spec: ModelSpec, *, birge: bool = T
 
 
 __all__ = ["NoiseModel", "estimate_noise", "residuals", "weighted_residuals", "model_values", "closed_form_start",
-           "grid_start", "two_level_start", "moment_start", "pair_start", "start_vector", "solve",
+           "grid_start", "two_level_start", "moment_start", "pair_start", "start_vector", "solve", "fit_program",
            "verdict", "laplace", "natural_intervals", "SOLVERS", "to_natural"]

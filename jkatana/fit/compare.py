@@ -37,16 +37,17 @@ from jkatana.fit._solve import residuals
 
 
 def _loio(fit, *, solver: str = "lm", max_steps: int = 200) -> list[float]:
-    """Held-out χ² per point for each incidence (refit on the others; the same compiled batch of refits as
+    """Held-out χ² per point for each incidence (refit on the others by the region fit's own compiled program, as
     the fit's per-incidence refits, :func:`jkatana.fit.quality.per_incidence`)."""
-    from jkatana.fit.uncertainty import _refits
+    from jkatana.fit.uncertainty import refit_each
 
     data, spec = fit.data, fit.spec
     w = jnp.asarray(fit.weight)
     y = jnp.asarray(np.where(data.usable, data.value, 0.0), w.dtype)
     masks = np.stack([np.isclose(data.theta_i_deg, inc) & data.usable for inc in data.incidences])
     W_train = w[None, :] * jnp.asarray(~masks, w.dtype)
-    outs = _refits(fit.terms, y, W_train, jnp.asarray(fit.p, w.dtype), spec=spec, solver=solver, max_steps=max_steps)
+    outs = refit_each(fit.terms, y, W_train, jnp.asarray(fit.p, w.dtype), spec=spec, solver=solver,
+                      max_steps=max_steps)
     W_test = w[None, :] * jnp.asarray(masks, w.dtype)
     r = jax.vmap(lambda p, wk: residuals(p, (fit.terms, y, wk, spec)))(outs["p"], W_test)
     r = np.asarray(r, np.float64)

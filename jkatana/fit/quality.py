@@ -11,8 +11,8 @@ For each incidence θi this module reports, for the *global* fit:
 and a *refit* of that incidence alone (same model and options) with its
 Laplace 95 % intervals, so a drift of μ or of the scale with incidence is
 visible with error bars. The refits share the full table's arrays with the
-other incidences' weights set to 0, so they are one ``vmap`` of one compiled
-solver.
+other incidences' weights set to 0, so they run the region fit's own compiled
+program (:func:`jkatana.fit.uncertainty.refit_each`).
 """
 
 from __future__ import annotations
@@ -42,12 +42,11 @@ def per_incidence(fit, *, solver: str = "lm", max_steps: int = 200, refit: bool 
                          max_abs_rel=float(np.max(np.abs(m[mk] - data.value[mk])) / peak) if nk else None))
     if not refit:
         return rows
-    from jkatana.fit.uncertainty import _refits
+    from jkatana.fit.uncertainty import refit_each
 
-    # the one compiled batch of refits that leave-one-incidence-out (jkatana.fit.compare) also runs
+    # the region fit's own compiled program, once per incidence (as leave-one-incidence-out in jkatana.fit.compare)
     W = np.where(masks, w[None, :], 0.0)
-    outs = _refits(terms, y, W, fit.p.astype(w.dtype), spec=spec, solver=solver, max_steps=max_steps)
-    outs = {k: np.asarray(v) for k, v in outs.items()}
+    outs = refit_each(terms, y, W, fit.p.astype(w.dtype), spec=spec, solver=solver, max_steps=max_steps)
     for i, row in enumerate(rows):
         o = {k: v[i] for k, v in outs.items()}
         ok, reasons = verdict(o, np.dtype(w.dtype))

@@ -19,8 +19,8 @@ import numpy as np
 
 from jkatana.errors import InputError
 from jkatana.fit._model import MODELS, ModelSpec, Terms, from_natural, prepare, to_natural
-from jkatana.fit._solve import (NoiseModel, estimate_noise, grid_start, laplace, model_values, residuals, solve,
-                                start_vector, verdict, weighted_residuals)
+from jkatana.fit._solve import (NoiseModel, estimate_noise, fit_program, grid_start, laplace, model_values,
+                                residuals, verdict, weighted_residuals)
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
 
 DEFAULT_CAMERA = "Nikon 5100 (NPL)"
@@ -214,25 +214,31 @@ def default_model(region: str) -> str:
 
 
 def _start(start, terms, y, w, spec, dtype):
+    """The start vector a fit is given, or None for the default start (computed in the solver's program)."""
     if start is None or (isinstance(start, str) and start == "closed"):
-        return start_vector(terms, y, w, spec)
+        return None
     if isinstance(start, str) and start == "grid":
         return grid_start(terms, y, w, spec)
-    if isinstance(start, dict):
-        return jnp.asarray(from_natural(start, spec), dtype)
-    return jnp.asarray(start, dtype)
+    p0 = np.asarray(from_natural(start, spec) if isinstance(start, dict) else start, dtype)
+    if p0.shape != (spec.size,) or not np.all(np.isfinite(p0)):
+        raise InputError(f"start must be {spec.size} finite values ({', '.join(spec.log_names)}), got {start!r}",
+                         field="start")
+    return p0
 
 
 def fit_arrays(terms: Terms, y, w, spec: ModelSpec, *, start=None, solver: str = "lm",
                max_steps: int = 200, multistart: bool = False) -> dict:
-    """Solve from a start (closed form by default) with an optional grid multi-start; numpy dict out."""
+    """Solve from a start (closed form by default) with an optional grid multi-start; numpy dict out.
+
+    Every solve is :func:`~jkatana.fit._solve.fit_program` (the default start in the solver's program), so
+    the fits of a region, whatever their start, run one compiled program per spec and table shape."""
     dtype = y.dtype
     starts = [_start(start, terms, y, w, spec, dtype)]
     if multistart:
         starts.append(grid_start(terms, y, w, spec))
     best = None
     for p0 in starts:
-        out = solve(terms, y, w, p0, spec=spec, solver=solver, max_steps=max_steps)
+        out = fit_program(terms, y, w, spec, start=p0, solver=solver, max_steps=max_steps)
         out = {k: np.asarray(v) for k, v in out.items()}
         if best is None or (np.isfinite(out["cost"]) and not out["cost"] >= best["cost"]):
             best = out

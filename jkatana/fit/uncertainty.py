@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.fit._model import ModelSpec, to_natural
-from jkatana.fit._solve import natural_intervals, residuals, solve, start_vector, verdict
+from jkatana.fit._solve import fit_program, natural_intervals, residuals, solve, start_vector, verdict
 
 LOSSES = {"squared": None, "huber": 1.345, "cauchy": 2.385}
 
@@ -131,6 +131,16 @@ def sandwich(fit) -> dict:
     se, ci, ok = natural_intervals(fit.p, cov, spec)
     return dict(method="sandwich H^-1 (s2 J^T J) H^-1, s2 from second differences", ok=ok, noise_scale2=s2,
                 n_differences=n_diff, cov_log=cov.tolist(), se=se, ci95=ci, reasons=reasons)
+
+
+def refit_each(terms, y, W, p_hat, *, spec, solver="lm", max_steps=200) -> dict:
+    """The fits of one table under each row of weights ``W`` ``(k, n)``, from the default start or, where it has
+    no peak to measure, from ``p_hat`` (the whole table's optimum): :func:`_refits`' values, as k calls of the
+    region fit's own compiled program (:func:`~jkatana.fit._solve.fit_program`) instead of a batched program
+    compiled for them. Returns numpy arrays stacked over the rows."""
+    outs = [fit_program(terms, y, wk, spec, fallback=p_hat, solver=solver, max_steps=max_steps)
+            for wk in np.asarray(W)]
+    return {k: np.stack([np.asarray(o[k]) for o in outs]) for k in outs[0]}
 
 
 @functools.partial(jax.jit, static_argnames=("spec", "solver", "max_steps"))
