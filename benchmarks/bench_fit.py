@@ -107,15 +107,16 @@ def _lobe_campaign(model, seed=0):
     import jax.numpy as jnp
 
     from jkatana.fit import FitData, Setup
-    from jkatana.fit._model import ModelSpec, from_natural, green, prepare
+    from jkatana.fit._model import ModelSpec, from_natural, prepare
+    from jkatana.fit._solve import model_values  # one compiled program, not green's eager operations
     from jkatana.measure.protocol import as_pairs, paper_protocol
 
     setup = Setup()
     n, k = setup.nk()
     pairs = np.asarray(as_pairs(paper_protocol()), np.float64)
     spec = ModelSpec(model)
-    m = np.asarray(green(jnp.asarray(from_natural(LOBE_TRUTH[model], spec)),
-                         prepare(model, pairs[:, 0], pairs[:, 1], n, k, setup.weights()), spec))
+    m = np.asarray(model_values(jnp.asarray(from_natural(LOBE_TRUTH[model], spec)),
+                                prepare(model, pairs[:, 0], pairs[:, 1], n, k, setup.weights()), spec))
     sig = np.sqrt((0.05 * m) ** 2 + (1e-3 * m.max()) ** 2)
     y = m + sig * np.random.default_rng(seed).standard_normal(m.size)
     return FitData(pairs[:, 0], pairs[:, 1], y, sig)
