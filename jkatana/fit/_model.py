@@ -489,9 +489,12 @@ def _shape_value(q, terms: Terms, at: At, spec: ModelSpec):
 
 @_shape_value.defjvp
 def _shape_jvp(spec, primals, tangents):
+    """The value and its Jacobian in ``q`` from one linearisation: the lobe's value is evaluated once and its
+    linear map applied to each unit vector (``jacfwd`` beside a separate primal call evaluated the value twice)."""
     q, terms, at = primals
-    f = lambda q: _unit_value(q, terms, at, spec)  # noqa: E731
-    return f(q), jax.jacfwd(f)(q) @ tangents[0]
+    val, lin = jax.linearize(lambda q: _unit_value(q, terms, at, spec), q)
+    jac = jax.vmap(lin, out_axes=-1)(jnp.eye(q.shape[0], dtype=q.dtype))
+    return val, jac @ tangents[0]
 
 
 def _two_lobe_logs(q):
