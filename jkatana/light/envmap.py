@@ -101,12 +101,7 @@ def equirect_direction(u, cos_theta, sin_theta):
     """
     xp = np if all(isinstance(a, (np.ndarray, np.generic, float, int)) for a in (u, cos_theta, sin_theta)) else jnp
     phi = (u - 0.5) * 2 * np.pi
-    x, y, z = xp.broadcast_arrays(sin_theta * xp.sin(phi), cos_theta, -sin_theta * xp.cos(phi))
-    if xp is np:
-        return np.stack([x, y, z], axis=-1)
-    # built by broadcasting, not jnp.stack: XLA's CPU backend fuses a stack into one unvectorised loop
-    e = jnp.eye(3, dtype=jnp.result_type(x, y, z))
-    return x[..., None] * e[0] + y[..., None] * e[1] + z[..., None] * e[2]
+    return xp.stack(xp.broadcast_arrays(sin_theta * xp.sin(phi), cos_theta, -sin_theta * xp.cos(phi)), axis=-1)
 
 
 def uv_to_direction(u, v) -> Float[Array, "*#b 3"]:
