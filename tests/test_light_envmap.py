@@ -42,6 +42,39 @@ def test_uv_round_trip(u, v):
     assert abs(float(u2) - u) < 1e-9 and abs(float(v2) - v) < 1e-9
 
 
+def test_polynomial_atan2_matches_arctan2_in_float32():
+    """The float32 polynomial atan2 is within 4e-7 rad of the exact angle on every octant, its boundaries,
+    signed zeros and extreme ratios (a coefficient or octant error gives ≥ 1e-5), and its u, v match
+    jnp.arctan2's; float64 is jnp.arctan2 itself."""
+    from jkatana.light.envmap import atan2
+
+    rng = np.random.default_rng(3)
+    ang = np.concatenate([rng.uniform(-np.pi, np.pi, 20000), np.arange(-8, 9) * np.pi / 8,
+                          np.arange(-8, 9) * np.pi / 8 + 1e-6,
+                          np.arctan(0.41421356237309503) + np.array([-1e-7, 0, 1e-7])])
+    r = np.concatenate([np.geomspace(1e-30, 1e30, 7), [1.0]])[:, None]
+    y, x = (r * np.sin(ang)).ravel(), (r * np.cos(ang)).ravel()
+    y = np.concatenate([y, [0.0, -0.0, 0.0, -0.0, 0.0, 1.0, -1.0, 1e-30, 1.0]])
+    x = np.concatenate([x, [0.0, 0.0, -1.0, -1.0, 1.0, 0.0, 0.0, 1.0, 1e-30]])
+    y32, x32 = y.astype(np.float32), x.astype(np.float32)
+    exact = np.arctan2(y32.astype(np.float64), x32.astype(np.float64))
+    got = np.asarray(jax.jit(atan2)(jnp.asarray(y32), jnp.asarray(x32)), np.float64)
+    assert np.asarray(atan2(jnp.float32(1.0), jnp.float32(2.0))).dtype == np.float32
+    # ±π are the same angle; the exact atan2 of the float32 inputs decides the sign at the branch cut
+    err = np.abs(got - exact)
+    err = np.minimum(err, np.abs(np.abs(err) - 2 * np.pi))
+    assert err.max() < 4e-7, err.max()
+    assert np.array_equal(np.signbit(got[-9:-4]), np.signbit(exact[-9:-4]))
+    d = jnp.asarray(rng.normal(size=(5000, 3)), jnp.float32)
+    u_ref = 0.5 + jnp.arctan2(d[:, 0], -d[:, 2]) / (2 * np.pi)
+    v_ref = jnp.arctan2(jnp.hypot(d[:, 0], d[:, 2]), d[:, 1]) / np.pi
+    u, v = direction_to_uv(d)
+    # within 2 float32 ulps of 1 (the map coordinates' own resolution)
+    assert float(jnp.max(jnp.abs(u - u_ref))) <= 2.4e-7 and float(jnp.max(jnp.abs(v - v_ref))) <= 2.4e-7
+    y64, x64 = jnp.asarray(y, jnp.float64), jnp.asarray(x, jnp.float64)  # the tests run with x64 enabled
+    np.testing.assert_array_equal(np.asarray(atan2(y64, x64)), np.asarray(jnp.arctan2(y64, x64)))
+
+
 def test_one_equirect_convention_for_numpy_and_jax():
     """Texel directions, uv → direction, the texel index and the sampler's warp share one convention."""
     from jkatana.light.envmap import equirect_direction, texel_directions_np, texel_index

@@ -54,10 +54,42 @@ def direction_to_uv(d: Float[ArrayLike, "*#b 3"]) -> tuple[Float[Array, "*#b"], 
     """
     d = jnp.asarray(d)
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    u = 0.5 + jnp.arctan2(x, -z) / (2 * jnp.pi)
+    u = 0.5 + atan2(x, -z) / (2 * jnp.pi)
     rho = jnp.sqrt(x * x + z * z)
-    v = jnp.arctan2(rho, y) / jnp.pi
+    v = atan2(rho, y) / jnp.pi
     return u, v
+
+
+#: tan(π/8): Cephes' ``atanf`` reduces |y/x| ≤ 1 above it by atan a = π/4 + atan((a − 1)/(a + 1)).
+_TAN_PI_8 = 0.41421356237309503
+
+
+def atan2(y, x):
+    """atan2(y, x) in [−π, π]: in float32 from a polynomial, as accurate as ``jnp.arctan2`` (≤ 3e-7 rad);
+    any other dtype is ``jnp.arctan2`` itself (float64 keeps its full precision).
+
+    Cephes' single-precision arctangent (Moshier 1992, *Methods and Programs for Mathematical
+    Functions*, ``atanf.c``): the ratio a = min(|x|, |y|)/max(|x|, |y|) ∈ [0, 1], reduced to
+    |a| ≤ tan(π/8) by atan a = π/4 + atan((a − 1)/(a + 1)), then a degree-9 odd minimax polynomial;
+    the octant and quadrant restored from |y| > |x|, the sign of x and the sign bit of y (so that
+    atan2(±0, x < 0) = ±π and atan2(0, 0) = 0, as ``jnp.arctan2``). Elementwise arithmetic only:
+    XLA's CPU backend vectorises it, where ``jnp.arctan2`` is a scalar call per element (≈ 15×
+    the time). Differentiable (the polynomial's derivative, within float32 of 1/(1 + a²)).
+    """
+    y, x = jnp.asarray(y), jnp.asarray(x)
+    if jnp.result_type(y, x) != jnp.float32:
+        return jnp.arctan2(y, x)
+    ax, ay = jnp.abs(x), jnp.abs(y)
+    hi, lo = jnp.maximum(ax, ay), jnp.minimum(ax, ay)
+    a = lo / jnp.where(hi > 0, hi, 1.0)
+    big = a > _TAN_PI_8
+    a = jnp.where(big, (a - 1.0) / (a + 1.0), a)
+    z = a * a
+    r = (((8.05374449538e-2 * z - 1.38776856032e-1) * z + 1.99777106478e-1) * z - 3.33329491539e-1) * z * a + a
+    r = jnp.where(big, r + np.pi / 4, r)
+    r = jnp.where(ay > ax, np.pi / 2 - r, r)
+    r = jnp.where(x < 0, np.pi - r, r)
+    return jnp.where(jnp.signbit(y), -r, r)
 
 
 def equirect_direction(u, cos_theta, sin_theta):

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from jkatana.light.envmap import (EnvMap, direction_to_uv, equirect_direction, row_edges_cos, texel_index,
+from jkatana.light.envmap import (EnvMap, atan2, direction_to_uv, equirect_direction, row_edges_cos, texel_index,
                                   texel_solid_angles_np)
 from jkatana.models import geometry
 from jkatana.models.geometry import tangent_frame
@@ -179,7 +179,7 @@ class EnvSampler(eqx.Module):
         cos_t = e0 + (e1 - e0) * r0
         sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
         jf = j.astype(cos_t.dtype)
-        v = jnp.clip(jnp.arctan2(sin_t, cos_t) / jnp.pi, jf / H, (jf + 1.0) / H)
+        v = jnp.clip(atan2(sin_t, cos_t) / jnp.pi, jf / H, (jf + 1.0) / H)
         d = equirect_direction(uu, cos_t, sin_t)
         return (d.reshape(shape + (3,)), self.texel_pdf[j, i].reshape(shape), uu.reshape(shape),
                 v.reshape(shape))

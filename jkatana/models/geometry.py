@@ -136,9 +136,20 @@ def tangent_frame(n: Float[Array, "*b 3"]) -> tuple[Float[Array, "*b 3"], Float[
     return t, bt
 
 
+def _dot3(a, b):
+    """a·b over the last axis (length 3), written out: XLA's CPU backend runs a ``jnp.sum`` over an axis
+    of 3 as a reduction loop per element, the written-out sum as vectorised arithmetic."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
 def to_local(v, t, b, n):
-    """World vectors ``v`` in the frame (t, b, n): ``(v·t, v·b, v·n)``."""
-    return jnp.stack([jnp.sum(v * t, -1), jnp.sum(v * b, -1), jnp.sum(v * n, -1)], -1)
+    """World vectors ``v`` in the frame (t, b, n): ``(v·t, v·b, v·n)``.
+
+    Built by broadcasting onto the unit vectors, not ``jnp.stack`` (which XLA's CPU backend fuses
+    into one unvectorised loop over the ``(*b, 3)`` output).
+    """
+    e = jnp.eye(3, dtype=jnp.result_type(v, t, b, n))
+    return _dot3(v, t)[..., None] * e[0] + _dot3(v, b)[..., None] * e[1] + _dot3(v, n)[..., None] * e[2]
 
 
 def to_world(v, t, b, n):

@@ -102,8 +102,8 @@ from jkatana.models.lobes import reflect
 from jkatana.models.microfacet import gaussian_facet
 # the shader's inputs and helpers live by job in their own modules; re-exported here as the render API
 from jkatana.render.environment import (Caps, Environment, background, bilinear_equirect, bilinear_equirect_uv,  # noqa: F401
-                                        build_environment, env_basis, env_lookup, env_uv, lookup_prefiltered_many,
-                                        unbasis)
+                                        build_environment, env_basis, env_lookup, env_uv, from_map,
+                                        lookup_prefiltered_many, unbasis)
 from jkatana.render.fresnel_fold import (FRESNEL_RANK_TOL, FRESNEL_TABLE, Material, fold_fresnel,  # noqa: F401
                                          fresnel_rank_for, fresnel_table, is_folded, table_lookup)
 from jkatana.render.plan import MIRROR_MU, MODES, Light, Pixels, Plan, Rays, Visibility  # noqa: F401
@@ -164,7 +164,7 @@ def _env_ray(plan: Plan, env: Environment, fr, offset, k, ids: PixelIds | None =
     """The k-th of ``plan.n_env`` environment samples: ``(Ll, Lw, pdf, uv)`` (``uv`` the map coordinates of ``Lw``)."""
     _, _, _, re = uniforms(plan, offset, k, fr[0].dtype, ids, plan.n_env)
     d_map, pe, u, v = env.sampler.sample_uniform2(re)
-    Lw = d_map @ env.rotation
+    Lw = from_map(env, d_map)
     return to_local(Lw, *fr), Lw, pe, (u, v)
 
 
