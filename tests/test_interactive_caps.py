@@ -88,6 +88,7 @@ def test_cap_rule_against_the_cap_quadrature_of_the_models(cls):
         assert worst[deg, 7] < WIDE_TOL[deg], (deg, float(MU_LEVELS[7]), worst)
 
 
+@pytest.mark.slow
 def test_cap_rule_for_a_narrow_lobe_at_66_degrees():
     """The everyday check of the sweep above: the hiraji at μ 0.035 and 66° incidence, where the shader's
     earlier rule (three moment-matched taps, each a kernel of the across-plane width) was 34 % off."""

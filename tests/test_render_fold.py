@@ -145,6 +145,7 @@ def test_unfolded_inputs_with_a_folded_plan_are_refused():
               jax.random.PRNGKey(0))
 
 
+@pytest.mark.slow
 def test_folded_shading_gradients_match_the_full_path():
     """d(Σ XYZ)/d(environment) through fold + shade equals the full path's (float64, same samples)."""
     mat = _mat(dtype=jnp.float64)

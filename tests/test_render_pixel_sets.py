@@ -106,7 +106,8 @@ def test_pixel_estimate_is_unbiased_and_less_noisy():
     assert np.median(v_new / v_old) < 0.7, v_new / v_old
 
 
-@pytest.mark.parametrize("n_env", [0, 1, 12])
+@pytest.mark.parametrize("n_env", [pytest.param(0, marks=pytest.mark.slow), 1,
+                                   pytest.param(12, marks=pytest.mark.slow)])
 def test_estimate_is_unbiased_for_any_number_of_environment_samples(n_env):
     """The balance heuristic with sample counts: 4 lobe samples beside 0, 1 or 12 environment samples per
     subpixel all have the converged mean (z-scores over seeds); ``env_samples=None`` is one per lobe sample."""

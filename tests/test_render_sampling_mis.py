@@ -50,7 +50,8 @@ def _plan(samples, env_sampling=True):
                 env_sampling=env_sampling)
 
 
-@pytest.mark.parametrize("alpha", [pytest.param(0.05, marks=pytest.mark.slow), 0.2])
+@pytest.mark.slow
+@pytest.mark.parametrize("alpha", [0.05, 0.2])
 def test_beckmann_visible_normals_estimate_is_unbiased(alpha):
     mat, env, px = _scene(8, alpha)
     seeds = 192

@@ -171,6 +171,7 @@ def test_prefiltered_mode_with_a_synthetic_sun_matches_the_reference(sun_map):
     assert abs(y_pre[bright].sum() / y_ref[bright].sum() - 1.0) < 0.01
 
 
+@pytest.mark.slow
 def test_paper_mode_keeps_the_glint_that_the_published_rays_miss(sun_map):
     """The paper's rays on the remainder + the cap rule keep the sun's glint; the published estimator
     on the whole map (``paper-published``, 30 rays) loses most of it on a narrow lobe."""
@@ -360,6 +361,7 @@ def test_cap_rule_per_lobe_keeps_each_lobes_rule():
         _cap_rule_terms(lobes, Vl, fr, C, jnp.asarray(r, f32), "nodes,stroud,nodes")
 
 
+@pytest.mark.slow
 def test_cap_pixels_leave_out_only_pixels_the_cap_cannot_reach():
     """:func:`cap_pixels` keeps a pixel iff its mirror direction lies within ``r + 6σ`` of the cap's centre
     (σ the widest lobe part the pixel weighs on), and every pixel it leaves out has a cap term (the 64-node

@@ -145,6 +145,7 @@ def test_an_occluder_in_front_of_the_camera_hides_the_object_and_the_sky():
     assert np.all(f.xyz[f.mask][:, 1] > 0)
 
 
+@pytest.mark.slow
 def test_no_occluders_means_no_visibility_step():
     from jkatana.render.renderer import prepare, render_view
 
