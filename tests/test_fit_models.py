@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import equinox as eqx
@@ -245,6 +246,22 @@ def test_second_fit_of_another_table_does_not_recompile(geometry):
     assert (solve._cache_size(), start_vector._cache_size()) == before
 
 
+@contextlib.contextmanager
+def compiled_programs():
+    """The names of the XLA programs compiled inside the block (JAX's backend-compile event), as a list."""
+    compiled = []
+
+    def listen(event, duration, **kw):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield compiled
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+
+
 def test_second_full_fit_of_another_table_compiles_no_program(geometry):
     """Every program of a full fit (start, solve, IRLS, noise weights, sandwich, per-incidence refits, the
     parameter file's lobe) is compiled once per model and table shape: a fit of another table of that shape,
@@ -254,18 +271,9 @@ def test_second_full_fit_of_another_table_compiles_no_program(geometry):
 
     _, _, Y = campaigns(geometry, "hiraji", TRUTH["hiraji"], 2, seed=21)
     to_dict(fit_region(FitData(geometry["ti"], geometry["tr"], Y[0]), model="hiraji"))
-    compiled = []
-
-    def listen(event, duration, **kw):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiled.append(kw.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with compiled_programs() as compiled:
         fit = fit_region(FitData(geometry["ti"], geometry["tr"], 1.3 * Y[1]), model="hiraji")
         to_dict(fit)
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
     assert fit.converged
     assert compiled == []
 
@@ -279,17 +287,8 @@ def test_per_incidence_refits_compile_no_program_beyond_the_region_fit(geometry,
     _, _, Y = campaigns(geometry, model, TRUTH[model], 1, seed=23)
     fit = fit_region(FitData(geometry["ti"], geometry["tr"], Y[0]), model=model, per_incidence=False,
                      robust=False)
-    compiled = []
-
-    def listen(event, duration, **kw):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiled.append(kw.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with compiled_programs() as compiled:
         rows = per_incidence(fit)
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
     assert fit.converged and all(r["refit"]["converged"] for r in rows)
     assert compiled == []
 
