@@ -17,7 +17,8 @@ from typing import Any, Callable
 
 
 def machine_facts() -> dict[str, Any]:
-    """Cores, CPU model, memory, JAX backend/version and devices, GPU if any.
+    """Cores, CPU model, memory, JAX backend/version and devices, GPU if any; Mitsuba's toolchain
+    (:func:`peer_facts`) when it is installed.
 
     A cloud VM's model name can be as bare as "AMD EPYC", which does not tell one generation from
     another (their per-core speed differs by 2× and more), so the CPU's family, model number and
@@ -56,6 +57,7 @@ def machine_facts() -> dict[str, Any]:
         facts["jax_device_kind"] = jax.devices()[0].device_kind
     except Exception as err:  # pragma: no cover - JAX missing is itself a fact
         facts["jax_error"] = repr(err)
+    facts.update(peer_facts())
     try:
         import subprocess
 
@@ -64,6 +66,35 @@ def machine_facts() -> dict[str, Any]:
         facts["gpu"] = out.stdout.strip() or None
     except (OSError, subprocess.SubprocessError):
         facts["gpu"] = None
+    return facts
+
+
+def peer_facts() -> dict[str, Any]:
+    """Mitsuba 3's and Dr.Jit's versions and the LLVM that Dr.Jit's CPU backend loads, when Mitsuba is installed.
+
+    Mitsuba's speed on the CPU depends on that LLVM as much as on the CPU: the same Dr.Jit 1.5.0 kernels ran
+    4.5x slower with a machine's libLLVM 15 than with its libLLVM 19 (``benchmarks/reports/
+    render-peer-2026-12-05-idle``), so a ratio against Mitsuba is only read together with it. The LLVM version
+    is asked in a subprocess, so that a benchmark process that never renders with Mitsuba does not start
+    Dr.Jit's backend."""
+    from importlib import metadata
+
+    facts: dict[str, Any] = {}
+    try:
+        facts["mitsuba_version"] = metadata.version("mitsuba")
+        facts["drjit_version"] = metadata.version("drjit")
+    except metadata.PackageNotFoundError:
+        return {}
+    import subprocess
+    import sys
+
+    try:
+        out = subprocess.run([sys.executable, "-c", "import drjit; print(*drjit.detail.llvm_version(), sep='.')"],
+                             capture_output=True, text=True, timeout=60)
+        version = out.stdout.strip()
+        facts["drjit_llvm"] = version if out.returncode == 0 and version and not version.startswith("-1") else None
+    except (OSError, subprocess.SubprocessError):
+        facts["drjit_llvm"] = None
     return facts
 
 

@@ -346,9 +346,13 @@ def machine_line(m: dict) -> str:
         ident.append(m["cpu_simd"].upper())
     cpu = m.get("cpu_model") or "unknown CPU"
     cpu = f"{cpu} ({', '.join(ident)})" if ident else cpu
+    peer = ""
+    if m.get("mitsuba_version"):
+        peer = (f", Mitsuba {m['mitsuba_version']} (Dr.Jit {m.get('drjit_version', '?')}, "
+                f"LLVM {m.get('drjit_llvm') or 'not found'})")
     return (f"{cpu}, {m.get('cores_usable') or m.get('cores')} cores, "
             f"{m.get('memory_gib', '?')} GiB, JAX {m.get('jax_version', '?')} on "
-            f"{m.get('jax_backend', '?')}, {gpu}")
+            f"{m.get('jax_backend', '?')}, {gpu}{peer}")
 
 
 def write_report(results: dict | str | Path, out_dir: str | Path) -> dict[str, Path]:

@@ -120,6 +120,27 @@ def test_runner_and_report_end_to_end(tmp_path):
     assert np.ptp(img[..., :3]) > 0.5  # not a blank image
 
 
+def test_machine_line_names_the_peers_toolchain():
+    """A ratio against Mitsuba depends on the LLVM Dr.Jit compiles with, so the report's machine line names it
+    when Mitsuba is installed, and says nothing of Mitsuba when it is not."""
+    from benchmarks._harness import peer_facts
+    from benchmarks.report import machine_line
+
+    base = {"cpu_model": "AMD EPYC", "cores": 2, "memory_gib": 23.5, "jax_version": "0.10.2", "jax_backend": "cpu"}
+    line = machine_line(base | {"mitsuba_version": "3.9.1", "drjit_version": "1.5.0", "drjit_llvm": "19.1.7"})
+    assert line.endswith("no GPU, Mitsuba 3.9.1 (Dr.Jit 1.5.0, LLVM 19.1.7)")
+    assert machine_line(base | {"mitsuba_version": "3.9.1", "drjit_version": "1.5.0", "drjit_llvm": None}).endswith(
+        "LLVM not found)")
+    assert "Mitsuba" not in machine_line(base)
+    facts = peer_facts()  # this environment's own: empty without Mitsuba, its versions with it
+    try:
+        import mitsuba  # noqa: F401
+    except ImportError:
+        assert facts == {}
+    else:
+        assert facts["mitsuba_version"] == mitsuba.__version__ and facts["drjit_version"]
+
+
 def test_timeout_keeps_partial_records(tmp_path):
     from benchmarks.__main__ import run_module
 
