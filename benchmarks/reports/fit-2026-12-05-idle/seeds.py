@@ -5,6 +5,7 @@ bench_fit times seed 0 only; a lobe whose other campaigns need more LM steps can
 call. Run on an idle machine from the repository root:
 ``.venv/bin/python benchmarks/reports/fit-2026-12-05-idle/seeds.py [models...]``.
 """
+import gc
 import os
 import sys
 import time
@@ -33,6 +34,8 @@ for model in sys.argv[1:] or list(MODELS):
         y, w = jnp.asarray(data.value), jnp.asarray(ref.weight)
         out = fit_program(terms, y, w, spec)
         jax.block_until_ready(out["p"])
+        if os.environ.get("GC_FIRST", "1") == "1":
+            gc.collect()  # the earlier campaigns' garbage would be collected inside the timed loop
         c0, w0 = time.process_time(), time.perf_counter()
         for _ in range(REPEATS):
             jax.block_until_ready(fit_program(terms, y, w, spec)["p"])
