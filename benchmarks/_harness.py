@@ -6,12 +6,15 @@ The record convention for accuracy–time studies is documented in
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
 import platform
 import resource
 import statistics
+import subprocess
+import sys
 import time
 from typing import Any, Callable
 
@@ -59,8 +62,6 @@ def machine_facts() -> dict[str, Any]:
         facts["jax_error"] = repr(err)
     facts.update(peer_facts())
     try:
-        import subprocess
-
         out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
                              capture_output=True, text=True, timeout=10)
         facts["gpu"] = out.stdout.strip() or None
@@ -76,7 +77,12 @@ def peer_facts() -> dict[str, Any]:
     4.5x slower with a machine's libLLVM 15 than with its libLLVM 19 (``benchmarks/reports/
     render-peer-2026-12-05-idle``), so a ratio against Mitsuba is only read together with it. The LLVM version
     is asked in a subprocess, so that a benchmark process that never renders with Mitsuba does not start
-    Dr.Jit's backend."""
+    Dr.Jit's backend; once per process (a copy of the first answer after that)."""
+    return dict(_peer_facts())
+
+
+@functools.lru_cache(maxsize=1)
+def _peer_facts() -> dict[str, Any]:
     from importlib import metadata
 
     facts: dict[str, Any] = {}
@@ -85,9 +91,6 @@ def peer_facts() -> dict[str, Any]:
         facts["drjit_version"] = metadata.version("drjit")
     except metadata.PackageNotFoundError:
         return {}
-    import subprocess
-    import sys
-
     try:
         out = subprocess.run([sys.executable, "-c", "import drjit; print(*drjit.detail.llvm_version(), sep='.')"],
                              capture_output=True, text=True, timeout=60)
