@@ -1,0 +1,71 @@
+"""XLA's CPU thread pool as the fit-stage commands start it (:mod:`jkatana.runtime`), in child processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from jkatana.errors import InputError
+from jkatana.runtime import ENV_VAR, parse_threads
+from tests._scenes import cli_env
+
+CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1
+
+PROBE = """
+import json, os, sys
+from jkatana.runtime import xla_threads
+set_here = xla_threads(sys.argv[1]) if sys.argv[1] != "-" else None
+import jax, jax.numpy as jnp
+jax.jit(lambda x: jnp.sin(x).sum())(jnp.ones(1 << 16)).block_until_ready()
+mask = sorted(os.sched_getaffinity(0))
+tasks = os.listdir("/proc/self/task")
+names = [open(f"/proc/self/task/{t}/comm").read().strip() for t in tasks]
+masks = [sorted(os.sched_getaffinity(int(t))) for t in tasks]
+again = xla_threads(1)
+print(json.dumps(dict(set_here=set_here, again=again, pool=sum("Eigen" in n for n in names), mask=mask,
+                      all_full=all(m == mask for m in masks))))
+"""
+
+
+def _probe(arg: str) -> dict:
+    env = {k: v for k, v in cli_env().items() if k != "XLA_FLAGS"}
+    r = subprocess.run([sys.executable, "-c", PROBE, arg], env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.skipif(CORES < 2 or not sys.platform.startswith("linux"), reason="needs >= 2 cores and Linux")
+def test_one_thread_pool_with_every_core_left_to_the_process():
+    default = _probe("-")
+    assert default["pool"] == CORES  # JAX's default: one pool thread per core (what the count measures)
+    one = _probe("1")
+    assert one["set_here"] is True
+    assert one["pool"] == 1
+    assert one["all_full"] and one["mask"] == default["mask"]  # no thread is left pinned to one core
+    assert one["again"] is False  # the pool is fixed once the backend has started
+    assert _probe("all")["pool"] == CORES
+
+
+@pytest.mark.parametrize("value, expected", [(None, None), ("", None), ("all", None), (" ALL ", None), ("1", 1),
+                                             (2, 2)])
+def test_parse_threads(value, expected):
+    assert parse_threads(value) == expected
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "two", "1.5"])
+def test_bad_thread_count_names_the_variable(value):
+    with pytest.raises(InputError, match=ENV_VAR):
+        parse_threads(value)
+
+
+def test_cli_fit_refuses_a_bad_thread_count(tmp_path):
+    env = {**cli_env(), ENV_VAR: "many"}
+    r = subprocess.run([sys.executable, "-m", "jkatana.cli", "fit", str(tmp_path / "missing.csv"), "-o",
+                        str(tmp_path / "p.json")], env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2
+    assert ENV_VAR in r.stderr and "many" in r.stderr
+    assert "Traceback" not in r.stderr
