@@ -14,6 +14,11 @@ cores. Each section's CPU seconds (this process; the subprocesses' own)
 are logged and recorded, a load-independent measure of its cost on a
 shared machine.
 
+This module's process runs XLA on the fit commands' one-thread pool
+(:func:`jkatana.runtime.xla_threads`, ``$JKATANA_XLA_THREADS``); the region fit
+is timed again in a subprocess with JAX's default pool, one thread per core (the
+pool of a process that also renders), after the float32 subprocess has ended.
+
 Every approximation is measured against a reference with error and time side
 by side: solvers against the float64 LM optimum, the fixed-step per-pixel fit
 against a per-pixel optimistix LM (max 200 steps), float32 against float64,
@@ -97,6 +102,37 @@ def _float32_worker(quick: bool = False):
     print("JSON" + json.dumps(out))
 
 
+def _region_fit_time(model: str, reps: int) -> tuple[dict, float, int]:
+    """Wall time (timeit) and mean process CPU of one region fit (:data:`REGION_FIT`) on the lobe's seed-0
+    campaign, and its LM steps."""
+    import jax.numpy as jnp
+
+    from jkatana.fit._solve import fit_program
+    from jkatana.fit.region import fit_region
+
+    data = _lobe_campaign(model)
+    ref = fit_region(data, model=model, per_incidence=False, robust=False)
+    y, w = jnp.asarray(data.value), jnp.asarray(ref.weight)
+    out = fit_program(ref.terms, y, w, ref.spec)
+    t = timeit(lambda: fit_program(ref.terms, y, w, ref.spec), repeats=reps)
+    return t, _mean_cpu(lambda: fit_program(ref.terms, y, w, ref.spec), reps), int(out["steps"])
+
+
+def _default_pool_worker(quick: bool = False):
+    """Runs in a subprocess with JAX's default thread pool (one thread per core): the region fit of each lobe
+    (GTR and GGX in quick mode), beside the main process's one-thread pool of the fit commands."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from jkatana.fit._model import MODELS
+
+    out = {}
+    for model in ("gtr", "ggx") if quick else MODELS:
+        t, cpu, steps = _region_fit_time(model, 10 if quick else 50)
+        out[model] = dict(time_s=t, cpu_mean_s=cpu, steps=steps)
+    print("JSON" + json.dumps(out))
+
+
 LOBE_TRUTH = {"hiraji": {"chi": 79000.0, "mu": 0.05}, "hamon": {"beta": 43000.0, "mu": 0.1},
               "beckmann": {"scale": 2000.0, "alpha": 0.2}, "ggx": {"scale": 2000.0, "alpha": 0.05},
               "gtr": {"scale": 2000.0, "alpha": 0.05, "gamma": 1.5},
@@ -150,7 +186,7 @@ def _lobes(quick: bool, rows: list, log) -> None:
     import jax.numpy as jnp
 
     from jkatana.fit._model import MODELS
-    from jkatana.fit._solve import fit_program, solve, start_vector
+    from jkatana.fit._solve import solve, start_vector
     from jkatana.fit.compare import compare_models
     from jkatana.fit.region import fit_region
 
@@ -171,13 +207,12 @@ def _lobes(quick: bool, rows: list, log) -> None:
         reps = 10 if quick else 50
         t = timeit(lambda: solve(terms, y, w, p0, spec=spec), repeats=reps)
         t_start = timeit(lambda: start_vector(terms, y, w, spec), repeats=reps)
-        t_fit = timeit(lambda: fit_program(terms, y, w, spec), repeats=reps)
-        cpu_fit = _mean_cpu(lambda: fit_program(terms, y, w, spec), reps)
+        t_fit, cpu_fit, _ = _region_fit_time(model, reps)
         rows.append(record(B, dict(method=f"lobe {model}: region fit after compilation", model=model,
                                    n_points=int(data.value.size)), time_s=t, steps=int(out["steps"]),
                            start_time_s=t_start["median"], start_and_solve_time_s=t_fit,
                            start_and_solve_cpu_mean_s=cpu_fit, load_avg_1min=os.getloadavg()[0],
-                           region_fit=REGION_FIT, goal="<= 1 ms per region fit",
+                           xla_threads=XLA_THREADS, region_fit=REGION_FIT, goal="<= 1 ms per region fit",
                            first_fit_region_s=first, second_fit_region_other_table_s=second,
                            converged=bool(ref.converged)))
         log("lobe", model, "solve", t["median"], "start", t_start["median"], "start+solve", t_fit["median"],
@@ -219,7 +254,14 @@ def _lobes(quick: bool, rows: list, log) -> None:
     log("compare", times, res["best_aic"], res["best_loio"])
 
 
+#: XLA's thread pool in this module's process: the fit commands' (:func:`jkatana.fit.commands._x64`).
+XLA_THREADS = os.environ.get("JKATANA_XLA_THREADS", "1")
+
+
 def run(quick: bool) -> list[dict]:
+    from jkatana.runtime import xla_threads
+
+    pool_set = xla_threads(XLA_THREADS)  # before anything starts JAX's backend
     import jax
 
     jax.config.update("jax_enable_x64", True)
@@ -230,6 +272,7 @@ def run(quick: bool) -> list[dict]:
 
     rows = []
     log = lambda *a: print(*a, file=sys.stderr, flush=True)  # noqa: E731
+    log("XLA pool", XLA_THREADS, "set here" if pool_set else "not set here (JAX's default or already started)")
     # float32 runs with x64 off in its own process, beside this one
     f32_proc = subprocess.Popen([sys.executable, "-c", "from benchmarks.bench_fit import _float32_worker as w; "
                                  f"w(quick={quick})"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -357,6 +400,28 @@ def run(quick: bool) -> list[dict]:
                        reference="fit_pixels float64"))
     log("float32 pixels", px["fits_per_s"], float(np.max(rel)))
     section("float32 comparison (this process)", c0)
+
+    # ---- the region fit with JAX's default pool (one thread per core), after the float32 process has ended
+    proc = subprocess.run([sys.executable, "-c", "from benchmarks.bench_fit import _default_pool_worker as w; "
+                           f"w(quick={quick})"], capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "JKATANA_XLA_THREADS": "all"})
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("JSON")]
+    if proc.returncode != 0 or not line:
+        rows.append(record(B, dict(method="region fit, JAX's default thread pool (subprocess)"),
+                           failed=proc.stderr[-1500:]))
+    else:
+        one = {r["case"]["model"]: r for r in rows
+               if r["case"].get("model") and r["case"].get("method", "").endswith("region fit after compilation")}
+        for model, v in json.loads(line[0][4:]).items():
+            ref = one.get(model, {}).get("start_and_solve_time_s", {}).get("median")
+            rows.append(record(B, dict(method=f"lobe {model}: region fit after compilation, JAX's default pool",
+                                       model=model), start_and_solve_time_s=v["time_s"],
+                               start_and_solve_cpu_mean_s=v["cpu_mean_s"], steps=v["steps"], xla_threads="all",
+                               one_thread_over_default=(ref / v["time_s"]["median"]) if ref else None,
+                               load_avg_1min=os.getloadavg()[0],
+                               note="one pool thread per core, as in a process that also renders; the records "
+                                    "above use the fit commands' one-thread pool"))
+            log("default pool", model, v["time_s"]["median"], v["cpu_mean_s"])
     rows.append(record(B, dict(method="CPU seconds per section", quick=quick), cpu_s=cpu,
                        load_avg_1min=os.getloadavg()[0],
                        note="process CPU time: the wall time of each section on an idle machine is about this "
