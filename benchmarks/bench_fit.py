@@ -38,6 +38,7 @@ import time
 import numpy as np
 
 from benchmarks._harness import record, timeit
+from jkatana.runtime import ENV_VAR as XLA_ENV
 
 B = "bench_fit"
 
@@ -102,20 +103,13 @@ def _float32_worker(quick: bool = False):
     print("JSON" + json.dumps(out))
 
 
-def _region_fit_time(model: str, reps: int) -> tuple[dict, float, int]:
-    """Wall time (timeit) and mean process CPU of one region fit (:data:`REGION_FIT`) on the lobe's seed-0
-    campaign, and its LM steps."""
-    import jax.numpy as jnp
-
+def _region_fit_time(terms, spec, y, w, reps: int) -> tuple[dict, float]:
+    """Wall time (timeit) and mean process CPU of one region fit (:data:`REGION_FIT`) of ``y`` with weights
+    ``w``."""
     from jkatana.fit._solve import fit_program
-    from jkatana.fit.region import fit_region
 
-    data = _lobe_campaign(model)
-    ref = fit_region(data, model=model, per_incidence=False, robust=False)
-    y, w = jnp.asarray(data.value), jnp.asarray(ref.weight)
-    out = fit_program(ref.terms, y, w, ref.spec)
-    t = timeit(lambda: fit_program(ref.terms, y, w, ref.spec), repeats=reps)
-    return t, _mean_cpu(lambda: fit_program(ref.terms, y, w, ref.spec), reps), int(out["steps"])
+    return (timeit(lambda: fit_program(terms, y, w, spec), repeats=reps),
+            _mean_cpu(lambda: fit_program(terms, y, w, spec), reps))
 
 
 def _default_pool_worker(quick: bool = False):
@@ -126,9 +120,18 @@ def _default_pool_worker(quick: bool = False):
     jax.config.update("jax_enable_x64", True)
     from jkatana.fit._model import MODELS
 
+    import jax.numpy as jnp
+
+    from jkatana.fit._solve import fit_program
+    from jkatana.fit.region import fit_region
+
     out = {}
     for model in ("gtr", "ggx") if quick else MODELS:
-        t, cpu, steps = _region_fit_time(model, 10 if quick else 50)
+        data = _lobe_campaign(model)
+        ref = fit_region(data, model=model, per_incidence=False, robust=False)
+        y, w = jnp.asarray(data.value), jnp.asarray(ref.weight)
+        steps = int(fit_program(ref.terms, y, w, ref.spec)["steps"])
+        t, cpu = _region_fit_time(ref.terms, ref.spec, y, w, 10 if quick else 50)
         out[model] = dict(time_s=t, cpu_mean_s=cpu, steps=steps)
     print("JSON" + json.dumps(out))
 
@@ -207,7 +210,7 @@ def _lobes(quick: bool, rows: list, log) -> None:
         reps = 10 if quick else 50
         t = timeit(lambda: solve(terms, y, w, p0, spec=spec), repeats=reps)
         t_start = timeit(lambda: start_vector(terms, y, w, spec), repeats=reps)
-        t_fit, cpu_fit, _ = _region_fit_time(model, reps)
+        t_fit, cpu_fit = _region_fit_time(terms, spec, y, w, reps)
         rows.append(record(B, dict(method=f"lobe {model}: region fit after compilation", model=model,
                                    n_points=int(data.value.size)), time_s=t, steps=int(out["steps"]),
                            start_time_s=t_start["median"], start_and_solve_time_s=t_fit,
@@ -255,7 +258,7 @@ def _lobes(quick: bool, rows: list, log) -> None:
 
 
 #: XLA's thread pool in this module's process: the fit commands' (:func:`jkatana.fit.commands._x64`).
-XLA_THREADS = os.environ.get("JKATANA_XLA_THREADS", "1")
+XLA_THREADS = os.environ.get(XLA_ENV, "1")
 
 
 def run(quick: bool) -> list[dict]:
@@ -404,7 +407,7 @@ def run(quick: bool) -> list[dict]:
     # ---- the region fit with JAX's default pool (one thread per core), after the float32 process has ended
     proc = subprocess.run([sys.executable, "-c", "from benchmarks.bench_fit import _default_pool_worker as w; "
                            f"w(quick={quick})"], capture_output=True, text=True, timeout=600,
-                          env={**os.environ, "JKATANA_XLA_THREADS": "all"})
+                          env={**os.environ, XLA_ENV: "all"})
     line = [ln for ln in proc.stdout.splitlines() if ln.startswith("JSON")]
     if proc.returncode != 0 or not line:
         rows.append(record(B, dict(method="region fit, JAX's default thread pool (subprocess)"),

@@ -24,9 +24,9 @@ standard error changes the residual vector by about 1 in Euclidean norm; such
 a step changes it by less than 1e-4·√N·(1 + max|r_j|), about 0.01 for a
 region's 10³ points at χ²/dof ≈ 1, so it is far below the statistical error,
 and near the optimum LM's steps shrink faster than linearly, so the point it
-returns is closer still. Tighter
-tolerances only add steps near the optimum that the rounding of the cost
-rejects. The optimum itself is certified by the decrement below, not by the step size.
+returns is closer still. Tighter tolerances only add steps near the optimum
+that the rounding of the cost rejects. The optimum itself is certified by the
+decrement below, not by the step size.
 
 **Convergence is checked, not assumed.** A solver's ``result`` is not enough
 (measured trap: optimistix LM in float32 from a far start returns the start

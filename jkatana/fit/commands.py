@@ -58,7 +58,7 @@ def _x64():
 
     A fit's programs are small: XLA runs them on a one-thread pool
     (:func:`jkatana.runtime.xla_threads`; ``$JKATANA_XLA_THREADS``, default 1,
-    ``all`` for JAX's default of one per core), which halves their CPU time and
+    ``all`` for JAX's default of one per core), which lowers their CPU time and
     keeps their wall time steady on a shared machine.
 
     The cache (``$JKATANA_CACHE``, else ``~/.cache/jkatana``, folder ``jax``)
