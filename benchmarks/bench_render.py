@@ -64,7 +64,8 @@ os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
 import numpy as np  # noqa: E402
 
 from benchmarks._harness import delta_e_display, record, timeit  # noqa: E402
-from jkatana.shared import shared_data
+from jkatana.render.plan import ENV_WINDOW  # noqa: E402
+from jkatana.shared import shared_data  # noqa: E402
 
 BENCH = "render"
 
@@ -360,6 +361,12 @@ def _loglog_time_at(points, e):
 #: (:data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL_SAMPLED`).
 PEER_FRESNEL_RANK = 3
 
+#: jkatana's reference mode in the peer study draws its environment samples inside the lobe's window
+#: (``Plan.env_window``, :data:`~jkatana.render.plan.ENV_WINDOW`): its best configuration for this scene, as
+#: Mitsuba runs at each of its samplers and integrators. Unbiased (MIS with the lobe strategy); the converged
+#: frames of the study's bias record are rendered with it too.
+PEER_ENV_WINDOW = ENV_WINDOW
+
 
 def _mitsuba(quick: bool, budget: float = float("inf"), size: int | None = None) -> list[dict]:
     """Rough (Beckmann α = 0.2) iron sphere: frame time of jkatana and Mitsuba 3 at equal noise.
@@ -382,7 +389,8 @@ def _mitsuba(quick: bool, budget: float = float("inf"), size: int | None = None)
     configuration (:func:`_peer_configs`). ``size``: the frame's side instead
     of the mode's (a study of its own at another size).
 
-    jkatana runs its reference mode at the Fresnel rank :data:`PEER_FRESNEL_RANK`
+    jkatana runs its reference mode with the environment window :data:`PEER_ENV_WINDOW` and at the Fresnel
+    rank :data:`PEER_FRESNEL_RANK`
     (the sampled modes' default): a bias against full spectra, measured here on the
     converged check frame with the same samples at both (record ``fresnel rank bias``)
     and far below the noise levels compared.
@@ -420,7 +428,8 @@ def _mitsuba(quick: bool, budget: float = float("inf"), size: int | None = None)
         def jkatana(spp, sz, seed, fresnel_rank=PEER_FRESNEL_RANK):
             with _jk_frame_probe() as box:
                 img, mask, _ = mc.render_jkatana(env, alpha=0.2, size=sz, samples=spp, supersample=ss, seed=seed,
-                                                 env_nodes=None, fresnel_rank=fresnel_rank)
+                                                 env_nodes=None, fresnel_rank=fresnel_rank,
+                                                 env_window=PEER_ENV_WINDOW)
             f = box["frame"]
             t0 = time.perf_counter()  # the film step render_jkatana does after the frame (XYZ → RGB, box filter)
             from jkatana.spectral.colorimetry import xyz_to_linear_rgb

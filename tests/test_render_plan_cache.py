@@ -19,7 +19,7 @@ BECKMANN_KEY = ("beckmann", (("alpha", 1.0),))
 TWO_LOBE_KEY = ("mixture", (("first", GGX_KEY), ("second", ("ggx", (("alpha", 8.0),))), ("weight", 0.9)))
 # a value different from the default for every field of Plan
 ALTERNATIVES = {"mode": "paper", "samples": 8, "hiraji": False, "hamon": False, "mirror": True,
-                "env_sampling": False, "env_samples": 2, "factored": True, "fresnel_rank": 3, "lights": 1, "hiraji_lobe": GGX_KEY,
+                "env_sampling": False, "env_samples": 2, "env_window": 2.0, "factored": True, "fresnel_rank": 3, "lights": 1, "hiraji_lobe": GGX_KEY,
                 "hamon_lobe": BECKMANN_KEY,
                 "calibration": 1e5, "spectral": True, "visibility": True, "subpixels": 4,
                 "cap_rule": "stroud"}

@@ -11,7 +11,10 @@ Three strategies and their combination:
   so the density is exactly ``P(texel)/Ω(texel)``. A small spectral floor keeps
   the density positive wherever any band is, and the sun (a few texels that
   carry most of the power of a clear-sky map) is never missed: its texels get
-  their full share of samples.
+  their full share of samples. :meth:`EnvSampler.sample_window` samples the
+  same density restricted to a texel window (the renderer's: one bounding the
+  lobe about the mirror direction), which MIS with the lobe strategy keeps
+  unbiased whatever the window.
 - **Lobes**: any :class:`jkatana.models.lobes.Lobe` (its ``sample`` and
   ``pdf``; the lobes live with their values in :mod:`jkatana.models.lobes`).
 - **MIS** (:func:`mis_weight`): Veach & Guibas (1995), "Optimally Combining
@@ -27,7 +30,7 @@ as a matrix (:func:`jkatana.models.geometry.tangent_frame`).
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import equinox as eqx
 import jax
@@ -51,13 +54,21 @@ class EnvSampler(eqx.Module):
 
     **Fields:** `marginal` ``(H+1,)`` CDF over rows, `conditional` ``(H, W+1)``
     CDFs over columns per row, `texel_pdf` ``(H, W)`` density per steradian,
-    `cos_edges` ``(H+1,)`` cos θ of the row edges.
+    `cos_edges` ``(H+1,)`` cos θ of the row edges; for sampling inside a texel
+    window (:meth:`window`): `window_q` ``(H, W)`` the texel weights as integers,
+    `window_table` ``(H+1, 2W+1)`` their 2D prefix sums over the columns taken
+    twice (a summed-area table, Crow 1984), `window_rows` ``(H, 2W+1)`` their
+    prefix sums per row, `inv_omega` ``(H,)`` 1 / texel solid angle per row.
     """
 
     marginal: Float[Array, "H1"]
     conditional: Float[Array, "H W1"]
     texel_pdf: Float[Array, "H W"]
     cos_edges: Float[Array, "H1"]
+    window_table: Float[Array, "H1 W2"]
+    window_rows: Float[Array, "H W2"]
+    window_q: Float[Array, "H W"]
+    inv_omega: Float[Array, "H"]
 
     @classmethod
     def build(cls, env: EnvMap, *, floor: float = 0.01, uniform: float = 1e-6,
@@ -120,8 +131,16 @@ class EnvSampler(eqx.Module):
         pdf = f / f.sum() / omega[:, None]
         cos_edges = row_edges_cos(H)
         dt = env.radiance.dtype
+        # the windowed strategy's weights: the same texel weights as integers summing to ≤ WINDOW_TOTAL, so
+        # that every partial sum below (≤ 2·WINDOW_TOTAL = 2^24) and every difference of two is exact in float32
+        q = np.floor(f / f.sum() * WINDOW_TOTAL)
+        q2 = np.concatenate([q, q], axis=1)  # the columns twice: a window may wrap past u = 1
+        table = np.zeros((H + 1, 2 * W + 1))
+        table[1:, 1:] = np.cumsum(np.cumsum(q2, axis=0), axis=1)
+        row_table = np.concatenate([np.zeros((H, 1)), np.cumsum(q2, axis=1)], axis=1)
         return cls(jnp.asarray(marginal, dt), jnp.asarray(conditional, dt), jnp.asarray(pdf, dt),
-                   jnp.asarray(cos_edges, dt))
+                   jnp.asarray(cos_edges, dt), jnp.asarray(table, jnp.float32), jnp.asarray(row_table, jnp.float32),
+                   jnp.asarray(q, jnp.float32), jnp.asarray(1.0 / omega, dt))
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -192,6 +211,117 @@ class EnvSampler(eqx.Module):
     def pdf(self, d: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*#b"]:
         """Density (per steradian) of :meth:`sample` at world directions ``d``."""
         return self.pdf_uv(*direction_to_uv(d))
+
+
+    # ------------------------------------------------------------ windows
+
+    def window(self, d_map: Float[ArrayLike, "n 3"], half_angle: Float[ArrayLike, "n"]) -> "Window":
+        """The texel rectangle bounding the cone of ``half_angle`` (radians) about unit map-frame directions
+        ``d_map``, and its weight: a :class:`Window` for :meth:`sample_window` and :meth:`pdf_window`.
+
+        Rows span the cone's polar range; columns its azimuth range, ``±asin(sin a / sin θ)`` about the
+        centre's (the tangent meridians of a spherical cap), all columns where the cone holds a pole. A
+        range that wraps past u = 1 is kept as one run of columns on the tables' doubled width.
+        """
+        H, W = self.shape
+        u, v = direction_to_uv(d_map)
+        th = v * jnp.pi
+        a = jnp.asarray(half_angle, th.dtype)
+        lo, hi = th - a, th + a
+        pole = (lo <= 0) | (hi >= jnp.pi)
+        r0 = jnp.clip(jnp.floor(jnp.maximum(lo, 0.0) * (H / jnp.pi)), 0, H - 1).astype(jnp.int32)
+        r1 = jnp.clip(jnp.ceil(jnp.minimum(hi, jnp.pi) * (H / jnp.pi)).astype(jnp.int32), r0 + 1, H)
+        ratio = jnp.where(pole, 1.0, jnp.sin(jnp.minimum(a, 0.5 * jnp.pi)) / jnp.maximum(jnp.sin(th), 1e-30))
+        half = jnp.arcsin(jnp.minimum(ratio, 1.0)) * (W / (2 * jnp.pi))
+        c0f = jnp.floor(u * W - half)
+        c1f = jnp.ceil(u * W + half)
+        full = pole | (ratio >= 1.0) | (c1f - c0f >= W)
+        c0 = jnp.where(full, 0, jnp.mod(c0f, W)).astype(jnp.int32)
+        c1 = jnp.where(full, W, c0 + (c1f - c0f).astype(jnp.int32))
+        return Window(r0, r1, c0, c1, self._rows_below(r1, c0, c1) - self._rows_below(r0, c0, c1))
+
+    def _rows_below(self, r, c0, c1):
+        """Weight of the rows above row ``r`` in columns ``[c0, c1)`` (exact: a difference of integer sums)."""
+        tab, W1 = self.window_table.reshape(-1), self.window_table.shape[1]
+        return (tab[r * W1 + c1] - tab[r * W1 + c0]).astype(self.texel_pdf.dtype)
+
+    def sample_window(self, win: "Window", u: Float[ArrayLike, "n 2"]):
+        """Directions, densities and map ``(u, v)`` sampled inside ``win`` from two uniforms per sample: the
+        warp of :meth:`sample_uniform2` restricted to the window's texels (density ∝ the same texel weights,
+        renormalised to the window). Rows by the window's cumulative row weights (a 2D summed-area table,
+        Crow 1984; the windowed sampling of pbrt-v4's ``WindowedPiecewiseConstant2D``, Pharr, Jakob &
+        Humphreys 2023), then the column within the row; the remainders place the direction inside the
+        texel, so a stratified point set stays stratified. Zero density where the window weighs nothing
+        (the lobe strategy of MIS covers it).
+
+        **Returns:** ``(d (n, 3), pdf (n,), u (n,), v (n,))``.
+        """
+        H, W = self.shape
+        r0, r1, c0, c1, Q = win
+        u = jnp.asarray(u, self.texel_pdf.dtype)
+        Q = Q.astype(u.dtype)
+        a0 = self._rows_below(r0, c0, c1)
+        t = u[:, 0] * Q
+
+        def row_step(_, bracket):  # a loop, not unrolled: XLA would re-run an unrolled search in each consumer
+            lo, hi = bracket
+            mid = jnp.right_shift(lo + hi, 1)
+            right = self._rows_below(mid, c0, c1) - a0 <= t
+            return jnp.where(right, mid, lo), jnp.where(right, hi, mid)
+
+        j, _ = jax.lax.fori_loop(0, max(1, math.ceil(math.log2(H + 1))), row_step, (r0, r1))
+        m0 = self._rows_below(j, c0, c1) - a0
+        m1 = self._rows_below(j + 1, c0, c1) - a0
+        f0 = jnp.clip((t - m0) / jnp.maximum(m1 - m0, 1e-30), 0.0, 1.0)
+        rt, R1 = self.window_rows.reshape(-1).astype(u.dtype), self.window_rows.shape[1]
+        rb = j * R1
+        b0 = rt[rb + c0]
+        t2 = u[:, 1] * (m1 - m0)
+        lo, hi = c0, c1
+        for _ in range(max(1, math.ceil(math.log2(W + 1)))):
+            mid = jnp.right_shift(lo + hi, 1)
+            right = rt[rb + mid] - b0 <= t2
+            lo = jnp.where(right, mid, lo)
+            hi = jnp.where(right, hi, mid)
+        n0 = rt[rb + lo] - b0
+        n1 = rt[rb + lo + 1] - b0
+        f1 = jnp.clip((t2 - n0) / jnp.maximum(n1 - n0, 1e-30), 0.0, 1.0)
+        i = jnp.where(lo >= W, lo - W, lo)
+        uu = (i.astype(f1.dtype) + f1) / W
+        e0, e1 = self.cos_edges[j], self.cos_edges[j + 1]
+        cos_t = e0 + (e1 - e0) * f0
+        sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
+        jf = j.astype(cos_t.dtype)
+        v = jnp.clip(atan2(sin_t, cos_t) / jnp.pi, jf / H, (jf + 1.0) / H)
+        d = equirect_direction(uu, cos_t, sin_t)
+        pdf = jnp.where(Q > 0, (n1 - n0) / jnp.maximum(Q, 1.0), 0.0) * self.inv_omega[j]
+        return d, pdf, uu, v
+
+    def pdf_window(self, win: "Window", u, v):
+        """Density (per steradian) of :meth:`sample_window` at equirectangular ``(u, v)``: 0 outside the window."""
+        H, W = self.shape
+        r0, r1, c0, c1, Q = win
+        j, i = texel_index(u, v, H, W)
+        ie = jnp.where(i < c0, i + W, i)
+        inside = (j >= r0) & (j < r1) & (ie < c1) & (Q > 0)
+        return jnp.where(inside, self.window_q[j, i].astype(Q.dtype) / jnp.maximum(Q, 1.0) * self.inv_omega[j], 0.0)
+
+
+class Window(NamedTuple):
+    """A texel rectangle of an :class:`EnvSampler` per sample (:meth:`EnvSampler.window`): rows ``[r0, r1)``,
+    columns ``[c0, c1)`` with ``0 ≤ c0 < W`` and ``c1 ≤ c0 + W`` (column ``c ≥ W`` is ``c − W``), and ``Q`` its
+    weight (an integer in float32)."""
+
+    r0: Int[Array, "n"]
+    r1: Int[Array, "n"]
+    c0: Int[Array, "n"]
+    c1: Int[Array, "n"]
+    Q: Float[Array, "n"]
+
+
+#: Sum of the windowed strategy's integer texel weights: partial sums over the doubled columns stay ≤ 2^24, where
+#: float32 holds every integer, so a window's weight and its cumulative row and column weights are exact.
+WINDOW_TOTAL = float(2 ** 23)
 
 
 def _row_search(cdf: Float[Array, "H W1"], j: Int[Array, "n"], x: Float[Array, "n"]) -> Int[Array, "n"]:

@@ -25,6 +25,11 @@ LOBE_MODES = ("reference", "lowrank", "prefiltered")
 #: :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL`.
 SAMPLED_MODES = frozenset({"reference", "lowrank"})
 
+#: A measured ``Plan.env_window`` (the window's half-angle is 2 atan(k μ)): on the peer study's sphere (Beckmann
+#: α 0.2, courtyard map; ``benchmarks/reports/render-peer-2026-12-05-window``) k = 2 gave the lowest noise at 2
+#: and 8 samples per subpixel, k = 2.5–3 at 32.
+ENV_WINDOW = 2.0
+
 
 @dataclasses.dataclass(frozen=True)
 class Plan:
@@ -46,6 +51,20 @@ class Plan:
       much of the integrand each strategy finds (a lobe much narrower than
       the map's bright regions: fewer; a map whose power sits in small bright
       regions: more).
+    - `env_window`: the MIS modes draw their environment samples inside a texel
+      window about each pixel's mirror direction, a cone of half-angle
+      ``2 atan(k μ)`` with ``k = env_window`` and μ the pixel's lobe width
+      (:func:`~jkatana.render.shading.env_window`); ``None`` or 0 (default): from
+      the whole map. Unbiased for any ``k`` (the lobe strategy covers what the
+      window leaves out), and a large gain where the map's power is spread and
+      much of it lies below the horizon or far from the lobe (the peer
+      study's sphere: half the noise at 8 samples, :data:`ENV_WINDOW`). Not the
+      default because a bright source *outside* the window but in the lobe's
+      tail (a sun a few lobe widths from the mirror direction) is then found by
+      the lobe samples alone: on a sky with its sun in the map, narrow lobes,
+      some dim pixels' variance grew 1.5–3.6× (others fell 5×). Split the sun
+      into caps (``build_environment(split_sun=...)``), which MIS samples on
+      their own, before turning the window on for such maps.
     - `factored`: shade in the environment's spectral basis (rank = its channels).
     - `fresnel_rank`: ``R > 0``: shade with the Fresnel factor folded into the
       environment (:func:`~jkatana.render.fresnel_fold.fold_fresnel`: per sample a ``3R``-channel lookup and
@@ -98,6 +117,7 @@ class Plan:
     mirror: bool = False
     env_sampling: bool = True
     env_samples: int | None = None
+    env_window: float | None = None
     factored: bool = False
     fresnel_rank: int | None = None
     lights: int = 0

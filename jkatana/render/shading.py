@@ -101,7 +101,7 @@ from jkatana.models.geometry import tangent_frame, to_local, to_world
 from jkatana.models.lobes import reflect
 from jkatana.models.microfacet import gaussian_facet
 # the shader's inputs and helpers live by job in their own modules; re-exported here as the render API
-from jkatana.render.environment import (Caps, Environment, background, bilinear_equirect, bilinear_equirect_uv,  # noqa: F401
+from jkatana.render.environment import (Caps, Environment, background, bilinear_equirect, bilinear_equirect_uv, to_map,  # noqa: F401
                                         build_environment, env_basis, env_lookup, env_uv, from_map,
                                         lookup_prefiltered_many, unbasis)
 from jkatana.render.fresnel_fold import (FRESNEL_RANK_TOL, FRESNEL_TABLE, Material, fold_fresnel,  # noqa: F401
@@ -160,10 +160,33 @@ def _lobe_ray(plan: Plan, sampler, Vl, fr, offset, k, ids: PixelIds | None = Non
     return Ll, to_world(Ll, *fr), pb
 
 
-def _env_ray(plan: Plan, env: Environment, fr, offset, k, ids: PixelIds | None = None):
-    """The k-th of ``plan.n_env`` environment samples: ``(Ll, Lw, pdf, uv)`` (``uv`` the map coordinates of ``Lw``)."""
+def env_window(plan: Plan, env: Environment, px: Pixels, mirror_world):
+    """The texel window the MIS modes sample the environment in (:meth:`EnvSampler.window
+    <jkatana.light.sampling.EnvSampler.window>`), or ``None`` (the whole map: ``plan.env_window`` off, or no
+    environment samples).
+
+    The cone about the mirror direction of half-angle ``2 atan(k μ)``, ``k = plan.env_window`` and μ the
+    widest sampled region's per-pixel width (a Beckmann/GGX α, the paper's μ: the facet slope scale), so the
+    environment's samples go where the lobe is rather than below the horizon or far outside the lobe. A
+    choice of variance, not of the result: the balance heuristic with the lobe strategy, whose density is
+    positive wherever the lobe is, keeps the estimate unbiased for any window (Veach & Guibas 1995).
+    """
+    if not plan.env_window or not plan.n_env:
+        return None
+    widths = [mu for on, mu in ((plan.hiraji and not plan.mirror, px.mu0), (plan.hamon, px.mu1)) if on]
+    mu = widths[0] if len(widths) == 1 else jnp.maximum(*widths)
+    half = jnp.minimum(2.0 * jnp.arctan(plan.env_window * mu), jnp.pi)
+    return env.sampler.window(to_map(env, mirror_world), half)
+
+
+def _env_ray(plan: Plan, env: Environment, fr, offset, k, ids: PixelIds | None = None, win=None):
+    """The k-th of ``plan.n_env`` environment samples: ``(Ll, Lw, pdf, uv)`` (``uv`` the map coordinates of
+    ``Lw``), inside the texel window ``win`` if one is given (:func:`env_window`)."""
     _, _, _, re = uniforms(plan, offset, k, fr[0].dtype, ids, plan.n_env)
-    d_map, pe, u, v = env.sampler.sample_uniform2(re)
+    if win is None:
+        d_map, pe, u, v = env.sampler.sample_uniform2(re)
+    else:
+        d_map, pe, u, v = env.sampler.sample_window(win, re)
     Lw = from_map(env, d_map)
     return to_local(Lw, *fr), Lw, pe, (u, v)
 
@@ -214,7 +237,9 @@ def ray_directions(plan: Plan, env: Environment, lights: Light | None, px: Pixel
         sampler = _sampler(_lobes(plan, px, (1.0, 1.0)))  # sampling needs the widths only
         lobe = jax.vmap(lambda k: _lobe_ray(plan, sampler, Vl, fr, offset, k, ids)[1], out_axes=1)(ks)
         if plan.n_env:
-            envd = jax.vmap(lambda k: _env_ray(plan, env, fr, offset, k, ids)[1], out_axes=1)(jnp.arange(plan.n_env))
+            win = env_window(plan, env, px, mirror)
+            envd = jax.vmap(lambda k: _env_ray(plan, env, fr, offset, k, ids, win)[1],
+                            out_axes=1)(jnp.arange(plan.n_env))
     n = plan.lights if lights is not None else 0
     ls = [_light_ray(lights, j, px) for j in range(n)]
     dirs = [x[0] for x in ls]
@@ -437,12 +462,13 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         cap_offset = _cap_offsets(plan, key, P, dtype, ids, caps.count) if caps is not None else []
         S_env = plan.n_env
         n_lobe, n_env = jnp.asarray(S, dtype), jnp.asarray(S_env, dtype)
+        win = env_window(plan, env, px, _mirror_ray(Vl, fr)[1])
 
         def lobe_body(acc_, xs):
             k, v1 = xs
             Ll, Lw, pb = _lobe_ray(plan, sampler, Vl, fr, offset, k, ids)
             uv = env_uv(env, Lw)  # one atan2 pair serves the density and the lookup
-            pe = env.sampler.pdf_uv(*uv) if S_env else 0.0
+            pe = (env.sampler.pdf_uv(*uv) if win is None else env.sampler.pdf_window(win, *uv)) if S_env else 0.0
             ok = (Ll[:, 2] > 0) & (pb > 0)
             wgt = jnp.where(ok, 1.0 / jnp.where(ok, n_lobe * pb + n_env * pe, 1.0), 0.0)
             if v1 is not None:
@@ -474,7 +500,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
 
         def env_body(acc_, xs):
             k, v2 = xs
-            Ll2, Lw2, pe2, uv2 = _env_ray(plan, env, fr, offset, k, ids)
+            Ll2, Lw2, pe2, uv2 = _env_ray(plan, env, fr, offset, k, ids, win)
             pb2 = sampler.pdf(Ll2, Vl)
             ok2 = (Ll2[:, 2] > 0) & (pe2 > 0)
             wgt2 = jnp.where(ok2, 1.0 / jnp.where(ok2, n_lobe * pb2 + n_env * pe2, 1.0), 0.0)
