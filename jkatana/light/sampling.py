@@ -184,7 +184,6 @@ class EnvSampler(eqx.Module):
 
         **Returns:** ``(d (*b, 3), pdf (*b,), u (*b,), v (*b,))``.
         """
-        H, W = self.shape
         u = jnp.asarray(u, self.texel_pdf.dtype)
         shape = u.shape[:-1]
         u = u.reshape(-1, 2)
@@ -193,15 +192,21 @@ class EnvSampler(eqx.Module):
         r0 = jnp.clip((u[:, 0] - m0) / jnp.maximum(m1 - m0, 1e-30), 0.0, 1.0)
         c0, c1 = self.conditional[j, i], self.conditional[j, i + 1]
         r1 = jnp.clip((u[:, 1] - c0) / jnp.maximum(c1 - c0, 1e-30), 0.0, 1.0)
-        uu = (i.astype(r1.dtype) + r1) / W
+        d, uu, v = self._in_texel(j, i, r0, r1)
+        return (d.reshape(shape + (3,)), self.texel_pdf[j, i].reshape(shape), uu.reshape(shape),
+                v.reshape(shape))
+
+    def _in_texel(self, j, i, f_row, f_col):
+        """The direction at fractions ``(f_row, f_col)`` of texel ``(j, i)``, uniform in solid angle (linear in
+        cos θ and in φ): ``(d, u, v)``, ``v`` kept inside the texel's row against the ``atan2``'s rounding."""
+        H, W = self.shape
+        uu = (i.astype(f_col.dtype) + f_col) / W
         e0, e1 = self.cos_edges[j], self.cos_edges[j + 1]
-        cos_t = e0 + (e1 - e0) * r0
+        cos_t = e0 + (e1 - e0) * f_row
         sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
         jf = j.astype(cos_t.dtype)
         v = jnp.clip(atan2(sin_t, cos_t) / jnp.pi, jf / H, (jf + 1.0) / H)
-        d = equirect_direction(uu, cos_t, sin_t)
-        return (d.reshape(shape + (3,)), self.texel_pdf[j, i].reshape(shape), uu.reshape(shape),
-                v.reshape(shape))
+        return equirect_direction(uu, cos_t, sin_t), uu, v
 
     def pdf_uv(self, u: Float[ArrayLike, "*#b"], v: Float[ArrayLike, "*#b"]) -> Float[Array, "*#b"]:
         """Density (per steradian) at equirectangular ``(u, v)`` (as :meth:`pdf`, without the ``atan2``)."""
@@ -286,14 +291,7 @@ class EnvSampler(eqx.Module):
         n0 = rt[rb + lo] - b0
         n1 = rt[rb + lo + 1] - b0
         f1 = jnp.clip((t2 - n0) / jnp.maximum(n1 - n0, 1e-30), 0.0, 1.0)
-        i = jnp.where(lo >= W, lo - W, lo)
-        uu = (i.astype(f1.dtype) + f1) / W
-        e0, e1 = self.cos_edges[j], self.cos_edges[j + 1]
-        cos_t = e0 + (e1 - e0) * f0
-        sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
-        jf = j.astype(cos_t.dtype)
-        v = jnp.clip(atan2(sin_t, cos_t) / jnp.pi, jf / H, (jf + 1.0) / H)
-        d = equirect_direction(uu, cos_t, sin_t)
+        d, uu, v = self._in_texel(j, jnp.where(lo >= W, lo - W, lo), f0, f1)
         pdf = jnp.where(Q > 0, (n1 - n0) / jnp.maximum(Q, 1.0), 0.0) * self.inv_omega[j]
         return d, pdf, uu, v
 
