@@ -177,7 +177,7 @@ def render_mitsuba(env_path, *, alpha: float | None, size: int = 96, spp: int = 
 def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: int = 256, supersample: int = 3,
                    fov: float = 38.0, eye=(0.0, 0.3, 3.2), same_upsampling: bool = True, seed: int = 0,
                    env_nodes: int | None = ENV_NODES, env_samples: int | None = None,
-                   fresnel_rank: int | None = None, env_window: float | None | bool = True):
+                   fresnel_rank: int | None = None, env_window: float | None = None):
     """jkatana, same scene: ``(linear Rec. 709 (size, size, 3), mask, shading seconds)``.
 
     ``same_upsampling``: the environment is Mitsuba's own spectral envmap
@@ -188,7 +188,7 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
     ``fresnel_rank``: rank of the folded Fresnel table of the rough sphere (``Plan.fresnel_rank``;
     ``None``: the frame's choice, for this reference-mode sphere within
     :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL_SAMPLED` of the table; 0: full spectra).
-    ``env_window``: ``Plan.env_window`` (``True``: its default; ``None``: environment samples from the whole map).
+    ``env_window``: ``Plan.env_window`` (``None``: environment samples from the whole map).
     """
     import jax.numpy as jnp
 
@@ -218,8 +218,7 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
         from jkatana.models.lobes import lobe_key
 
         plan = Plan(samples=samples, hiraji=False, hamon=True, hamon_lobe=lobe_key({"lobe": "beckmann", "alpha": 1.0}),
-                    env_samples=env_samples, fresnel_rank=fresnel_rank,
-                    **({} if env_window is True else {"env_window": env_window}))
+                    env_samples=env_samples, fresnel_rank=fresnel_rank, env_window=env_window)
         maps = [0.0, 0.05, alpha]
     cmf = film_weights(grid)
     f = render_frame(plan, mat, E, None, ("sphere", (0.0, 0.0, 0.0), 1.0), cam,
