@@ -217,7 +217,6 @@ class EnvSampler(eqx.Module):
         """Density (per steradian) of :meth:`sample` at world directions ``d``."""
         return self.pdf_uv(*direction_to_uv(d))
 
-
     # ------------------------------------------------------------ windows
 
     def window(self, d_map: Float[ArrayLike, "n 3"], half_angle: Float[ArrayLike, "n"]) -> "Window":
@@ -243,7 +242,8 @@ class EnvSampler(eqx.Module):
         full = pole | (ratio >= 1.0) | (c1f - c0f >= W)
         c0 = jnp.where(full, 0, jnp.mod(c0f, W)).astype(jnp.int32)
         c1 = jnp.where(full, W, c0 + (c1f - c0f).astype(jnp.int32))
-        return Window(r0, r1, c0, c1, self._rows_below(r1, c0, c1) - self._rows_below(r0, c0, c1))
+        above = self._rows_below(r0, c0, c1)
+        return Window(r0, r1, c0, c1, self._rows_below(r1, c0, c1) - above, above)
 
     def _rows_below(self, r, c0, c1):
         """Weight of the rows above row ``r`` in columns ``[c0, c1)`` (exact: a difference of integer sums)."""
@@ -262,10 +262,8 @@ class EnvSampler(eqx.Module):
         **Returns:** ``(d (n, 3), pdf (n,), u (n,), v (n,))``.
         """
         H, W = self.shape
-        r0, r1, c0, c1, Q = win
+        r0, r1, c0, c1, Q, a0 = win
         u = jnp.asarray(u, self.texel_pdf.dtype)
-        Q = Q.astype(u.dtype)
-        a0 = self._rows_below(r0, c0, c1)
         t = u[:, 0] * Q
 
         def row_step(_, bracket):  # a loop, not unrolled: XLA would re-run an unrolled search in each consumer
@@ -278,18 +276,19 @@ class EnvSampler(eqx.Module):
         m0 = self._rows_below(j, c0, c1) - a0
         m1 = self._rows_below(j + 1, c0, c1) - a0
         f0 = jnp.clip((t - m0) / jnp.maximum(m1 - m0, 1e-30), 0.0, 1.0)
-        rt, R1 = self.window_rows.reshape(-1).astype(u.dtype), self.window_rows.shape[1]
-        rb = j * R1
-        b0 = rt[rb + c0]
+        rt, rb = self.window_rows.reshape(-1), j * self.window_rows.shape[1]
+
+        def left_of(c):  # weight of row j's columns [c0, c)
+            return (rt[rb + c] - rt[rb + c0]).astype(u.dtype)
+
         t2 = u[:, 1] * (m1 - m0)
         lo, hi = c0, c1
         for _ in range(max(1, math.ceil(math.log2(W + 1)))):
             mid = jnp.right_shift(lo + hi, 1)
-            right = rt[rb + mid] - b0 <= t2
+            right = left_of(mid) <= t2
             lo = jnp.where(right, mid, lo)
             hi = jnp.where(right, hi, mid)
-        n0 = rt[rb + lo] - b0
-        n1 = rt[rb + lo + 1] - b0
+        n0, n1 = left_of(lo), left_of(lo + 1)
         f1 = jnp.clip((t2 - n0) / jnp.maximum(n1 - n0, 1e-30), 0.0, 1.0)
         d, uu, v = self._in_texel(j, jnp.where(lo >= W, lo - W, lo), f0, f1)
         pdf = jnp.where(Q > 0, (n1 - n0) / jnp.maximum(Q, 1.0), 0.0) * self.inv_omega[j]
@@ -298,7 +297,7 @@ class EnvSampler(eqx.Module):
     def pdf_window(self, win: "Window", u, v):
         """Density (per steradian) of :meth:`sample_window` at equirectangular ``(u, v)``: 0 outside the window."""
         H, W = self.shape
-        r0, r1, c0, c1, Q = win
+        r0, r1, c0, c1, Q, _ = win
         j, i = texel_index(u, v, H, W)
         ie = jnp.where(i < c0, i + W, i)
         inside = (j >= r0) & (j < r1) & (ie < c1) & (Q > 0)
@@ -307,14 +306,16 @@ class EnvSampler(eqx.Module):
 
 class Window(NamedTuple):
     """A texel rectangle of an :class:`EnvSampler` per sample (:meth:`EnvSampler.window`): rows ``[r0, r1)``,
-    columns ``[c0, c1)`` with ``0 ≤ c0 < W`` and ``c1 ≤ c0 + W`` (column ``c ≥ W`` is ``c − W``), and ``Q`` its
-    weight (an integer in float32)."""
+    columns ``[c0, c1)`` with ``0 ≤ c0 < W`` and ``c1 ≤ c0 + W`` (column ``c ≥ W`` is ``c − W``), ``Q`` its
+    weight and ``above`` the weight of the rows above ``r0`` in its columns (integers, exact in float32; kept
+    so that each sample's row search starts from it instead of looking it up again)."""
 
     r0: Int[Array, "n"]
     r1: Int[Array, "n"]
     c0: Int[Array, "n"]
     c1: Int[Array, "n"]
     Q: Float[Array, "n"]
+    above: Float[Array, "n"]
 
 
 #: Sum of the windowed strategy's integer texel weights: partial sums over the doubled columns stay ≤ 2^24, where
