@@ -58,7 +58,7 @@ class Plan:
       the whole map. Unbiased for any ``k`` (the lobe strategy covers what the
       window leaves out), and a large gain where the map's power is spread and
       much of it lies below the horizon or far from the lobe (the peer
-      study's sphere: half the noise at 8 samples, :data:`ENV_WINDOW`). Not the
+      study's sphere: half the variance at 8 samples, :data:`ENV_WINDOW`). Not the
       default because a bright source *outside* the window but in the lobe's
       tail (a sun a few lobe widths from the mirror direction) is then found by
       the lobe samples alone: on a sky with its sun in the map, narrow lobes,
