@@ -399,6 +399,11 @@ def test_unreachable_scheduler_refused_in_time(tmp_path):
     ('name = "f"\n', 'name = ".."\n', "output.name"),
     ('resolution = [16, 32]\n', 'resolution = [16, 32]\nsun = "false"\n', "environment.sun"),
     ('samples = 1\n', 'samples = 1\nmode = "lowrank"\nrank = 64\n', "render.rank"),
+    ('samples = 1\n', 'samples = 1\nsplit_sun = "yes"\n', "render.split_sun"),
+    ('samples = 1\n', 'samples = 1\nmode = "paper-published"\nsplit_sun = true\n', "render.split_sun"),
+    ('samples = 1\n', 'samples = 1\nenv_window = 0\n', "render.env_window"),
+    ('samples = 1\n', 'samples = 1\nenv_window = "wide"\n', "render.env_window"),
+    ('samples = 1\n', 'samples = 1\nenv_window = true\n', "render.env_window"),
 ])
 def test_scene_fields_one_line(old, new, field, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)

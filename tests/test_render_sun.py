@@ -417,3 +417,27 @@ def test_caps_on_their_own_pass_equal_the_one_pass(sun_map, monkeypatch):
     m = one.mask
     assert np.asarray(one.xyz[m][:, 1]).max() > 10 * np.median(one.xyz[m][:, 1])  # the glint is in the frame
     np.testing.assert_allclose(apart.xyz, one.xyz, rtol=2e-6, atol=2e-6 * float(one.xyz.max()))
+
+
+@pytest.mark.parametrize("mode, field, caps", [
+    ("reference", None, 0), ("reference", True, 1), ("prefiltered", None, 1), ("prefiltered", False, 0)])
+def test_the_scenes_split_sun_field_decides_the_split(mode, field, caps, tmp_path):
+    """``render.split_sun``: unset, the mode's default (reference keeps the whole map, prefiltered splits);
+    ``true``/``false`` override it. ``render.env_window`` reaches the plan. A sky with its sun at 64 × 128
+    (the sun is compact there); the scene written back reads as the same scene."""
+    from jkatana.render.renderer import prepare
+    from jkatana.render.scenefile import load_scene, scene_from_dict, scene_to_toml
+    from tests._scenes import sphere_scene
+
+    import tomllib
+
+    text = sphere_scene(8, 8, 1, spectral=(400.0, 700.0, 20.0)).replace("resolution = [16, 32]", "resolution = [64, 128]")
+    extra = f'mode = "{mode}"\nenv_window = 2\n' + ("" if field is None else f"split_sun = {str(field).lower()}\n")
+    (tmp_path / "scene.toml").write_text(text.replace("[render]\n", "[render]\n" + extra))
+    scene = load_scene(tmp_path / "scene.toml")
+    assert scene.render.split_sun is field and scene.render.env_window == 2.0
+    assert scene_from_dict(tomllib.loads(scene_to_toml(scene)), tmp_path / "scene.toml") == scene
+    prep = prepare(scene)
+    assert prep.env_info["caps"] == caps
+    assert prep.plan.env_window == 2.0
+    assert prepare(scene, split_sun=not caps).env_info["caps"] == 1 - caps   # the argument wins over the field

@@ -177,7 +177,7 @@ def render_mitsuba(env_path, *, alpha: float | None, size: int = 96, spp: int = 
 def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: int = 256, supersample: int = 3,
                    fov: float = 38.0, eye=(0.0, 0.3, 3.2), same_upsampling: bool = True, seed: int = 0,
                    env_nodes: int | None = ENV_NODES, env_samples: int | None = None,
-                   fresnel_rank: int | None = None, env_window: float | None = None):
+                   fresnel_rank: int | None = None, env_window: float | None = None, split_sun: bool = False):
     """jkatana, same scene: ``(linear Rec. 709 (size, size, 3), mask, shading seconds)``.
 
     ``same_upsampling``: the environment is Mitsuba's own spectral envmap
@@ -189,6 +189,8 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
     ``None``: the frame's choice, for this reference-mode sphere within
     :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL_SAMPLED` of the table; 0: full spectra).
     ``env_window``: ``Plan.env_window`` (``None``: environment samples from the whole map).
+    ``split_sun``: split the map's compact bright sources off as caps (``build_environment(split_sun=)``),
+    which the MIS shader samples on their own.
     """
     import jax.numpy as jnp
 
@@ -207,7 +209,8 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
     from jkatana.render.renderer import rotation_y
 
     # Mitsuba 3.9.1's envmap maps u = atan2(x, −z)/2π (no +½): jkatana's map turned by 180° about +Y
-    E, _, _ = build_environment(radiance, grid=grid, rotation=rotation_y(MITSUBA_ENV_ROTATION_DEG))
+    E, _, _ = build_environment(radiance, grid=grid, rotation=rotation_y(MITSUBA_ENV_ROTATION_DEG),
+                             split_sun=split_sun)
     c = Conductor.from_table("Fe-Johnson", grid, dtype=jnp.float32)
     mat = Material(fresnel_table(c.n, c.k), jnp.float32(1.0), jnp.float32(1.0))
     s = size * supersample

@@ -252,8 +252,10 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     ``mode``, ``samples`` and ``rank`` override the scene's (``None``: the scene's); an override is
     checked as the scene's own field is (``samples = 0`` is an error, not "the scene's count").
     ``split_sun``: split the environment's compact bright sources off as cap lights
-    (:func:`~jkatana.render.environment.build_environment`); ``None``: the mode's default
-    (:data:`~jkatana.render.environment.SPLIT_MODES`; never in ``paper-published``).
+    (:func:`~jkatana.render.environment.build_environment`); ``None``: the scene's ``render.split_sun``,
+    and where that is unset the mode's default (:data:`~jkatana.render.environment.SPLIT_MODES`; never in
+    ``paper-published``). The scene's ``render.env_window`` goes to :attr:`Plan.env_window
+    <jkatana.render.plan.Plan.env_window>`.
     """
     mode = scene.render.mode if mode is None else mode
     samples = scene.render.samples if samples is None else samples
@@ -290,9 +292,11 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     from jkatana.light.cache import environment_key, radiance_key
 
     pre_lobes = region_lobe_keys(lobes, scene.material.calibration) if mus else (None, None)
+    split_sun = scene.render.split_sun if split_sun is None else split_sun
     split = (mode in SPLIT_MODES) if split_sun is None else bool(split_sun)
     if mode == "paper-published" and split:
-        raise InputError("the paper-published mode shades the whole map: no sun split", field="mode")
+        raise InputError("the paper-published mode shades the whole map: no sun split (render.split_sun)",
+                         field="mode")
     rad_key = radiance_key(scene.environment, grid) if env_radiance is None else None
     env_key = None if rad_key is None else environment_key(rad_key, rank=env_rank, prefilter_mus=mus,
                                                            prefilter_resolution=128, dtype=dtype, split_sun=split)
@@ -324,7 +328,7 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
                 env_sampling=True, factored=factored, lights=len(scene.lights),
                 calibration=scene.material.calibration, hiraji_lobe=lobes["hiraji"], hamon_lobe=lobes["hamon"],
                 spectral=scene.output.spectral and not factored,
-                visibility=bool(scene.occluders))
+                visibility=bool(scene.occluders), env_window=scene.render.env_window)
     occluders = None
     if scene.occluders:
         from jkatana.render.gbuffer import Occluders, occluder_mesh

@@ -201,7 +201,11 @@ class Spectral:
 
 @dataclasses.dataclass(frozen=True)
 class Render:
-    """How to integrate: the mode, samples per pixel, low-rank environment rank, seed, precision, chunk."""
+    """How to integrate: the mode, samples per pixel, low-rank environment rank, seed, precision, chunk,
+    and two sampling choices: ``split_sun`` (compact bright sources split off as cap lights; ``None``: the
+    mode's default, :data:`~jkatana.render.environment.SPLIT_MODES`) and ``env_window`` (the MIS modes'
+    environment samples drawn in the lobe's window, :attr:`~jkatana.render.plan.Plan.env_window`; ``None``:
+    the whole map)."""
 
     mode: str = "reference"
     samples: int = 64
@@ -209,6 +213,8 @@ class Render:
     seed: int = 0
     precision: str = "float32"
     chunk: int = 16384
+    split_sun: bool | None = None
+    env_window: float | None = None
 
     def to_dict(self) -> dict:
         return _table(self)

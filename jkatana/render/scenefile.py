@@ -67,6 +67,12 @@ relative to the scene file)::
     rank = 3                         # lowrank mode
     seed = 0
     precision = "float32"            # or "float64" (validation)
+    split_sun = "auto"               # true | false | "auto" (the mode's default: split in prefiltered, paper,
+                                     # lowrank); reference + true samples each cap on its own by MIS: less
+                                     # noise under a real sun (see the README)
+    env_window = false               # or k (e.g. 2): the MIS modes' environment samples inside the cone
+                                     # 2 atan(k mu) about the mirror direction; less noise on maps without
+                                     # a compact source left in them, heavy-tailed where one is
 
     [film]
     colourspace = "sRGB"
@@ -374,9 +380,30 @@ def _render(raw, path, spectral: Spectral) -> Render:
                     rank=r.integer("rank", 3, lo=1, hi=spectral.grid.size),
                     seed=r.integer("seed", 0, lo=0, hi=LIMITS["seed"]),
                     precision=r.string("precision", "float32", choices=("float32", "float64")),
-                    chunk=r.integer("chunk", 16384, lo=256, hi=LIMITS["chunk"]))
+                    chunk=r.integer("chunk", 16384, lo=256, hi=LIMITS["chunk"]),
+                    split_sun=_split_sun(r), env_window=_env_window(r))
     r.check_unknown()
+    if render.mode == "paper-published" and render.split_sun:
+        raise r.err("split_sun", "the paper-published mode shades the whole map, as published: no sun split")
     return render
+
+
+def _split_sun(r: _Section) -> bool | None:
+    """``render.split_sun``: ``true``/``false``, or ``"auto"`` (absent: the mode's default) → ``None``."""
+    v = r.get("split_sun", "auto")
+    if isinstance(v, str) and v.lower() == "auto":
+        return None
+    if not isinstance(v, bool):
+        raise r.err("split_sun", f"must be true, false or \"auto\", got {v!r}")
+    return v
+
+
+def _env_window(r: _Section) -> float | None:
+    """``render.env_window``: ``false``/absent (the whole map) → ``None``, or the window's ``k`` in (0, 100]."""
+    v = r.get("env_window", False)
+    if v is False:
+        return None
+    return r.number("env_window", lo=None, hi=100.0, positive=True)
 
 
 def _check_colourspace(name, path, field):
