@@ -26,7 +26,7 @@ from jkatana.render.frame import render_frame
 from jkatana.render.gbuffer import gbuffer_sphere
 from jkatana.render.shading import Material, Pixels, Plan, build_environment, fresnel_table, shade
 from jkatana.spectral.grid import WavelengthGrid
-from tests._scenes import paste_disc
+from tests._scenes import paste_disc, sphere_scene
 
 GRID = WavelengthGrid(400.0, 700.0, 20.0)
 CMF = film_weights(GRID)
@@ -426,10 +426,9 @@ def test_the_scenes_split_sun_field_decides_the_split(mode, field, caps, tmp_pat
     ``true``/``false`` override it. ``render.env_window`` reaches the plan. A sky with its sun at 64 × 128
     (the sun is compact there); the scene written back reads as the same scene."""
     from jkatana.render.renderer import prepare
-    from jkatana.render.scenefile import load_scene, scene_from_dict, scene_to_toml
-    from tests._scenes import sphere_scene
-
     import tomllib
+
+    from jkatana.render.scenefile import load_scene, scene_from_dict, scene_to_toml
 
     text = sphere_scene(8, 8, 1, spectral=(400.0, 700.0, 20.0)).replace("resolution = [16, 32]", "resolution = [64, 128]")
     extra = f'mode = "{mode}"\nenv_window = 2\n' + ("" if field is None else f"split_sun = {str(field).lower()}\n")

@@ -210,7 +210,7 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
 
     # Mitsuba 3.9.1's envmap maps u = atan2(x, −z)/2π (no +½): jkatana's map turned by 180° about +Y
     E, _, _ = build_environment(radiance, grid=grid, rotation=rotation_y(MITSUBA_ENV_ROTATION_DEG),
-                             split_sun=split_sun)
+                                split_sun=split_sun)
     c = Conductor.from_table("Fe-Johnson", grid, dtype=jnp.float32)
     mat = Material(fresnel_table(c.n, c.k), jnp.float32(1.0), jnp.float32(1.0))
     s = size * supersample

@@ -403,7 +403,7 @@ def _env_window(r: _Section) -> float | None:
     v = r.get("env_window", False)
     if v is False:
         return None
-    return r.number("env_window", lo=None, hi=100.0, positive=True)
+    return r.number("env_window", lo=0.0, hi=100.0, positive=True)
 
 
 def _check_colourspace(name, path, field):
