@@ -282,12 +282,14 @@ class EnvSampler(eqx.Module):
             return (rt[rb + c] - rt[rb + c0]).astype(u.dtype)
 
         t2 = u[:, 1] * (m1 - m0)
-        lo, hi = c0, c1
-        for _ in range(max(1, math.ceil(math.log2(W + 1)))):
+
+        def col_step(_, bracket):  # a loop too: unrolled, its steps would be re-run in each consumer's fusion
+            lo, hi = bracket
             mid = jnp.right_shift(lo + hi, 1)
             right = left_of(mid) <= t2
-            lo = jnp.where(right, mid, lo)
-            hi = jnp.where(right, hi, mid)
+            return jnp.where(right, mid, lo), jnp.where(right, hi, mid)
+
+        lo, hi = jax.lax.fori_loop(0, max(1, math.ceil(math.log2(W + 1))), col_step, (c0, c1))
         n0, n1 = left_of(lo), left_of(lo + 1)
         f1 = jnp.clip((t2 - n0) / jnp.maximum(n1 - n0, 1e-30), 0.0, 1.0)
         d, uu, v = self._in_texel(j, jnp.where(lo >= W, lo - W, lo), f0, f1)
@@ -327,13 +329,14 @@ def _row_search(cdf: Float[Array, "H W1"], j: Int[Array, "n"], x: Float[Array, "
     """Largest ``i`` in [0, W−1] with ``cdf[j, i] ≤ x``: a vectorised binary search that gathers
     one entry per sample and step (O(n) memory, unlike gathering whole rows)."""
     W = cdf.shape[1] - 1
-    lo = jnp.zeros_like(j)
-    hi = jnp.full_like(j, W)
-    for _ in range(max(1, math.ceil(math.log2(W + 1)))):
+
+    def step(_, bracket):  # a loop, not unrolled: XLA would re-run an unrolled search in each consumer
+        lo, hi = bracket
         mid = (lo + hi) // 2
         right = cdf[j, mid] <= x
-        lo = jnp.where(right, mid, lo)
-        hi = jnp.where(right, hi, mid)
+        return jnp.where(right, mid, lo), jnp.where(right, hi, mid)
+
+    lo, _ = jax.lax.fori_loop(0, max(1, math.ceil(math.log2(W + 1))), step, (jnp.zeros_like(j), jnp.full_like(j, W)))
     return jnp.clip(lo, 0, W - 1)
 
 
