@@ -65,3 +65,25 @@ def test_beckmann_visible_normals_estimate_is_unbiased(alpha):
     # lobe sampling alone: f·cos/pdf = F G1(L) G1(V)/G1_exact(V) ≤ 1.0035 F, converged with few samples
     lobe = np.asarray(_shader(_plan(1024, env_sampling=False), mat, env, px)(keys[:2])).mean(0)[..., 1]
     np.testing.assert_allclose(lobe, ref, rtol=0.02)
+
+
+@pytest.mark.parametrize("n", [1, 5, 8, 11, 17])
+@pytest.mark.parametrize("with_x", [False, True])
+def test_sample_passes_accumulates_each_sample_once(n, with_x):
+    """The two-pass sample loop (draw a block, then load and accumulate) visits k = 0 … n − 1 once each, in
+    blocks that do not divide n as well (the padding's samples are dropped, even where they are not finite)."""
+    from jkatana.render.shading import _sample_passes
+
+    P = 3
+    xs = jnp.asarray(np.random.default_rng(n).uniform(size=(n, P))) if with_x else None
+
+    def rays(k):  # beyond n it would add infinities, which must not reach the sum
+        return jnp.where(k < n, 1.0 + k.astype(jnp.float64), jnp.inf) * jnp.arange(1.0, P + 1.0)
+
+    def body(acc, k, r, x):
+        return acc + (r if x is None else r * x)
+
+    got = _sample_passes(n, rays, body, jnp.zeros(P), xs, block=4)
+    k = np.arange(n, dtype=float)[:, None]
+    want = ((1.0 + k) * np.arange(1.0, P + 1.0) * (1.0 if xs is None else np.asarray(xs))).sum(0)
+    np.testing.assert_allclose(np.asarray(got), want, rtol=1e-12)

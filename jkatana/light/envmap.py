@@ -35,11 +35,12 @@ RGB map, see :mod:`jkatana.light.upsampling`).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from jkatana.errors import InputError
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
@@ -118,27 +119,61 @@ def texel_index(u, v, height: int, width: int):
     return j, i
 
 
+class Taps(NamedTuple):
+    """The four texels of a bilinear lookup and its weights (:func:`bilinear_taps`): flat texel indices
+    ``row · W + column`` of (top left, top right, bottom left, bottom right) and the fractions ``fx``, ``fy``."""
+
+    i00: Int[Array, "*b"]
+    i01: Int[Array, "*b"]
+    i10: Int[Array, "*b"]
+    i11: Int[Array, "*b"]
+    fx: Float[Array, "*b"]
+    fy: Float[Array, "*b"]
+
+
+def bilinear_taps(u, v, height: int, width: int) -> Taps:
+    """The texels and weights of :func:`bilinear_uv` at ``(u, v)``: texel centres at ``((i + ½)/W, (j + ½)/H)``,
+    wrapping in u (any u), clamped in v to the first and last rows of centres.
+
+    Elementwise arithmetic only, apart from :func:`gather_taps`' loads: XLA's CPU backend vectorises a loop
+    without gathers and runs one with a gather scalar, so a caller that computes the taps apart from the
+    loads (the renderer: in the pass that draws its samples) keeps this arithmetic vectorised.
+    """
+    H, W = height, width
+    x = u * W - 0.5
+    y = jnp.clip(v * H - 0.5, 0.0, H - 1.0)
+    x0 = jnp.floor(x)
+    y0 = jnp.floor(y)
+    c0 = x0 - W * jnp.floor(x0 / W)  # the column modulo W, in floating point (exact for integers below 2^24)
+    c0 = jnp.where(c0 >= W, c0 - W, jnp.where(c0 < 0, c0 + W, c0)).astype(jnp.int32)
+    c1 = jnp.where(c0 == W - 1, 0, c0 + 1)
+    r0 = jnp.clip(y0.astype(jnp.int32), 0, H - 1) * W
+    r1 = jnp.minimum(r0 + W, (H - 1) * W)
+    return Taps(r0 + c0, r0 + c1, r1 + c0, r1 + c1, x - x0, y - y0)
+
+
+def gather_taps(image: Float[Array, "H W C"], taps: Taps) -> Float[Array, "*b C"]:
+    """The bilinear blend of ``image``'s four texels ``taps`` (:func:`bilinear_taps`), ``(*b, C)``."""
+    flat = image.reshape((image.shape[0] * image.shape[1],) + image.shape[2:])
+
+    def tap(i):  # the indices are in range by construction: no clamping or negative-index code per load
+        return flat.at[i.astype(jnp.uint32)].get(mode="promise_in_bounds")
+
+    fx = taps.fx.astype(image.dtype)[..., None]
+    fy = taps.fy.astype(image.dtype)[..., None]
+    top = tap(taps.i00) * (1 - fx) + tap(taps.i01) * fx
+    bottom = tap(taps.i10) * (1 - fx) + tap(taps.i11) * fx
+    return top * (1 - fy) + bottom * fy
+
+
 def bilinear_uv(image: Float[Array, "H W C"], u, v) -> Float[Array, "*b C"]:
     """Bilinear lookup of an equirectangular ``(H, W, C)`` image at ``(u, v)``, texel centres at
     ``((i + ½)/W, (j + ½)/H)``: wraps in u, clamps in v to the first and last rows of centres.
 
     For any number of channels (spectral bands or basis coefficients); :meth:`EnvMap.lookup` adds
-    the blend towards each pole.
+    the blend towards each pole. :func:`gather_taps` of :func:`bilinear_taps`.
     """
-    H, W = image.shape[0], image.shape[1]
-    x = u * W - 0.5
-    y = jnp.clip(v * H - 0.5, 0.0, H - 1.0)
-    x0 = jnp.floor(x)
-    y0 = jnp.floor(y)
-    fx = (x - x0).astype(image.dtype)[..., None]
-    fy = (y - y0).astype(image.dtype)[..., None]
-    i0 = jnp.mod(x0.astype(jnp.int32), W)
-    i1 = jnp.mod(i0 + 1, W)
-    j0 = jnp.clip(y0.astype(jnp.int32), 0, H - 1)
-    j1 = jnp.minimum(j0 + 1, H - 1)
-    top = image[j0, i0] * (1 - fx) + image[j0, i1] * fx
-    bottom = image[j1, i0] * (1 - fx) + image[j1, i1] * fx
-    return top * (1 - fy) + bottom * fy
+    return gather_taps(image, bilinear_taps(u, v, image.shape[0], image.shape[1]))
 
 
 def row_edges_cos(height: int) -> np.ndarray:

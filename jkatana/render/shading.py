@@ -97,6 +97,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from jkatana.light.envmap import Taps, bilinear_taps, gather_taps
 from jkatana.models.geometry import tangent_frame, to_local, to_world
 from jkatana.models.lobes import reflect
 from jkatana.models.microfacet import gaussian_facet
@@ -158,6 +159,46 @@ def _lobe_ray(plan: Plan, sampler, Vl, fr, offset, k, ids: PixelIds | None = Non
     r0, r1, r2, _ = uniforms(plan, offset, k, Vl.dtype, ids)
     Ll, pb = sampler.sample(Vl, jnp.stack([r1, r2], -1), r0)
     return Ll, to_world(Ll, *fr), pb
+
+
+def _taps(env: Environment, uv) -> Taps:
+    """The bilinear taps of map coordinates ``uv`` in ``env``'s channels (:func:`~jkatana.light.envmap.bilinear_taps`)."""
+    return bilinear_taps(*uv, env.channels.shape[0], env.channels.shape[1])
+
+
+def _sample_passes(n: int, rays, body, acc, per_sample=None, block: int = 8):
+    """``acc`` after ``acc = body(acc, k, rays(k), per_sample[k])`` for the samples ``k < n`` of one strategy.
+
+    The samples are drawn in blocks of up to ``block``, each in a pass of its own (``rays``: the
+    strategy's arithmetic), then loaded and accumulated in a second pass (``body``: the texture loads and what
+    needs them). XLA's CPU backend compiles a loop that holds a gather (a texture load) to scalar code; in
+    one loop with the loads the sampling arithmetic (inverse CDFs, ``atan2``, the bilinear taps) would run
+    scalar too, where apart it is vectorised. A block's samples are held between the passes (≈ 60 bytes per
+    pixel and sample). When the blocks do not divide ``n`` the last is padded with samples whose contribution
+    is dropped. ``per_sample``: ``(n, P)`` or ``None``.
+    """
+    blocks = -(-n // block)
+    size = -(-n // blocks)
+    ks = jnp.arange(blocks * size, dtype=jnp.int32).reshape(blocks, size)
+    xs = None
+    if per_sample is not None:
+        pad = blocks * size - n
+        xs = jnp.concatenate([per_sample, jnp.zeros((pad,) + per_sample.shape[1:], per_sample.dtype)]) if pad \
+            else per_sample
+        xs = xs.reshape((blocks, size) + per_sample.shape[1:])
+
+    def one_block(acc_, item):
+        kb, xb = item
+        drawn = jax.lax.scan(lambda c, k: (c, rays(k)), None, kb)[1]
+
+        def step(a, it):
+            k, r, x = it
+            out = body(a, k, r, x)
+            return (out if blocks * size == n else jnp.where(k < n, out, a)), None
+
+        return jax.lax.scan(step, acc_, (kb, drawn, xb))[0], None
+
+    return jax.lax.scan(one_block, acc, (ks, xs))[0]
 
 
 def env_window(plan: Plan, env: Environment, px: Pixels, mirror_world):
@@ -384,12 +425,12 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
     sampler = _sampler(lobes) if lobes else None
     acc, combine = _accumulator(plan, mat, env, cmf, P, dtype)
 
-    def radiance_terms(Ll, Lw, weight, uv=None, E=None):
-        """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space (``uv``: map coordinates of Lw;
-        ``E``: the incident channels if already known)."""
+    def radiance_terms(Ll, Lw, weight, taps=None, E=None):
+        """Σ_lobes scalar·F(cos)·E(L) · weight, in the accumulator's space (``taps``: the bilinear taps of Lw
+        in the map, :func:`_taps`; ``E``: the incident channels if already known)."""
         terms = _fcos_terms(lobes, Ll, Vl)
         if E is None:
-            E = env_lookup(env, Lw) if uv is None else bilinear_equirect_uv(env.channels, *uv)  # (P, J)
+            E = env_lookup(env, Lw) if taps is None else gather_taps(env.channels, taps)  # (P, J)
         total = 0.0
         for a, c in terms:
             total = total + (a * weight)[:, None] * combine(c, E)
@@ -464,20 +505,23 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
         n_lobe, n_env = jnp.asarray(S, dtype), jnp.asarray(S_env, dtype)
         win = env_window(plan, env, px, _mirror_ray(Vl, fr)[1])
 
-        def lobe_body(acc_, xs):
-            k, v1 = xs
+        def lobe_rays(k):
             Ll, Lw, pb = _lobe_ray(plan, sampler, Vl, fr, offset, k, ids)
             uv = env_uv(env, Lw)  # one atan2 pair serves the density and the lookup
+            return Ll, Lw, pb, uv, _taps(env, uv)
+
+        def lobe_body(acc_, k, rays, v1):
+            Ll, Lw, pb, uv, taps = rays
             pe = (env.sampler.pdf_uv(*uv) if win is None else env.sampler.pdf_window(win, *uv)) if S_env else 0.0
             ok = (Ll[:, 2] > 0) & (pb > 0)
             wgt = jnp.where(ok, 1.0 / jnp.where(ok, n_lobe * pb + n_env * pe, 1.0), 0.0)
             if v1 is not None:
                 wgt = wgt * v1
             if caps is None:
-                return acc_ + radiance_terms(Ll, Lw, wgt, uv), None
+                return acc_ + radiance_terms(Ll, Lw, wgt, taps)
             # the lobe sample serves two integrands: the remainder (MIS with the environment
             # strategy) and each cap it falls in (MIS with that cap's cone strategy, S samples each)
-            E = wgt[:, None] * bilinear_equirect_uv(env.channels, *uv)
+            E = wgt[:, None] * gather_taps(env.channels, taps)
             ins = caps.inside(Lw, env.rotation)
             for kc in range(caps.count):
                 wc = jnp.where(ok & ins[:, kc], 1.0 / jnp.where(ok, n_lobe * (pb + p_cap[kc]), 1.0), 0.0)
@@ -496,21 +540,24 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
                 if cap_vis[kc] is not None:
                     wc = wc * cap_vis[kc]
                 acc_ = acc_ + radiance_terms(Llc, Lwc, 1.0, E=wc[:, None] * Ecap[kc])
-            return acc_, None
+            return acc_
 
-        def env_body(acc_, xs):
-            k, v2 = xs
+        def env_rays(k):
             Ll2, Lw2, pe2, uv2 = _env_ray(plan, env, fr, offset, k, ids, win)
+            return Ll2, Lw2, pe2, _taps(env, uv2)
+
+        def env_body(acc_, k, rays, v2):
+            Ll2, Lw2, pe2, taps2 = rays
             pb2 = sampler.pdf(Ll2, Vl)
             ok2 = (Ll2[:, 2] > 0) & (pe2 > 0)
             wgt2 = jnp.where(ok2, 1.0 / jnp.where(ok2, n_lobe * pb2 + n_env * pe2, 1.0), 0.0)
             if v2 is not None:
                 wgt2 = wgt2 * v2
-            return acc_ + radiance_terms(Ll2, Lw2, wgt2, uv2), None
+            return acc_ + radiance_terms(Ll2, Lw2, wgt2, taps2)
 
-        lob, _ = jax.lax.scan(lobe_body, jnp.zeros_like(acc), (ks, None if vis is None else vis.lobe.T))
+        lob = _sample_passes(S, lobe_rays, lobe_body, jnp.zeros_like(acc), None if vis is None else vis.lobe.T)
         if S_env:
-            lob, _ = jax.lax.scan(env_body, lob, (jnp.arange(S_env), None if vis is None else vis.env.T))
+            lob = _sample_passes(S_env, env_rays, env_body, lob, None if vis is None else vis.env.T)
         acc = acc + lob
 
     # --- analytic lights (point: kind 0, directional: kind 1); a delta hiraji lobe never sees one
