@@ -466,11 +466,13 @@ def _dispatch(plan: Plan, mat: Material, env: Environment, lights: Light | None,
     cmf = jax.device_put(jnp.asarray(cmf, dtype), rep)
     outs = []
     rays_f = _compiled_rays(plan, n_dev, chunk) if plan.visibility else None
+    # with pixel ids every call takes the frame's key (the scramble comes from the pixel index): sent once
+    frame_key = jax.device_put(key, rep) if ids is not None else None
     for i in range(n_calls):
         if sizes[i] != chunk:
             f = _compiled(plan, n_dev, sizes[i], caps_only)[0]
         chunk_px, chunk_ids = calls[i], call_ids[i]
-        ckey = jax.device_put(key if ids is not None else jax.random.fold_in(key, i), rep)
+        ckey = frame_key if ids is not None else jax.device_put(jax.random.fold_in(key, i), rep)
         vis = None
         if rays_f is not None:
             rays = jax.tree.map(np.asarray, rays_f(env, lights, chunk_px, ckey, chunk_ids))
