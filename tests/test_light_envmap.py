@@ -243,3 +243,22 @@ def test_jkatana_reads_what_colour_science_writes(tmp_path):
     np.testing.assert_allclose(np.asarray(env.radiance), L[..., 2:33:5], rtol=1e-6)
     with pytest.raises(InputError, match="covers|range|outside|grid"):
         read_spectral_exr(path, WavelengthGrid(300, 700, 50))
+
+
+def test_bilinear_taps_wrap_any_u_and_stay_in_the_image():
+    """The taps wrap u as a modulo for any finite u (far outside [0, 1] too) and name texels of the image for any
+    input, non-finite ones included: the loads (`gather_taps`) trust the indices."""
+    from jkatana.light.envmap import bilinear_taps, bilinear_uv
+
+    H, W = 6, 10
+    img = jnp.asarray(np.random.default_rng(3).uniform(size=(H, W, 2)))
+    u = jnp.asarray(np.random.default_rng(4).uniform(-40.0, 40.0, 500))
+    v = jnp.asarray(np.random.default_rng(5).uniform(0.0, 1.0, 500))
+    np.testing.assert_allclose(np.asarray(bilinear_uv(img, u, v)), np.asarray(bilinear_uv(img, u - jnp.floor(u), v)),
+                               rtol=1e-9, atol=1e-12)
+    bad = jnp.asarray(np.concatenate([[np.nan, np.inf, -np.inf, 1e30, -1e30, 0.5], np.geomspace(1e3, 1e12, 2000),
+                                      -np.geomspace(1e3, 1e12, 2000)]), jnp.float32)  # float32: huge u round
+    taps = bilinear_taps(bad, bad[::-1], H, W)
+    for idx in taps[:4]:
+        assert np.all((np.asarray(idx) >= 0) & (np.asarray(idx) < H * W))
+    assert np.isfinite(np.asarray(bilinear_uv(img, bad[-1:], bad[-1:]))).all()

@@ -145,7 +145,8 @@ def bilinear_taps(u, v, height: int, width: int) -> Taps:
     x0 = jnp.floor(x)
     y0 = jnp.floor(y)
     c0 = x0 - W * jnp.floor(x0 / W)  # the column modulo W, in floating point (exact for integers below 2^24)
-    c0 = jnp.where(c0 >= W, c0 - W, jnp.where(c0 < 0, c0 + W, c0)).astype(jnp.int32)
+    c0 = jnp.where(c0 >= W, c0 - W, jnp.where(c0 < 0, c0 + W, c0))
+    c0 = jnp.clip(c0.astype(jnp.int32), 0, W - 1)  # huge or non-finite u round out of range; the loads trust it
     c1 = jnp.where(c0 == W - 1, 0, c0 + 1)
     r0 = jnp.clip(y0.astype(jnp.int32), 0, H - 1) * W
     r1 = jnp.minimum(r0 + W, (H - 1) * W)
