@@ -266,13 +266,7 @@ class EnvSampler(eqx.Module):
         u = jnp.asarray(u, self.texel_pdf.dtype)
         t = u[:, 0] * Q
 
-        def row_step(_, bracket):  # a loop, not unrolled: XLA would re-run an unrolled search in each consumer
-            lo, hi = bracket
-            mid = jnp.right_shift(lo + hi, 1)
-            right = self._rows_below(mid, c0, c1) - a0 <= t
-            return jnp.where(right, mid, lo), jnp.where(right, hi, mid)
-
-        j, _ = jax.lax.fori_loop(0, max(1, math.ceil(math.log2(H + 1))), row_step, (r0, r1))
+        j = _bisect(lambda r: self._rows_below(r, c0, c1) - a0 <= t, r0, r1, H)
         m0 = self._rows_below(j, c0, c1) - a0
         m1 = self._rows_below(j + 1, c0, c1) - a0
         f0 = jnp.clip((t - m0) / jnp.maximum(m1 - m0, 1e-30), 0.0, 1.0)
@@ -282,14 +276,7 @@ class EnvSampler(eqx.Module):
             return (rt[rb + c] - rt[rb + c0]).astype(u.dtype)
 
         t2 = u[:, 1] * (m1 - m0)
-
-        def col_step(_, bracket):  # a loop too: unrolled, its steps would be re-run in each consumer's fusion
-            lo, hi = bracket
-            mid = jnp.right_shift(lo + hi, 1)
-            right = left_of(mid) <= t2
-            return jnp.where(right, mid, lo), jnp.where(right, hi, mid)
-
-        lo, hi = jax.lax.fori_loop(0, max(1, math.ceil(math.log2(W + 1))), col_step, (c0, c1))
+        lo = _bisect(lambda c: left_of(c) <= t2, c0, c1, W)
         n0, n1 = left_of(lo), left_of(lo + 1)
         f1 = jnp.clip((t2 - n0) / jnp.maximum(n1 - n0, 1e-30), 0.0, 1.0)
         d, uu, v = self._in_texel(j, jnp.where(lo >= W, lo - W, lo), f0, f1)
@@ -329,15 +316,23 @@ def _row_search(cdf: Float[Array, "H W1"], j: Int[Array, "n"], x: Float[Array, "
     """Largest ``i`` in [0, W−1] with ``cdf[j, i] ≤ x``: a vectorised binary search that gathers
     one entry per sample and step (O(n) memory, unlike gathering whole rows)."""
     W = cdf.shape[1] - 1
+    lo = _bisect(lambda i: cdf[j, i] <= x, jnp.zeros_like(j), jnp.full_like(j, W), W)
+    return jnp.clip(lo, 0, W - 1)
 
-    def step(_, bracket):  # a loop, not unrolled: XLA would re-run an unrolled search in each consumer
+
+def _bisect(below: Callable, lo: Int[Array, "n"], hi: Int[Array, "n"], n: int) -> Int[Array, "n"]:
+    """The last ``m`` in ``[lo, hi)`` with ``below(m)`` true, for a ``below`` that is true up to a point and false
+    after it (true at ``lo``), brackets at most ``n`` wide: a vectorised binary search of ⌈log₂(n + 1)⌉ steps.
+
+    A ``fori_loop``, not unrolled: XLA's CPU backend would re-run an unrolled search's steps inside each
+    consumer's fusion."""
+    def step(_, bracket):
         lo, hi = bracket
-        mid = (lo + hi) // 2
-        right = cdf[j, mid] <= x
+        mid = jnp.right_shift(lo + hi, 1)
+        right = below(mid)
         return jnp.where(right, mid, lo), jnp.where(right, hi, mid)
 
-    lo, _ = jax.lax.fori_loop(0, max(1, math.ceil(math.log2(W + 1))), step, (jnp.zeros_like(j), jnp.full_like(j, W)))
-    return jnp.clip(lo, 0, W - 1)
+    return jax.lax.fori_loop(0, max(1, math.ceil(math.log2(n + 1))), step, (lo, hi))[0]
 
 
 # ---------------------------------------------------------------- frames
