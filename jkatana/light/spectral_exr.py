@@ -5,9 +5,13 @@ Images", JCGT 10(3). Emissive images store one channel per wavelength named
 ``S0.<λ>nm`` with a comma as decimal separator (``S0.550,000000nm``), plus
 ``spectralLayoutVersion`` / ``emissiveUnits`` attributes. Reading and writing
 go through colour-science's implementation
-(``colour.io.read_spectral_image_Fichet2021`` /
-``write_spectral_image_Fichet2021``, colour-science 0.4.7, which uses
-OpenImageIO), so files interoperate with colour-science by construction; the
+(``colour.io.read_spectral_image_Fichet2021``, colour-science 0.4.7, which
+uses OpenImageIO); writing uses colour-science's channel names, sRGB preview
+(``components_to_sRGB_Fichet2021``) and attributes, but hands OpenImageIO all
+channels in one buffer: colour-science's writer appends them one at a time
+(``ImageBufAlgo.channel_append``), copying the image once per channel, so its
+time grows with pixels × bands² (15 s for a 64×128 map of 471 bands, 0.9 s in
+one buffer). Files interoperate with colour-science by construction; the
 tests check it both ways.
 """
 
@@ -84,6 +88,30 @@ def read_spectral_exr(path: str | Path, grid: WavelengthGrid) -> np.ndarray:
     return resample(wl, values, grid, name=str(path)).astype(np.float32)
 
 
+def _write_fichet(path: str, component: str, wl: np.ndarray, values: np.ndarray, bit_depth: str, spec) -> bool:
+    """colour-science's ``write_spectral_image_Fichet2021`` for one component, with every channel in one buffer.
+
+    Same channels in the same order (``R``, ``G``, ``B`` preview, then ``<component>.<λ>nm``), same names
+    and attributes; linear in the number of channels instead of quadratic (module docstring).
+    """
+    from colour.io.fichet2021 import components_to_sRGB_Fichet2021
+    from colour.io.image import MAPPING_BIT_DEPTH, add_attributes_to_image_specification_OpenImageIO
+    from OpenImageIO import ImageBuf
+
+    dtype = MAPPING_BIT_DEPTH[bit_depth].numpy
+    components = {component: (wl, values)}
+    rgb, attributes = components_to_sRGB_Fichet2021(components, spec)
+    names = [f"{component}.{str(w).replace('.', ',')}nm" for w in wl]
+    planes = [values.astype(dtype)]
+    if rgb is not None:
+        names = ["R", "G", "B"] + names
+        planes.insert(0, np.asarray(rgb).astype(dtype))
+    buf = ImageBuf(np.ascontiguousarray(np.concatenate(planes, axis=-1)))
+    buf.specmod().channelnames = names
+    add_attributes_to_image_specification_OpenImageIO(buf.specmod(), [*spec.attributes, *attributes])
+    return bool(buf.write(path))
+
+
 def write_spectral_exr(path: str | Path, radiance, grid: WavelengthGrid | np.ndarray, *,
                        bit_depth: str = "float32", emissive: bool = True,
                        header: dict[str, str | int | float] | None = None) -> Path:
@@ -95,7 +123,7 @@ def write_spectral_exr(path: str | Path, radiance, grid: WavelengthGrid | np.nda
     The layout's ``spectralLayoutVersion`` attribute is always written;
     ``header`` adds further attributes (strings or numbers).
     """
-    from colour.io import Image_Specification_Attribute, Specification_Fichet2021, write_spectral_image_Fichet2021
+    from colour.io import Image_Specification_Attribute, Specification_Fichet2021
 
     wl = grid.wavelengths if isinstance(grid, WavelengthGrid) else np.asarray(grid, np.float64)
     values = np.asarray(radiance, np.float32)
@@ -111,8 +139,7 @@ def write_spectral_exr(path: str | Path, radiance, grid: WavelengthGrid | np.nda
         tmp_exr = Path(str(tmp) + ".exr") if Path(tmp).suffix.lower() != ".exr" else Path(tmp)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            ok = write_spectral_image_Fichet2021({"S0" if emissive else "T": (wl, values)}, str(tmp_exr),
-                                                 bit_depth, spec)
+            ok = _write_fichet(str(tmp_exr), "S0" if emissive else "T", wl, values, bit_depth, spec)
         if not ok:
             raise InputError("colour-science failed to write the spectral EXR", path=path)
         if tmp_exr != Path(tmp):
