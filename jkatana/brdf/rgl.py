@@ -22,16 +22,29 @@ the luminance in the warped domain (for sampling); ``spectra``
 the warped domain; ``wavelengths`` (n_λ,) nm; ``description`` (bytes);
 ``jacobian`` (1,) u8.
 
+**Stored quantity.** The reflectance table times D(ωm) / (4 σ(ωi)) is
+f(ωi, ωo) · cos θo, the BRDF *with the cosine of the outgoing direction*:
+what Mitsuba 3's ``measured`` plugin returns from ``eval`` (its BSDF
+contract includes the cosine; ``src/bsdfs/measured.cpp``) and what pbrt-v4's
+``MeasuredBxDF::f`` divides by |cos θo| to return f. ``jacobian = 0`` means
+the table already holds f · cos θo without the D / 4σ factor. ωi is the
+table's incident direction: Mitsuba's camera-side direction ``si.wi``, the
+light's in the database's goniophotometer; the two coincide for the
+reciprocal materials the database holds.
+
 **Evaluation** f(ωi, ωo): ωm = normalize(ωi + ωo); its u-coordinates
 (φm − φi for an isotropic file, n_φ ≤ 2) are mapped by the *inverse* of the
 vndf's marginal–conditional warp (bilinear density, parameters interpolated
-linearly) to the warped point s; f = spectra(s) · D(ωm) / (4 σ(ωi)).
+linearly) to the warped point s; f = spectra(s) · D(ωm) / (4 σ(ωi)) / cos θo.
+``tests/test_brdf_interop.py`` checks it against Mitsuba's plugin on files
+this module did not write.
 
 **Writer** (:func:`rgl_from_function`): from an analytic isotropic BRDF and
 its NDF, tables are built at chosen incidences: vndf ∝ D(ωm) ⟨ωm·ωi⟩ ·
 2π² u₁ sin θm (the Jacobian of u → ω), ``spectra`` at the warped grid
-points s is f(ωi, ωo(s)) · 4σ(ωi) / D(ωm(s)), with ωm(s) the *forward*
-warp of s, so that evaluation returns f at the grid and interpolates between.
+points s is f(ωi, ωo(s)) · cos θo · 4σ(ωi) / D(ωm(s)), with ωm(s) the
+*forward* warp of s, so that evaluation returns f at the grid and
+interpolates between.
 """
 
 from __future__ import annotations
@@ -243,6 +256,7 @@ class RGLBRDF:
             raise InputError(f"vndf {f['vndf'].shape} / reflectance {self.refl.shape} do not match "
                              f"(phi_i, theta_i) = ({nphi}, {nth})", path=self.source, field="vndf")
         self.dens, self.cc, self.mc = _cdfs(f["vndf"])
+        self.jacobian = bool(np.asarray(f.get("jacobian", [1])).ravel()[0])
         if "spectra" in f:
             self.wavelengths = np.asarray(f["wavelengths"], np.float64)
             self.channels = tuple(f"{w:g}nm" for w in self.wavelengths)
@@ -264,7 +278,7 @@ class RGLBRDF:
             raise InputError(f"spectral file: channel must be a wavelength like '550nm' "
                              f"({self.wavelengths[0]:g}–{self.wavelengths[-1]:g} nm), got {channel!r}",
                              path=self.source, field="channel") from None
-        i, t = _param_weights(self.wavelengths, lam)
+        i, t = _param_weights(self.wavelengths, np.asarray(lam))
         w = np.zeros(self.wavelengths.size)
         w[i] += 1 - t
         w[i + 1] += t
@@ -305,8 +319,11 @@ class RGLBRDF:
         fr = sum(vals)
         ndf = _bilerp(np.asarray(self.fields["ndf"], np.float64), u_wm)
         sig = _bilerp(np.asarray(self.fields["sigma"], np.float64), u_wi)
-        fr = fr * ndf / (4.0 * sig)
+        if self.jacobian:
+            fr = fr * ndf / (4.0 * sig)
         ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            fr = fr / wo[:, 2]  # the table holds f·cos θo (module docstring, "Stored quantity")
         return np.where(ok, fr, 0.0).reshape(shape)
 
 
@@ -342,7 +359,9 @@ def rgl_from_function(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray], ndf:
 
     **Arguments:**
 
-    - `brdf`: ``brdf(wi, wo) → (..., C)`` in 1/sr, one column per channel.
+    - `brdf`: ``brdf(wi, wo) → (..., C)`` in 1/sr, one column per channel;
+      ``wi`` is the table's incident direction (Mitsuba's camera side, so a
+      non-reciprocal lobe meant for Mitsuba is passed as f(L = wo, V = wi)).
     - `ndf`: ``ndf(cos θm) → D`` (any positive normalisation; the reflectance
       table compensates, so it only sets where the table's samples fall).
     - `theta_i_deg`: incidences of the tables (default: 0–85° every 5°);
@@ -416,7 +435,7 @@ def rgl_from_function(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray], ndf:
         Dm = np.asarray(ndf(np.cos(thm)), np.float64)
         sig_i = proj_area(wi)
         with np.errstate(divide="ignore", invalid="ignore"):
-            r = (f * 4 * sig_i / Dm[:, None]).reshape(refl_res, refl_res, -1)
+            r = (f * np.maximum(wo[:, 2], 0.0)[:, None] * 4 * sig_i / Dm[:, None]).reshape(refl_res, refl_res, -1)
         # Cells whose ωo lies below the horizon border visible ones in the warped domain: give them the value
         # of the nearest visible cell, so bilinear interpolation next to them is not dragged towards 0
         # (evaluation returns 0 below the horizon regardless).
