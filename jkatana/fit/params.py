@@ -116,19 +116,19 @@ class Params:
 
 def read_params(path) -> Params:
     """Read and validate a parameter file; errors name the file and the field."""
+    from jkatana.io.jsonfile import read_json
+
     path = Path(path)
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as err:
-        raise InputError(f"cannot read: {err.strerror or err}", path=path) from None
-    except UnicodeDecodeError:
-        raise InputError("not UTF-8 text (a JSON parameter file is)", path=path) from None
-    except json.JSONDecodeError as err:
-        raise InputError(f"not JSON ({err.msg} at line {err.lineno})", path=path) from None
-    return params_from_dict(d, path)
+    return params_from_dict(read_json(path, "a parameter file"), path)
 
 
 def params_from_dict(d, path=None) -> Params:
+    """:class:`Params` of a parameter file's content; every field a reader uses checked (widths and scales by
+    :mod:`jkatana.models.bounds`), errors naming the file and the field."""
+    from jkatana.io.jsonfile import expect
+    from jkatana.measure.table import REGIONS
+    from jkatana.models import bounds
+
     if not isinstance(d, dict):
         raise InputError("top level must be an object", path=path)
     if d.get("format") != FORMAT:
@@ -141,6 +141,8 @@ def params_from_dict(d, path=None) -> Params:
     region = d.get("region")
     if not isinstance(region, str) or not region:
         raise InputError("missing or not a string", path=path, field="region")
+    if region not in REGIONS:
+        raise InputError(f"unknown region {region!r}; known: {', '.join(REGIONS)}", path=path, field="region")
     values = d.get("values")
     if not isinstance(values, dict):
         raise InputError("missing or not an object", path=path, field="values")
@@ -154,8 +156,10 @@ def params_from_dict(d, path=None) -> Params:
             raise InputError(f"must be > 0, got {v!r}", path=path, field=f"values.{name}")
         return float(v)
 
-    scale = num(scale_name, positive=True)
-    mu = num(SHAPE_NAMES[model][0], positive=True)
+    scale = bounds.scale(values.get(scale_name), f"values.{scale_name}", path)
+    width_name = SHAPE_NAMES[model][0]
+    mu = bounds.width(values.get(width_name), f"values.{width_name}", path,
+                      hi=bounds.WIDTH_MAX if model in bounds.REGIONS else None)
     for extra in SHAPE_NAMES[model][1:]:
         num(extra)
     tilt = num("tilt_deg", default=0.0)
@@ -166,10 +170,16 @@ def params_from_dict(d, path=None) -> Params:
     conv = d.get("converged")
     if not isinstance(conv, bool):
         raise InputError("missing or not a boolean", path=path, field="converged")
-    lap = d.get("laplace") or {}
-    if not isinstance(lap, dict):
-        raise InputError("not an object", path=path, field="laplace")
-    ci = {k: tuple(v) for k, v in (lap.get("ci95") or {}).items() if isinstance(v, list) and len(v) == 2}
+    lap = expect(d.get("laplace"), dict, "laplace", path, optional=True) or {}
+    ci95 = expect(lap.get("ci95"), dict, "laplace.ci95", path, optional=True) or {}
+    for k, v in ci95.items():  # [lo, hi], a bound null where the fit could not give it
+        if not (isinstance(v, list) and len(v) == 2 and all(
+                b is None or (isinstance(b, (int, float)) and not isinstance(b, bool)) for b in v)):
+            raise InputError(f"must be [lo, hi] (numbers or null), got {v!r}", path=path, field=f"laplace.ci95.{k}")
+    ci = {k: tuple(v) for k, v in ci95.items()}
+    for key in ("diagnostics", "options", "data", "misfit", "robust", "bootstrap", "emcee"):
+        expect(d.get(key), dict, key, path, optional=True)
+    expect(d.get("per_incidence"), list, "per_incidence", path, optional=True)
     lobe = d.get("lobe")
     if lobe is not None and not (isinstance(lobe, dict) and isinstance(lobe.get("lobe"), str)):
         raise InputError("must be an object naming its lobe", path=path, field="lobe")

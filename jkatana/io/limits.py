@@ -23,23 +23,24 @@ _UNITS = {"": 1, "b": 1, "k": 2 ** 10, "m": 2 ** 20, "g": 2 ** 30, "t": 2 ** 40}
 
 
 def number(value, field: str, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False,
-           integer: bool = False):
+           integer: bool = False, path=None):
     """``value`` if it is a finite number in range (``lo`` ≤ or <, ``hi`` ≤), else :class:`InputError`.
 
-    ``None`` passes through (an option left at its default "unset").
+    ``None`` passes through (an option left at its default "unset"). ``path`` names the file the value
+    came from, for a field of a file rather than an option.
     """
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError(f"must be a number, got {value!r}", field=field)
+        raise InputError(f"must be a number, got {value!r}", field=field, path=path)
     if not math.isfinite(value):
-        raise InputError(f"must be finite, got {value!r}", field=field)
+        raise InputError(f"must be finite, got {value!r}", field=field, path=path)
     if integer and value != int(value):
-        raise InputError(f"must be an integer, got {value!r}", field=field)
+        raise InputError(f"must be an integer, got {value!r}", field=field, path=path)
     if lo is not None and (value <= lo if lo_open else value < lo):
-        raise InputError(f"must be {'>' if lo_open else '>='} {lo:g}, got {value!r}", field=field)
+        raise InputError(f"must be {'>' if lo_open else '>='} {lo:g}, got {value!r}", field=field, path=path)
     if hi is not None and value > hi:
-        raise InputError(f"must be <= {hi:g}, got {value!r}", field=field)
+        raise InputError(f"must be <= {hi:g}, got {value!r}", field=field, path=path)
     return value
 
 

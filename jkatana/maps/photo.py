@@ -13,7 +13,6 @@ Luminance of linear RGB is the Y row of the sRGB / Rec. 709 primaries' RGB→XYZ
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -176,31 +175,32 @@ def load_region_parameters(path: str | Path, model: str) -> dict[str, float]:
 
     Accepts a ``jkatana fit`` parameter file (its ``values``: ``chi``/``beta`` and ``mu``),
     ``{"parameters": {name: value | {"value": v}}}`` or a flat ``{name: value}``;
-    hiraji needs chi and mu0 (or mu), hamon beta and mu1 (or mu).
+    hiraji needs chi and mu0 (or mu), hamon beta and mu1 (or mu). Read through
+    :func:`jkatana.io.jsonfile.read_json`; the values are checked by
+    :func:`jkatana.models.bounds.region_params` (scale finite and > 0, width in (0, π/2]).
     """
+    from jkatana.io.jsonfile import expect, read_json
+    from jkatana.models.bounds import WIDTH_MAX, scale, width
+
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError("region parameter file not found", path=path) from None
-    except UnicodeDecodeError:
-        raise InputError("not UTF-8 text (a JSON parameter file is)", path=path) from None
-    except json.JSONDecodeError as err:
-        raise InputError(f"not JSON ({err})", path=path) from None
-    if isinstance(data, dict) and "values" in data and "model" in data:  # a `jkatana fit` parameter file
+    data = expect(read_json(path, "a region parameter file"), dict, "(top level)", path)
+    where = ""
+    if "values" in data and "model" in data:  # a `jkatana fit` parameter file
         if data["model"] != model:
             raise InputError(f"is a {data['model']!r} fit; --{model} needs a {model!r} one", path=path,
                              field="model")
-        data = data["values"]
-    params = data.get("parameters", data) if isinstance(data, dict) else {}
-    flat = {k: (v.get("value") if isinstance(v, dict) else v) for k, v in params.items()}
+        data, where = expect(data["values"], dict, "values", path), "values."
+    elif "parameters" in data:
+        data, where = expect(data["parameters"], dict, "parameters", path), "parameters."
+    flat = {k: (v.get("value") if isinstance(v, dict) else v) for k, v in data.items()}
     keys = ("chi", "mu0") if model == "hiraji" else ("beta", "mu1")
     out = {}
     for k in keys:
-        val = flat.get(k, flat.get("mu") if k.startswith("mu") else None)
-        if not isinstance(val, (int, float)) or not np.isfinite(val) or val <= 0:
-            raise InputError(f"missing or non-positive {model} parameter", path=path, field=k)
-        out[k] = float(val)
+        name = k if k in flat or not k.startswith("mu") else "mu"
+        if flat.get(name) is None:
+            raise InputError(f"missing {model} parameter", path=path, field=where + k)
+        v, f = flat[name], where + name
+        out[k] = width(v, f, path, hi=WIDTH_MAX) if k.startswith("mu") else scale(v, f, path)
     return out
 
 
@@ -216,6 +216,12 @@ def map_from_photo(luminance: np.ndarray, *, resolution: tuple[int, int] = (256,
     y = crop_to_uv(np.asarray(luminance, float), crop, resolution, path=path, flip_v=flip_v,
                    expected_aspect=expected_aspect)
     if dark is None or bright is None:
+        # Otsu needs two classes; a photo without contrast has one, and its threshold is an artefact of the
+        # histogram's binning (it put every pixel above it: w = 0 everywhere)
+        lo_y, hi_y = float(y.min()), float(y.max())
+        if not hi_y - lo_y > 1e-6 * max(abs(lo_y), abs(hi_y)):
+            raise InputError(f"no contrast: the blade's luminance is {hi_y:.6g} everywhere, so hiraji and hamon "
+                             "cannot be told apart; give --dark and --bright", path=path)
         t = otsu_threshold(y)
         lo, hi = y[y <= t].mean() if (y <= t).any() else t, y[y > t].mean() if (y > t).any() else t
         band = 0.25 * (hi - lo)

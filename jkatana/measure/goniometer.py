@@ -288,11 +288,16 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
                          field="angle_jitter_deg")
     if exposure_s is not None and not (math.isfinite(exposure_s) and exposure_s > 0):
         raise InputError(f"exposure must be finite and > 0 s, got {exposure_s}", field="exposure_s")
+    from jkatana.models.bounds import region, region_params
+
     params = params or {}
     for r, ps in params.items():
-        for k, v in (ps or {}).items():
-            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
-                raise InputError(f"must be a finite number, got {v!r}", field=f"params.{r}.{k}")
+        region(r, field="params")
+        if r not in regions:
+            raise InputError(f"parameters given for {r!r}, a region not simulated (regions: {', '.join(regions)})",
+                             field="params")
+        if isinstance(ps, dict):  # (a model object is the caller's, already built)
+            region_params(r, ps)
     ti, tr = true_angles(pairs, tilt_deg=tilt_deg, angle_jitter_deg=angle_jitter_deg,
                          rng=np.random.default_rng([seed, 2 ** 31]))
     kw = dict(optical_constants=optical_constants, light=light, grid=grid)

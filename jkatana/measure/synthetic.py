@@ -62,12 +62,9 @@ def region_model(region: str, params=None):
             raise InputError(f"params are a {type(params).__name__}, region {region!r} needs "
                              f"{cls.__name__}", field="params")
         return params
-    params = dict(params)
-    unknown = set(params) - set(default)
-    if unknown:
-        raise InputError(f"unknown parameters {sorted(unknown)} for {region} (expects {sorted(default)})",
-                         field="params")
-    merged = {**default, **params}
+    from jkatana.models.bounds import region_params
+
+    merged = {**default, **region_params(region, dict(params))}  # widths > 0, scales finite and > 0
     with jax.enable_x64(True):
         return cls(**{k: jnp.asarray(float(v), jnp.float64) for k, v in merged.items()})
 
