@@ -1,0 +1,349 @@
+"""Several registered photos → one reflectance map: light and exposure removed, overlaps blended, w.
+
+The steps and their reasons are in :mod:`jkatana.maps.register`'s docstring
+(registration, light, blending); this module runs them over a set of photos:
+
+1. each photo: the blade's outline (:func:`~jkatana.maps.register.find_blade`),
+   its light (flat field or background fit), its camera
+   (:func:`~jkatana.maps.register.register_photo`);
+2. each photo's relative brightness sampled at every texel it sees, with its
+   weight cos θ × feather;
+3. sections that show neither end of the blade slid along u to where their
+   content matches the photos that do (:func:`_slide`);
+4. one gain per photo from the overlaps; photos of the same face whose
+   overlaps disagree are refused (photos of different blades);
+5. the weighted blend, then w: Otsu's threshold of the relative
+   brightness (Otsu 1979) splits hiraji from hamon; w = 1 at and below the
+   dark class's 90th percentile, 0 at and above the bright class's 10th,
+   linear in between (the paper's rule, eq. 5's w from brightness, with levels
+   that ignore the noisy tails of both classes);
+6. texels no photo sees: the built-in map's values (:func:`default_map`),
+   confidence 0.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from jkatana.errors import InputError
+from jkatana.maps.reflectance_map import PAPER_PARAMETERS, ReflectanceMap, default_map
+from jkatana.maps.register import (FEATHER_PX, MIN_COS, BladeSurface, Camera, PhotoOutline, Registration,
+                                   _icp, find_blade, outline_residual, register_photo)
+
+#: Same-face photos whose hiraji/hamon labels disagree on more than this fraction of shared texels are
+#: refused as photos of different blades.
+MAX_DISAGREEMENT = 0.2
+
+
+@dataclass
+class PhotoView:
+    """One photo after registration: its samples on the texel grid (per face)."""
+
+    path: str
+    shape: tuple[int, int]
+    outline: PhotoOutline
+    reg: Registration
+    value: np.ndarray  # (H, W) relative brightness at the texels it sees (its registered face)
+    weight: np.ndarray  # (H, W) cos θ × feather, 0 where unseen
+    cos: np.ndarray  # (H, W)
+    gain: float = 1.0
+    slide_texels: int = 0
+
+
+@dataclass
+class MosaicResult:
+    map: ReflectanceMap
+    confidence: np.ndarray
+    seen: np.ndarray
+    views: list
+    summary: str
+    report: dict = field(default_factory=dict)
+
+
+def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    H, W = img.shape
+    x = np.clip(x, 0, W - 1.000001)
+    y = np.clip(y, 0, H - 1.000001)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    return (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x0 + 1] * fx * (1 - fy)
+            + img[y0 + 1, x0] * (1 - fx) * fy + img[y0 + 1, x0 + 1] * fx * fy)
+
+
+def sample_texels(surface: BladeSurface, cam: Camera, side: str, rel: np.ndarray, mask: np.ndarray):
+    """(value, weight, cos) on the texel grid of ``side`` as seen by ``cam`` (0 weight where unseen)."""
+    from scipy import ndimage
+
+    Hm, Wm = surface.resolution
+    H, W = rel.shape
+    inner = ndimage.binary_erosion(mask, iterations=2)
+    P = surface.points[side].reshape(-1, 3)
+    N = surface.normals[side].reshape(-1, 3)
+    ok = surface.valid[side].ravel().copy()
+    x, z = cam.project(P)
+    view = cam.centre - P
+    cos = np.einsum("ij,ij->i", N, view) / np.maximum(np.linalg.norm(view, axis=1), 1e-12)
+    ok &= (z > 0) & (cos > MIN_COS)
+    ok &= (x[:, 0] >= 0) & (x[:, 0] <= W - 1) & (x[:, 1] >= 0) & (x[:, 1] <= H - 1)
+    xi = np.clip(np.round(x).astype(int), 0, [W - 1, H - 1])
+    ok &= inner[xi[:, 1], xi[:, 0]]
+    value = np.zeros(len(P))
+    value[ok] = _bilinear(rel, x[ok, 0], x[ok, 1])
+    edge = np.minimum.reduce([x[:, 0], W - 1 - x[:, 0], x[:, 1], H - 1 - x[:, 1]])
+    feather = np.clip(edge / FEATHER_PX, 0, 1)
+    weight = np.where(ok, cos * feather, 0.0)
+    return value.reshape(Hm, Wm), weight.reshape(Hm, Wm), np.where(ok, cos, 0.0).reshape(Hm, Wm)
+
+
+def _prefilter(rel: np.ndarray, sigma: float = 0.7) -> np.ndarray:
+    """A Gaussian of ``sigma`` pixels before point sampling: about a texel's footprint along the blade at the
+    resolutions used here (2000 px over 1024 texels), so the samples average the photo's noise rather than
+    alias it."""
+    from scipy.ndimage import gaussian_filter
+
+    return gaussian_filter(rel, sigma)
+
+
+def _ncc(a, b, m):
+    if m.sum() < 50:
+        return -np.inf
+    a, b = a[m], b[m]
+    a, b = a - a.mean(), b - b.mean()
+    return float(a @ b / max(np.sqrt((a @ a) * (b @ b)), 1e-12))
+
+
+def _slide(view: PhotoView, ref_val: np.ndarray, ref_w: np.ndarray) -> int:
+    """The shift along u (texels) at which ``view``'s log brightness best matches the reference
+    (normalised cross-correlation over the shared texels, at least 5 % of the grid's columns)."""
+    H, W = view.value.shape
+    seen = view.weight > 0
+    cols = np.flatnonzero(seen.any(0))
+    if len(cols) == 0:
+        return 0
+    a = np.log(np.maximum(view.value, 1e-4))
+    b = np.log(np.maximum(ref_val, 1e-4))
+    best, best_s = -np.inf, 0
+    for s in range(-int(cols[0]), W - int(cols[-1])):
+        sa = np.roll(a, s, axis=1)
+        sm = np.roll(seen, s, axis=1)
+        m = sm & (ref_w > 0)
+        if m.any(0).sum() < 0.05 * W:
+            continue
+        c = _ncc(sa, b, m)
+        if c > best:
+            best, best_s = c, s
+    return best_s
+
+
+def _camera_slid(surface: BladeSurface, view: PhotoView, shift: int) -> Camera:
+    """A camera that sees the blade ``shift`` texels further along u where ``view``'s camera sees it:
+    the blade point at the middle of the photo's seen texels moved to its shifted texel, the camera
+    turned about the flat's normal by the change of the blade's direction."""
+    from scipy.spatial.transform import Rotation
+
+    cam = view.reg.camera
+    side = view.reg.side
+    H, W = surface.resolution
+    cols = np.flatnonzero((view.weight > 0).any(0))
+    j0 = int(cols[len(cols) // 2])
+    j1 = int(np.clip(j0 + shift, 1, W - 2))
+    P = surface.points[side]
+    i = H // 2
+    X0, X1 = P[i, j0], P[i, j1]
+    t0 = P[i, min(j0 + 1, W - 1)] - P[i, max(j0 - 1, 0)]
+    t1 = P[i, min(j1 + 1, W - 1)] - P[i, max(j1 - 1, 0)]
+    ang = math.atan2(t1[1], t1[0]) - math.atan2(t0[1], t0[0])
+    Rz = Rotation.from_rotvec([0.0, 0.0, ang]).as_matrix()
+    R_new = cam.R @ Rz.T  # world direction t1 maps where t0 did
+    x0c = cam.R @ X0 + cam.t  # camera coordinates of the old point
+    t_new = x0c - R_new @ X1
+    return Camera(Rotation.from_matrix(R_new).as_rotvec(), t_new, cam.f, cam.cx, cam.cy)
+
+
+def _levels(values: np.ndarray) -> tuple[float, float]:
+    """(dark, bright) relative brightness: Otsu's split, then the dark class's 90th and the bright class's
+    10th percentile (a mune roof that mirrors some light stays in the dark class: w = 1)."""
+    from jkatana.maps.photo import otsu_threshold
+
+    t = otsu_threshold(values)
+    lo, hi = values[values <= t], values[values > t]
+    if lo.size < 10 or hi.size < 10:
+        raise InputError("the photos show no hiraji/hamon contrast on the blade (one brightness class)",
+                         field="photo")
+    return float(np.percentile(lo, 90)), float(np.percentile(hi, 10))
+
+
+def build_map(photos: list[tuple[str, np.ndarray]], surface: BladeSurface, *, flats: list | None = None,
+              focal_px: list | None = None, sides: list | None = None, points: dict | None = None,
+              dark: float | None = None, bright: float | None = None, hiraji: dict | None = None,
+              hamon: dict | None = None, progress: bool = True) -> MosaicResult:
+    """Register each ``(path, luminance)`` photo on ``surface`` and blend them into a map (module docstring)."""
+    from tqdm import tqdm
+
+    n = len(photos)
+    views: list[PhotoView] = []
+    for k, (path, y) in enumerate(tqdm(photos, desc="registering photos", file=sys.stderr, disable=not progress)):
+        flat = flats[k] if flats else None
+        if flat is not None and flat.shape != y.shape:
+            raise InputError(f"flat field is {flat.shape[1]}×{flat.shape[0]}, the photo "
+                             f"{y.shape[1]}×{y.shape[0]}", path=path, field="--flat")
+        out = find_blade(y, flat=flat, path=path)
+        pts = None
+        if points and Path(path).name in points:
+            pts = points[Path(path).name]
+        reg = register_photo(surface, out, y.shape, focal_px=focal_px[k] if focal_px else None,
+                             side=(sides[k] if sides else None) or (pts["side"] if pts else None),
+                             points=_point_pairs(surface, pts, path) if pts else None, path=path)
+        rel = _prefilter(y / out.light)
+        value, weight, cos = sample_texels(surface, reg.camera, reg.side, rel, out.mask)
+        if not (weight > 0).any():
+            raise InputError("the registered blade covers no texel of the map", path=path)
+        views.append(PhotoView(str(path), y.shape, out, reg, value, weight, cos))
+    # sections without an end: slide along u to match the others
+    anchored = [v for v in views if v.reg.ends_seen > 0]
+    for v in views:
+        if v.reg.ends_seen > 0 or not anchored:
+            continue
+        ref_v, ref_w = _blend([a for a in anchored if a is not v])
+        s = _slide(v, ref_v, ref_w)
+        if s:
+            cam = _camera_slid(surface, v, s)
+            H, W = v.shape
+            cam = _icp(surface, cam, v.outline.edge, v.outline.normal, W, H, iterations=20, gate=10.0, focal_prior=cam.f,
+                       fix_focal=True)
+            v.reg.camera = cam
+            v.reg.residual_px = outline_residual(surface, cam, v.outline.edge, W, H)
+            rel = _prefilter(photos[views.index(v)][1] / v.outline.light)
+            v.value, v.weight, v.cos = sample_texels(surface, cam, v.reg.side, rel, v.outline.mask)
+            v.slide_texels = s
+        anchored.append(v)
+    _gains(views)
+    _check_same_blade(views)
+    value, wsum = _blend(views)
+    seen = wsum > 0
+    Hm, Wm = surface.resolution
+    if not seen.any():
+        raise InputError("no photo sees the blade's texels", field="photo")
+    if dark is None or bright is None:
+        d, b = _levels(value[seen])
+        dark = d if dark is None else dark
+        bright = b if bright is None else bright
+    if not bright > dark:
+        raise InputError(f"need bright > dark, got dark={dark:g}, bright={bright:g}", field="--bright")
+    w_seen = np.clip((bright - value) / (bright - dark), 0.0, 1.0)
+    base = default_map((Hm, Wm))
+    w = np.where(seen, w_seen, base.w)
+    p = {**PAPER_PARAMETERS, **(hiraji or {}), **(hamon or {})}
+    full = lambda x: np.full((Hm, Wm), x, np.float32)  # noqa: E731
+    pick = lambda name: np.where(seen, full(p[name]), getattr(base, name))  # noqa: E731
+    conf = 1.0 - np.prod([1.0 - v.cos * np.clip(v.weight / np.maximum(v.cos, 1e-12), 0, 1) for v in views], axis=0)
+    conf = np.where(seen, conf, 0.0)
+    residuals = [v.reg.residual_px for v in views]
+    unseen = 100.0 * (1 - seen.mean())
+    m = ReflectanceMap(w=w, mu0=pick("mu0"), chi=pick("chi"), mu1=pick("mu1"), beta=pick("beta"),
+                       meta={"source": ", ".join(Path(v.path).name for v in views), "dark": float(dark),
+                             "bright": float(bright), "registration_rms_px": float(max(residuals)),
+                             "unseen_percent": float(unseen)})
+    sides_seen = sorted({v.reg.side for v in views})
+    summary = (f"registration residual {max(residuals):.2f} px RMS (worst of {n} photo{'s' if n > 1 else ''}: "
+               + ", ".join(f"{Path(v.path).name} {v.reg.residual_px:.2f} px {v.reg.side}" for v in views)
+               + f"); {100 - unseen:.1f} % of texels seen"
+               + (f", {unseen:.1f} % from the built-in map" if unseen > 0 else "")
+               + (" (omote and ura share UVs: blended)" if len(sides_seen) == 2 else ""))
+    report = {
+        "photos": [{"path": v.path, "side": v.reg.side, "residual_px": v.reg.residual_px,
+                    "outline_points": v.reg.outline_points, "ends_seen": v.reg.ends_seen,
+                    "focal_px": v.reg.camera.f, "off_normal_deg": v.reg.camera.off_normal_deg(),
+                    "camera_centre_m": v.reg.camera.centre.tolist(), "rotvec": v.reg.camera.rotvec.tolist(),
+                    "t": v.reg.camera.t.tolist(), "gain": v.gain, "slide_texels": v.slide_texels,
+                    "texels_seen_percent": float(100 * (v.weight > 0).mean())} for v in views],
+        "dark": float(dark), "bright": float(bright), "unseen_percent": float(unseen),
+        "filled_from": "the built-in map (jkatana.maps.default_map)" if unseen > 0 else None,
+    }
+    if len(sides_seen) == 2:
+        report["omote_ura_disagreement"] = _side_disagreement(views, dark, bright)
+    return MosaicResult(m, conf.astype(np.float32), seen, views, summary, report)
+
+
+def _point_pairs(surface: BladeSurface, pts: dict, path):
+    """User-clicked points ``{"side": ..., "points": [[x, y, u, v], ...]}`` → (pixels (K, 2), 3-D (K, 3))."""
+    side = pts.get("side", "omote")
+    if side not in ("omote", "ura"):
+        raise InputError(f"side must be omote or ura, got {side!r}", path=path, field="side")
+    arr = np.asarray(pts.get("points", []), float)
+    if arr.ndim != 2 or arr.shape[1] != 4 or len(arr) < 3 or not np.all(np.isfinite(arr)):
+        raise InputError("need at least 3 points [x, y, u, v]", path=path, field="points")
+    if arr[:, 2:].min() < 0 or arr[:, 2:].max() > 1:
+        raise InputError("u, v must lie in [0, 1]", path=path, field="points")
+    H, W = surface.resolution
+    P = surface.points[side]
+    X = np.stack([_bilinear(P[..., k], arr[:, 2] * W - 0.5, arr[:, 3] * H - 0.5) for k in range(3)], -1)
+    return arr[:, :2], X
+
+
+def _blend(views) -> tuple[np.ndarray, np.ndarray]:
+    num = sum(v.weight * v.value * v.gain for v in views)
+    den = sum(v.weight for v in views)
+    return np.where(den > 0, num / np.maximum(den, 1e-12), 0.0), den
+
+
+def _gains(views) -> None:
+    """One gain per photo (geometric mean 1) from the median log ratios in same-face overlaps."""
+    n = len(views)
+    rows, rhs = [], []
+    for i in range(n):
+        for j in range(i + 1, n):
+            if views[i].reg.side != views[j].reg.side:
+                continue
+            m = (views[i].weight > 0.05) & (views[j].weight > 0.05)
+            if m.sum() < 200:
+                continue
+            r = np.median(np.log(np.maximum(views[i].value[m], 1e-4)) - np.log(np.maximum(views[j].value[m], 1e-4)))
+            row = np.zeros(n)
+            row[i], row[j] = 1.0, -1.0
+            rows.append(row)
+            rhs.append(-r)
+    if not rows:
+        return
+    rows.append(np.ones(n))
+    rhs.append(0.0)
+    g, *_ = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)
+    for v, gi in zip(views, g):
+        v.gain = float(np.exp(gi))
+
+
+def _check_same_blade(views) -> None:
+    n = len(views)
+    for i in range(n):
+        for j in range(i + 1, n):
+            a, b = views[i], views[j]
+            if a.reg.side != b.reg.side:
+                continue
+            m = (a.weight > 0.05) & (b.weight > 0.05)
+            if m.sum() < 500:
+                continue
+            va, vb = a.value[m] * a.gain, b.value[m] * b.gain
+            lv = np.log(np.maximum(np.concatenate([va, vb]), 1e-4))
+            from jkatana.maps.photo import otsu_threshold
+
+            t = math.exp(otsu_threshold(lv))
+            frac = float(np.mean((va > t) != (vb > t)))
+            if frac > MAX_DISAGREEMENT:
+                raise InputError(f"disagrees with {Path(a.path).name} on {100 * frac:.0f} % of the texels both see "
+                                 "(hiraji vs hamon): photos of different blades?", path=b.path)
+
+
+def _side_disagreement(views, dark, bright) -> float:
+    """Mean |w_omote − w_ura| over the texels both faces' photos see."""
+    out = {}
+    for side in ("omote", "ura"):
+        vv = [v for v in views if v.reg.side == side]
+        val, den = _blend(vv)
+        out[side] = (np.clip((bright - val) / (bright - dark), 0, 1), den > 0)
+    m = out["omote"][1] & out["ura"][1]
+    return float(np.mean(np.abs(out["omote"][0] - out["ura"][0])[m])) if m.any() else float("nan")
