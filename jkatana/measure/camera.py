@@ -129,17 +129,15 @@ def light_spectrum(light="D65", grid: WavelengthGrid = DEFAULT_GRID) -> Float[np
 
 def _read_curve(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """(wavelengths nm, values) from a CSV (two columns, optional header) or JSON file."""
-    import json
 
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as err:
         raise InputError(f"cannot read: {err.strerror or err}", path=path, field="camera") from None
     if path.suffix.lower() == ".json":
-        try:
-            doc = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise InputError(f"not JSON ({err.msg} at line {err.lineno})", path=path) from None
+        from jkatana.io.jsonfile import read_json
+
+        doc = read_json(path, "a camera sensitivity file")
         if not isinstance(doc, dict):
             raise InputError("top level must be an object with 'wavelength' and 'sensitivity'", path=path)
         wl = doc.get("wavelength", doc.get("wavelengths"))

@@ -11,11 +11,11 @@ file (an array of ``[[capture]]`` tables with the same keys).
 | ``theta_i_deg`` | yes | incidence θi from the normal, degrees, 0 ≤ θi < 90 |
 | ``theta_r_deg`` | yes | receiving angle θr from the normal on the side opposite the light (θr = θi: specular), 0 ≤ θr < 90 |
 | ``roi`` | yes | rectangle(s) ``x y w h`` in pixels of the visible raw frame (x: column, y: row of the top-left corner), several separated by ``;`` — e.g. ``8 8 20 48; 36 8 20 48``. In TOML: ``[[x, y, w, h], ...]`` |
-| ``exposure_s`` | no | exposure time (s); if empty the RAW file's own shutter time is used |
+| ``exposure_s`` | no | exposure time (s), at most 3600; if empty the RAW file's own shutter time is used |
 | ``capture`` | no | capture id (default: the file name without extension); (capture, region) must be unique |
 | ``dark`` | no | dark frame (same size and format, same exposure), subtracted per photosite instead of the black level |
 | ``aperture``, ``iso`` | no | f-number and ISO: validated, kept with the manifest for the record (not used in the arithmetic, not copied to the table) |
-| ``gain`` | no | multiplies the value (default 1): convert to the unit of another rig |
+| ``gain`` | no | multiplies the value (default 1): convert to the unit of another rig; finite, > 0 and at most 1e150 (:data:`jkatana.models.bounds.SCALE_MAX`: the values it makes must square finitely in the fit) |
 | ``black_level``, ``white_level`` | no | for TIFF/EXR captures only (RAW files carry their own); TIFF defaults 0 and 65535, EXR 0 and no saturation |
 | ``source_radius_deg``, ``aperture_radius_deg`` | no | the instrument: angular radius of the source and of the detector aperture seen from the sample (degrees, :class:`~jkatana.measure.protocol.Instrument`); the same in every row that gives them. ``jkatana measure`` writes it beside the table, and ``jkatana fit`` models the instrument's response from it |
 
@@ -45,6 +45,7 @@ import tomllib
 from pathlib import Path
 
 from jkatana.errors import InputError
+from jkatana.models.bounds import SCALE_MAX
 from jkatana.measure.protocol import Instrument, instrument_angle
 from jkatana.measure.table import REGIONS, check_angles
 
@@ -140,7 +141,7 @@ def parse_rois(value, *, path, row) -> tuple[tuple[int, int, int, int], ...]:
     return tuple(out)
 
 
-def _number(value, *, path, row, field, positive=False, default=None):
+def _number(value, *, path, row, field, positive=False, default=None, hi=None):
     if value is None or (isinstance(value, str) and not value.strip()):
         return default
     if isinstance(value, bool):  # TOML true/false: not a number
@@ -152,6 +153,8 @@ def _number(value, *, path, row, field, positive=False, default=None):
     if not math.isfinite(v) or (positive and v <= 0) or v < 0:
         raise InputError(f"must be finite and {'> 0' if positive else '>= 0'}, got {value!r}", path=path,
                          row=row, field=field)
+    if hi is not None and v > hi:
+        raise InputError(f"must be at most {hi:g}, got {value!r}", path=path, row=row, field=field)
     return v
 
 
@@ -230,8 +233,8 @@ def read_manifest(path: str | Path) -> Manifest:
         entries.append(Entry(
             row=row, file=file, region=region, theta_i_deg=ti, theta_r_deg=tr,
             rois=parse_rois(rec["roi"], path=path, row=row), capture=capture,
-            exposure_s=num("exposure_s", positive=True), dark=dark, aperture=num("aperture", positive=True),
-            iso=num("iso", positive=True), gain=num("gain", positive=True, default=1.0),
+            exposure_s=num("exposure_s", positive=True, hi=3600.0), dark=dark, aperture=num("aperture", positive=True),
+            iso=num("iso", positive=True), gain=num("gain", positive=True, default=1.0, hi=SCALE_MAX),
             black_level=num("black_level"), white_level=num("white_level", positive=True),
             **{k: (instrument_angle(rec[k], k, path=path, row=row) if str(rec.get(k, "") or "").strip() else None)
                for k in INSTRUMENT_KEYS}))

@@ -187,10 +187,9 @@ def read_instrument(table) -> Instrument | None:
     path = instrument_path(table)
     if not path.is_file():
         return None
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise InputError(f"not a readable instrument file ({err})", path=path) from None
+    from jkatana.io.jsonfile import read_json
+
+    d = read_json(path, "an instrument file")
     if not isinstance(d, dict) or d.get("format") != "jkatana-instrument/1":
         raise InputError("expected format 'jkatana-instrument/1'", path=path, field="format")
     src, ap = (instrument_angle(d.get(f, 0.0), f, path=path) for f in ("source_radius_deg", "aperture_radius_deg"))
