@@ -125,19 +125,20 @@ def _slide(view: PhotoView, ref_val: np.ndarray, ref_w: np.ndarray) -> int:
     cols = np.flatnonzero(seen.any(0))
     if len(cols) == 0:
         return 0
-    a = np.log(np.maximum(view.value, 1e-4))
-    b = np.log(np.maximum(ref_val, 1e-4))
-    best, best_s = -np.inf, 0
-    for s in range(-int(cols[0]), W - int(cols[-1])):
-        sa = np.roll(a, s, axis=1)
-        sm = np.roll(seen, s, axis=1)
-        m = sm & (ref_w > 0)
+    rows = slice(0, H, 4)  # every 4th row: the hamon's line varies along u, not much within 4 texels across
+    a = np.log(np.maximum(view.value[rows], 1e-4))
+    b = np.log(np.maximum(ref_val[rows], 1e-4))
+    seen, ref_seen = seen[rows], ref_w[rows] > 0
+
+    def score(s: int) -> float:
+        m = np.roll(seen, s, axis=1) & ref_seen
         if m.any(0).sum() < 0.05 * W:
-            continue
-        c = _ncc(sa, b, m)
-        if c > best:
-            best, best_s = c, s
-    return best_s
+            return -np.inf
+        return _ncc(np.roll(a, s, axis=1), b, m)
+
+    lo, hi = -int(cols[0]), W - 1 - int(cols[-1])
+    coarse = max(range(lo, hi + 1, 4), key=score, default=0)  # every 4th shift, then the neighbours
+    return max(range(max(lo, coarse - 4), min(hi, coarse + 4) + 1), key=score, default=coarse)
 
 
 def _camera_slid(surface: BladeSurface, view: PhotoView, shift: int) -> Camera:
@@ -241,7 +242,7 @@ def build_map(photos: list[tuple[str, np.ndarray]], surface: BladeSurface, *, fl
     p = {**PAPER_PARAMETERS, **(hiraji or {}), **(hamon or {})}
     full = lambda x: np.full((Hm, Wm), x, np.float32)  # noqa: E731
     pick = lambda name: np.where(seen, full(p[name]), getattr(base, name))  # noqa: E731
-    conf = 1.0 - np.prod([1.0 - v.cos * np.clip(v.weight / np.maximum(v.cos, 1e-12), 0, 1) for v in views], axis=0)
+    conf = 1.0 - np.prod([1.0 - v.weight for v in views], axis=0)
     conf = np.where(seen, conf, 0.0)
     residuals = [v.reg.residual_px for v in views]
     unseen = 100.0 * (1 - seen.mean())
@@ -347,3 +348,59 @@ def _side_disagreement(views, dark, bright) -> float:
         out[side] = (np.clip((bright - val) / (bright - dark), 0, 1), den > 0)
     m = out["omote"][1] & out["ura"][1]
     return float(np.mean(np.abs(out["omote"][0] - out["ura"][0])[m])) if m.any() else float("nan")
+
+
+def preview_png(result: MosaicResult, photos: list[tuple[str, np.ndarray]], surface: BladeSurface,
+                path: str | Path, *, width: int = 1400) -> Path:
+    """Each photo (display-scaled) with the mesh drawn over it by its recovered camera: the silhouette in red,
+    lines of constant u every 0.1 and of constant v at 0.25/0.5/0.75 in green; photos stacked, captioned
+    with their residual."""
+    from PIL import Image, ImageDraw
+
+    from jkatana.io.atomic import atomic_path
+    from jkatana.maps.register import _sample_silhouette
+
+    panels = []
+    Hm, Wm = surface.resolution
+    for view, (_, y) in zip(result.views, photos):
+        H, W = y.shape
+        k = min(1.0, width / W)
+        hi = float(np.percentile(y, 99.5)) or 1.0
+        img = (np.clip(y / hi, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)
+        im = Image.fromarray(img).convert("RGB").resize((max(1, int(W * k)), max(1, int(H * k))), Image.BILINEAR)
+        d = ImageDraw.Draw(im)
+        cam = view.reg.camera
+        P = surface.points[view.reg.side]
+        ok = surface.valid[view.reg.side]
+        for j in np.linspace(0, Wm - 1, 11).astype(int):
+            pts = cam.project(P[ok[:, j], j])[0] * k
+            if len(pts) > 1:
+                d.line([tuple(p) for p in pts], fill=(60, 220, 60), width=1)
+        for fr in (0.25, 0.5, 0.75):
+            i = int(fr * (Hm - 1))
+            pts = cam.project(P[i, ok[i]])[0] * k
+            if len(pts) > 1:
+                d.line([tuple(p) for p in pts], fill=(60, 220, 60), width=1)
+        _, xs = _sample_silhouette(surface, cam, W, H, spacing=2.0)
+        for p in xs * k:
+            d.point(tuple(p), fill=(255, 40, 40))
+        d.text((8, 6), f"{Path(view.path).name}: {view.reg.side}, outline residual {view.reg.residual_px:.2f} px, "
+                       f"{cam.off_normal_deg():.1f} deg off the normal, f {cam.f:.0f} px", fill=(255, 255, 0))
+        panels.append(im)
+    Wp = max(p.width for p in panels)
+    out = Image.new("RGB", (Wp, sum(p.height for p in panels)), (0, 0, 0))
+    yy = 0
+    for p in panels:
+        out.paste(p, (0, yy))
+        yy += p.height
+    with atomic_path(path) as tmp:
+        out.save(tmp, format="PNG")
+    return Path(path)
+
+
+def write_confidence(result: MosaicResult, path: str | Path) -> Path:
+    """The per-texel confidence (channel ``confidence``: 1 − Π(1 − cos θᵢ · featherᵢ) over the photos that
+    see the texel, 0 where none does) as an EXR in the map's layout."""
+    from jkatana.io.exr import write_exr
+
+    return write_exr(path, {"confidence": result.confidence}, header={"jkatana_kind": "jkatana.map_confidence"})

@@ -304,7 +304,7 @@ def _poly_terms(x: np.ndarray, y: np.ndarray, degree: int) -> np.ndarray:
 
 
 def background_fit(y: np.ndarray, exclude: np.ndarray | None = None, *, degree: int = 3,
-                   step: int = 4) -> np.ndarray:
+                   step: int = 8) -> np.ndarray:
     """Smooth background brightness: a degree-``degree`` polynomial in (x, y) fitted to log brightness,
     refitted three times without pixels more than 3 robust sigmas off (the blade) and ``exclude``."""
     H, W = y.shape
@@ -329,6 +329,12 @@ def background_fit(y: np.ndarray, exclude: np.ndarray | None = None, *, degree: 
     return out
 
 
+def _padded(op, a: np.ndarray, n: int = 8, **kw) -> np.ndarray:
+    """A morphological ``op`` on ``a`` extended by its edge values, so a blade that runs out of the frame
+    is not eroded (or closed) against the frame's border."""
+    return op(np.pad(a, n, mode="edge"), **kw)[n:-n, n:-n]
+
+
 @dataclass
 class PhotoOutline:
     """The blade found in a photo: its mask, outline points and the light it was lit by."""
@@ -340,6 +346,7 @@ class PhotoOutline:
     axis: np.ndarray  # unit principal axis (x, y)
     centroid: np.ndarray
     width_px: float
+    length_px: float
     ends: dict  # "+" / "-": end point (x, y) along the axis, or None where the blade leaves the frame
 
 
@@ -352,12 +359,12 @@ def find_blade(y: np.ndarray, *, flat: np.ndarray | None = None, path=None) -> P
     light = background_fit(y)
     r = ndimage.gaussian_filter(y / light - 1.0, 0.7)
     rough = np.abs(r) > 0.35
-    lab, n = ndimage.label(ndimage.binary_opening(rough, iterations=2))
+    lab, n = ndimage.label(_padded(ndimage.binary_opening, rough, iterations=2))
     if n == 0:
         raise InputError("no blade-like object against the background (nothing stands out of it)", path=path)
     sizes = ndimage.sum_labels(np.ones_like(lab), lab, np.arange(1, n + 1))
     big = lab == (1 + int(np.argmax(sizes)))
-    big = ndimage.binary_fill_holes(ndimage.binary_closing(big, iterations=3))
+    big = ndimage.binary_fill_holes(_padded(ndimage.binary_closing, big, iterations=3))
     if flat is not None:
         light = flat * np.median((y / flat)[~ndimage.binary_dilation(big, iterations=8)])
     else:
@@ -369,8 +376,9 @@ def find_blade(y: np.ndarray, *, flat: np.ndarray | None = None, path=None) -> P
     # the mune roof reads about half the background, the ha's last pixel is dark, the hamon bright
     threshold = max(0.15, 6.0 * noise)
     sel = ndimage.median_filter(np.abs(r), size=3) > threshold if noise > 0.05 else np.abs(r) > threshold
-    mask = ndimage.binary_fill_holes(ndimage.binary_closing(sel, iterations=2) | ndimage.binary_erosion(big, iterations=3))
-    mask = ndimage.binary_opening(mask, iterations=1)
+    mask = ndimage.binary_fill_holes(_padded(ndimage.binary_closing, sel, iterations=3)
+                                     | _padded(ndimage.binary_erosion, big, iterations=3))
+    mask = _padded(ndimage.binary_opening, mask, iterations=1)
     lab, n = ndimage.label(mask)
     if n == 0:
         raise InputError("no blade-like object against the background", path=path)
@@ -388,8 +396,11 @@ def find_blade(y: np.ndarray, *, flat: np.ndarray | None = None, path=None) -> P
     length = float(np.ptp(along))
     # width: the median extent across in slices along the axis
     bins = np.clip(((along - along.min()) / max(length, 1) * 64).astype(int), 0, 63)
-    widths = [np.ptp(across[bins == b]) for b in range(64) if np.sum(bins == b) > 3]
-    width = float(np.median(widths)) if widths else 0.0
+    idx = np.arange(64)
+    cnt = np.bincount(bins, minlength=64)
+    span = ndimage.maximum(across, bins, idx) - ndimage.minimum(across, bins, idx)
+    widths = np.asarray(span)[cnt > 3]
+    width = float(np.median(widths)) if widths.size else 0.0
     if width < 3 or length < 5 * width:
         raise InputError(f"no blade-like object against the background (the object found is "
                          f"{length:.0f}×{width:.0f} px: not long and narrow)", path=path)
@@ -415,7 +426,7 @@ def find_blade(y: np.ndarray, *, flat: np.ndarray | None = None, path=None) -> P
         p = np.array([xs[k], ys[k]], float)
         near_border = p[0] < 3 or p[0] > W - 4 or p[1] < 3 or p[1] > H - 4
         ends["+" if sign > 0 else "-"] = None if (near_border and touches.any()) else p
-    return PhotoOutline(mask, edge, nrm, light, axis, c, width, ends)
+    return PhotoOutline(mask, edge, nrm, light, axis, c, width, length, ends)
 
 
 # ----------------------------------------------------------------------------- registration
@@ -513,7 +524,7 @@ def _icp(surface: BladeSurface, cam: Camera, edge: np.ndarray, normal: np.ndarra
         nrm = np.concatenate([normal[i1[m1]], normal[m2]])
         if len(src) < 20:
             break
-        sub = np.linspace(0, len(src) - 1, min(len(src), 6000)).astype(int)
+        sub = np.linspace(0, len(src) - 1, min(len(src), 2500)).astype(int)
         src, dst, nrm = src[sub], dst[sub], nrm[sub]
 
         def res(q):
@@ -544,7 +555,20 @@ def _initial_cameras(surface: BladeSurface, out: PhotoOutline, W: int, H: int, f
 
     V = np.asarray(surface.mesh.vertices)
     L = surface.length
-    haba = float(np.ptp(V[V[:, 0] < V[:, 0].min() + 0.3 * L][:, 1]))  # width near the middle-to-machi
+    Pm = surface.points["omote"]
+    habas = np.linalg.norm(Pm[0, :, :2] - Pm[-1, :, :2], axis=1)  # the blade's width at each texel column
+    Wt = len(habas)
+
+    def depth(u_end: float | None) -> float:
+        """Distance at which the mesh's width matches the outline's: at the middle of the visible part,
+        found by a fixed point (the visible length in metres depends on the distance)."""
+        Z = f * float(np.median(habas)) / max(out.width_px, 1.0)
+        for _ in range(6):
+            D = 0.5 * out.length_px * Z / f / L
+            u = 0.5 if u_end is None else (D if u_end == 0 else 1 - D)
+            Z = f * float(habas[int(np.clip(u * Wt, 0, Wt - 1))]) / max(out.width_px, 1.0)
+        return Z
+
     cands = []
     for side in sides:
         s = 1.0 if side == "omote" else -1.0
@@ -563,16 +587,15 @@ def _initial_cameras(surface: BladeSurface, out: PhotoOutline, W: int, H: int, f
             if tip_end is not None and machi_end is not None:
                 Z = f * float(np.linalg.norm(tipX - machiX)) / max(float(np.linalg.norm(tip_end - machi_end)), 1.0)
                 anchors.append((0.5 * (tipX + machiX), 0.5 * (tip_end + machi_end), Z))
+            elif tip_end is not None:
+                anchors.append((tipX, tip_end, depth(1)))
+            elif machi_end is not None:
+                anchors.append((machiX, machi_end, depth(0)))
             else:
-                Z = f * haba / max(out.width_px, 1.0)
-                if tip_end is not None:
-                    anchors.append((tipX, tip_end, Z))
-                elif machi_end is not None:
-                    anchors.append((machiX, machi_end, Z))
-                else:
-                    for uc in (0.2, 0.35, 0.5, 0.65, 0.8):
-                        k = np.argmin(np.abs(V[:, 0] - uc * L))
-                        anchors.append((np.array([uc * L, V[k, 1] - 0.5 * haba, 0.0]), out.centroid, Z))
+                Z = depth(None)
+                for uc in (0.2, 0.35, 0.5, 0.65, 0.8):
+                    j = int(uc * (Wt - 1))
+                    anchors.append((surface.points[side][len(Pm) // 2, j], out.centroid, Z))
             for X0, x0, Z in anchors:
                 pc = np.array([Z * (x0[0] - (W - 1) / 2) / f, Z * (x0[1] - (H - 1) / 2) / f, Z])
                 t = pc - R @ X0
@@ -590,18 +613,24 @@ def register_photo(surface: BladeSurface, out: PhotoOutline, shape: tuple[int, i
     sides = (side,) if side else ("omote", "ura")
     if points is not None:
         sides = (side or "omote",)
-    best = None
-    cands = _initial_cameras(surface, out, W, H, f, sides)
-    for sd, cam in cands:
+    tried = []
+    for sd, cam in _initial_cameras(surface, out, W, H, f, sides):
         cam = _icp(surface, cam, out.edge, out.normal, W, H, iterations=6, gate=max(40.0, 2 * out.width_px),
                    focal_prior=f, points=points, fix_focal=True)
+        tried.append((outline_residual(surface, cam, out.edge, W, H), sd, cam))
+    tried.sort(key=lambda c: c[0])
+    best = None
+    for r, sd, cam in tried[:2]:  # the two best starts, refined to the end
+        cam = _icp(surface, cam, out.edge, out.normal, W, H, iterations=40, gate=max(20.0, 4 * r), focal_prior=f,
+                   points=points, fix_focal=focal_px is not None)
         r = outline_residual(surface, cam, out.edge, W, H)
         if best is None or r < best[0]:
             best = (r, sd, cam)
     r, sd, cam = best
-    cam = _icp(surface, cam, out.edge, out.normal, W, H, iterations=40, gate=max(20.0, 4 * r), focal_prior=f,
-               points=points, fix_focal=focal_px is not None)
-    r = outline_residual(surface, cam, out.edge, W, H)
+    sd = "omote" if cam.centre[2] > 0 else "ura"  # where the camera ended up (a start may turn over)
+    if side and sd != side:
+        raise InputError(f"registration did not converge on the {side} face (the outline fits the {sd})",
+                         path=path)
     if not np.isfinite(r) or r > MAX_RESIDUAL_PX:
         raise InputError(f"registration did not converge: the mesh's outline stays {r:.1f} px RMS from the "
                          f"blade's (limit {MAX_RESIDUAL_PX:g} px); is it this blade? Give --focal-mm or --points",
