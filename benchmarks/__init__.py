@@ -42,7 +42,7 @@ passing these extra keyword arguments to ``record(...)``:
 | ``series`` | str, optional | which method/renderer family this point belongs to (default: ``case["renderer"]`` if present); with ≥ 2 series of ≥ 2 points, the report gives their time ratio *at equal error* (log–log interpolation along each series' measured Pareto front, never extrapolated) |
 
 Error units: ``dE2000_mean`` / ``dE2000_p95`` (CIE ΔE 2000 after the same
-display transform, :func:`~benchmarks._harness.delta_e_display`) for images
+display transform, :func:`jkatana.spectral.delta_e_display`) for images
 and colours; ``rel_error`` (max or median relative error) for fitted
 parameters; ``coverage`` (fraction of true values inside the intervals) and
 ``width`` for intervals; ``max_abs`` for a function like Fresnel's F.

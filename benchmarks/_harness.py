@@ -1,4 +1,4 @@
-"""Shared helpers for benchmarks: timing, machine facts, records, ΔE2000.
+"""Shared helpers for benchmarks: timing, machine facts, records (ΔE2000: :func:`jkatana.spectral.delta_e_display`).
 
 The record convention for accuracy–time studies is documented in
 :mod:`benchmarks` (``benchmarks/__init__.py``).
@@ -73,9 +73,8 @@ def machine_facts() -> dict[str, Any]:
 def peer_facts() -> dict[str, Any]:
     """Mitsuba 3's and Dr.Jit's versions and the LLVM that Dr.Jit's CPU backend loads, when Mitsuba is installed.
 
-    Mitsuba's speed on the CPU depends on that LLVM as much as on the CPU: the same Dr.Jit 1.5.0 kernels ran
-    4.5x slower with a machine's libLLVM 15 than with its libLLVM 19 (``benchmarks/reports/
-    render-peer-2026-12-05-idle``), so a ratio against Mitsuba is only read together with it. The LLVM version
+    Mitsuba's speed on the CPU depends on that LLVM as much as on the CPU (the same Dr.Jit kernels ran several
+    times slower with an older libLLVM), so a ratio against Mitsuba is only read together with it. The LLVM version
     is asked in a subprocess, so that a benchmark process that never renders with Mitsuba does not start
     Dr.Jit's backend; once per process (a copy of the first answer after that)."""
     return dict(_peer_facts())
@@ -192,34 +191,4 @@ def budget_s(default: float = math.inf) -> float:
         return default
 
 
-def delta_e_display(xyz_ref, xyz, *, exposure: float | None = None, colourspace: str = "sRGB",
-                    percentile: float = 95.0) -> dict[str, float]:
-    """Statistics of :func:`jkatana.spectral.delta_e_2000` (display-referred CIEDE2000) between two
-    images/colour sets, the benchmarks' error metric.
-
-    ``exposure`` defaults to the reference's 99th-percentile luminance Y mapping
-    to display white. Non-finite inputs give non-finite results (they are not
-    silently dropped); the ``*_finite`` keys then say how the rest fared.
-
-    **Returns:** ``{"dE2000_mean", "dE2000_p95", "dE2000_max", "exposure"}``.
-    """
-    import numpy as np
-
-    from jkatana.spectral import delta_e_2000
-
-    xyz_ref = np.asarray(xyz_ref, np.float64).reshape(-1, 3)
-    xyz = np.asarray(xyz, np.float64).reshape(-1, 3)
-    if exposure is None:
-        y99 = float(np.percentile(xyz_ref[:, 1], 99.0))
-        exposure = 1.0 / y99 if y99 > 0 else 1.0
-    de = delta_e_2000(xyz_ref, xyz, exposure=exposure, colourspace_name=colourspace)
-    out = {"dE2000_mean": float(np.mean(de)), "dE2000_p95": float(np.percentile(de, percentile)),
-           "dE2000_max": float(np.max(de)), "exposure": float(exposure)}
-    finite = np.isfinite(de)
-    if not finite.all():  # the headline stays non-finite; these say how the rest fared
-        out["nonfinite_frac"] = float(1.0 - finite.mean())
-        if finite.any():
-            out["dE2000_mean_finite"] = float(np.mean(de[finite]))
-            out["dE2000_p95_finite"] = float(np.percentile(de[finite], percentile))
-    return out
 

@@ -86,15 +86,15 @@ def channel_report(label, a, b, mask):
 
 
 def delta_e_image(rgb_ref, rgb, mask):
-    """Per-pixel display-referred ΔE2000 (:func:`jkatana.spectral.delta_e_2000`; the reference's p99 Y → white)."""
-    from jkatana.spectral import delta_e_2000
+    """Per-pixel display-referred ΔE2000 (:func:`jkatana.spectral.delta_e_display`; the p99 Y of the reference's
+    pixels in ``mask`` → white)."""
+    from jkatana.spectral import delta_e_display, reference_exposure
     from jkatana.spectral.colorimetry import xyz_to_rgb_matrix
 
     to_xyz = np.linalg.inv(xyz_to_rgb_matrix("ITU-R BT.709"))
     a, b = rgb_ref @ to_xyz.T, rgb @ to_xyz.T
-    exposure = 1.0 / np.percentile(a[mask][:, 1], 99.0)
-    de = delta_e_2000(a, b, exposure=exposure)
-    return np.where(mask, de, np.nan), exposure
+    stats, de = delta_e_display(a, b, exposure=reference_exposure(a[mask]), return_de=True)
+    return np.where(mask, de, np.nan), stats["exposure"]
 
 
 def figure(rows, path, dpi=90):

@@ -6,7 +6,8 @@ import colour
 import numpy as np
 import pytest
 
-from jkatana.spectral import delta_e_2000, delta_e_2000_8bit, delta_e_2000_display, display8, to_display
+from jkatana.spectral import (delta_e_2000, delta_e_2000_8bit, delta_e_2000_display, delta_e_display, delta_e_stats,
+                              display8, reference_exposure, to_display)
 from jkatana.spectral.colorimetry import to_png8, xyz_to_rgb_matrix
 
 D65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
@@ -57,3 +58,35 @@ def test_non_finite_colours_give_nan_not_a_number_that_hides_them():
     b[3, 0] = np.inf
     de = delta_e_2000(a, b)
     assert np.isnan(de[[1, 3]]).all() and np.all(de[[0, 2]] == 0.0)
+
+
+def test_delta_e_display_same_transform_and_nonfinite():
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(0.05, 0.6, (500, 3))
+    assert delta_e_display(xyz, xyz)["dE2000_mean"] == 0.0
+    # inside the display gamut, the display round trip is the identity: equals colour-science's ΔE2000
+    a, b = np.array([[0.2, 0.21, 0.22]]), np.array([[0.21, 0.21, 0.2]])
+    got = delta_e_display(a, b, exposure=1.0)["dE2000_mean"]
+    want = colour.delta_E(colour.XYZ_to_Lab(a, D65), colour.XYZ_to_Lab(b, D65), method="CIE 2000")[0]
+    assert got == pytest.approx(want, rel=1e-4) and got > 0.5
+    bad = xyz.copy()
+    bad[7] = np.inf
+    d = delta_e_display(xyz, bad)
+    assert np.isnan(d["dE2000_mean"]) and d["nonfinite_frac"] == pytest.approx(1 / 500)
+    assert d["dE2000_mean_finite"] == 0.0
+
+
+def test_delta_e_display_exposure_from_the_reference_p99_and_percentiles():
+    """The exposure comes from the reference alone: its 99th-percentile Y maps to display white (1 where
+    that is not positive); each requested percentile gets its key."""
+    rng = np.random.default_rng(1)
+    ref = rng.uniform(0.05, 2.0, (400, 3))
+    got, de = delta_e_display(ref, ref * 1.1, percentiles=(95.0, 99.0), return_de=True)
+    assert reference_exposure(ref) == 1.0 / np.percentile(ref[:, 1], 99.0) == got["exposure"]
+    assert reference_exposure(np.zeros((4, 3))) == 1.0
+    want = delta_e_2000(ref, ref * 1.1, exposure=got["exposure"])
+    np.testing.assert_array_equal(de, want)
+    assert got["dE2000_p95"] == np.percentile(want, 95.0) and got["dE2000_p99"] == np.percentile(want, 99.0)
+    assert got["dE2000_mean"] == np.mean(want) and got["dE2000_max"] == np.max(want) and got["pixels"] == 400
+    assert delta_e_stats(want, prefix="") == {"mean": np.mean(want), "p95": np.percentile(want, 95.0),
+                                              "max": np.max(want)}

@@ -1,4 +1,4 @@
-"""The interactive shader's cap rule (:mod:`jkatana.interactive.caprule`, the NumPy twin of ``shade.glsl``'s
+"""The interactive shader's cap rule (:mod:`validation.shader_cap_rule`, the NumPy transcription of ``shade.glsl``'s
 ``jk_caps_xyz``) against the library's cap quadrature :func:`jkatana.light.capquad.cap_integral` of the paper's
 lobes (:meth:`Hiraji.brdf_cos`, :meth:`Hamon.brdf_cos`, iron, summed over λ); and the cap kernel table of
 non-paper lobes (:mod:`jkatana.interactive.captable`) against the same quadrature of GGX and Beckmann."""
@@ -15,7 +15,7 @@ import pytest
 from jkatana.interactive import lobe_tables as LT
 from jkatana.interactive import tables as T
 from jkatana.interactive.levels import MU_LEVELS
-from jkatana.interactive import caprule as C
+from validation import shader_cap_rule as C
 from jkatana.light.capquad import cap_integral
 from jkatana.models.lobes import Gaussian
 from jkatana.models import Conductor, Hamon, Hiraji

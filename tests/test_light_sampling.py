@@ -134,6 +134,21 @@ def test_mis_weights_sum_to_one():
         assert float(w[0]) == 0.0
 
 
+def test_mis_weight_per_density_is_the_weight_over_n_p():
+    """The form the renderer's strategies use: w / (n p), 0 where the sample does not count."""
+    p1 = jnp.array([0.0, 1.0, 2.0, 0.5, 4.0])
+    p2 = jnp.array([0.0, 3.0, 2.0, 0.0, 1.0])
+    valid = jnp.array([False, True, True, True, False])  # 0: both densities 0 (the renderer passes ok = p > 0)
+    for h in ("balance", "power"):
+        w = mis_weight(p1, p2, 2, 3, h)
+        q = mis_weight(p1, p2, 2, 3, h, valid=valid, per_density=True)
+        np.testing.assert_allclose(np.asarray(q[1:4] * 2 * p1[1:4]), np.asarray(w[1:4]), rtol=1e-12)
+        assert float(q[0]) == 0.0 and float(q[4]) == 0.0
+    # the balance heuristic's 1 / Σ n p, also where this strategy's own density is 0
+    q = mis_weight(jnp.array([0.0]), jnp.array([0.25]), 4, 2, valid=jnp.array([True]), per_density=True)
+    assert float(q[0]) == 2.0
+
+
 def _estimates(env, mu, n_w, V_w, N=8, M=128, seed=11):
     """Luminance of M independent estimates per strategy: env alone (N samples, luminance sampler),
     lobe alone (N), MIS (N + N, balance heuristic, with the MIS-compensated environment sampler)."""

@@ -109,13 +109,12 @@ def display255(xyz: np.ndarray, exposure: float) -> np.ndarray:
 
 def compare(gl8: np.ndarray, ref8: np.ndarray, mask: np.ndarray) -> tuple[dict, np.ndarray]:
     """ΔE2000 statistics over ``mask`` and the ΔE image; images are sRGB-encoded on a 0–255 scale
-    (uint8, or float as :func:`display255`)."""
-    from jkatana.spectral import delta_e_2000_8bit
+    (uint8, or float as :func:`display255`): ``{"mean", "p95", "max", "pixels"}``
+    (:func:`jkatana.spectral.delta_e_stats`)."""
+    from jkatana.spectral import delta_e_2000_8bit, delta_e_stats
 
     de = delta_e_2000_8bit(gl8, ref8)
-    d = de[mask]
-    return {"mean": float(d.mean()), "p95": float(np.percentile(d, 95)), "max": float(d.max()),
-            "pixels": int(mask.sum())}, de
+    return {**delta_e_stats(de[mask], prefix=""), "pixels": int(mask.sum())}, de
 
 
 def gl_frame(state, view: View, mesh, *, return_mask: bool = False):

@@ -235,23 +235,18 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
 
 
 def compare(rgb_mi: np.ndarray, rgb_jk: np.ndarray, mask: np.ndarray, erode: int = 1) -> dict:
-    """ΔE2000 (mean, p95, p99, max) over the sphere's interior pixels (mask eroded by ``erode``).
-
-    Display-referred (:func:`jkatana.spectral.delta_e_2000`, sRGB display): the
-    Mitsuba frame's 99th-percentile Y maps to display white on both sides.
+    """ΔE2000 (mean, p95, p99, max) over the sphere's interior pixels (mask eroded by ``erode``), the first
+    frame the reference: :func:`jkatana.spectral.delta_e_display` (sRGB display, the reference's
+    99th-percentile Y to display white on both sides; also ``exposure`` and ``pixels``).
     """
     from scipy.ndimage import binary_erosion
 
-    from jkatana.spectral import delta_e_2000
+    from jkatana.spectral import delta_e_display
     from jkatana.spectral.colorimetry import xyz_to_rgb_matrix
 
     m = binary_erosion(mask, iterations=erode) if erode else mask
     to_xyz = np.linalg.inv(xyz_to_rgb_matrix("ITU-R BT.709"))
-    a, b = rgb_mi[m] @ to_xyz.T, rgb_jk[m] @ to_xyz.T
-    y99 = float(np.percentile(a[:, 1], 99.0))
-    de = delta_e_2000(a, b, exposure=1.0 / y99 if y99 > 0 else 1.0)
-    return {"dE2000_mean": float(np.mean(de)), "dE2000_p95": float(np.percentile(de, 95.0)),
-            "dE2000_p99": float(np.percentile(de, 99.0)), "dE2000_max": float(np.max(de)), "pixels": int(m.sum())}
+    return delta_e_display(rgb_mi[m] @ to_xyz.T, rgb_jk[m] @ to_xyz.T, percentiles=(95.0, 99.0))
 
 
 def _mitsuba_texels(env_path, grid):

@@ -1,4 +1,5 @@
-"""The interactive shader's cap rule (``shaders/shade.glsl``'s ``jk_caps_xyz``), in NumPy for tests.
+"""The interactive shader's cap rule (``jkatana/interactive/shaders/shade.glsl``'s ``jk_caps_xyz``) transcribed
+to NumPy: a test reference, not the product (the shader runs the GLSL).
 
 A compact source split off the map (:func:`jkatana.interactive.caps.sun_caps`) is a spherical cap of angular
 radius r about C. The shader's reflected radiance from it is ``A · Q · K(C)``: the lobe table A (the lobe's

@@ -16,7 +16,6 @@
   program-cache subclass that serves them.
 - :mod:`~jkatana.interactive.glrender`: the render passes (deferred G-buffer and
   shading, forward), the single-sample offscreen renderer (imports pyrender).
-- :mod:`~jkatana.interactive.caprule`: the shader's cap rule in NumPy (for tests).
 - :mod:`~jkatana.interactive.scene`: blade, reflectance map, built-in
   environments and cameras.
 - :mod:`~jkatana.interactive.viewer`: the windowed Viewer (``jkatana view``).

@@ -55,6 +55,7 @@ from jkatana.interactive.lobe_tables import PAPER_LOBES, family_names
 from jkatana.interactive.tables import MAX_RANK as MAX_RANK, cache_folder, load_entry, save_entry
 from jkatana.interactive.tables import cached_material_tables, cached_tail_fit, cached_tap_fit
 from jkatana.interactive.taps import resolved_taps
+from jkatana.light.fresnel_basis import project_on_basis
 from jkatana.models import Conductor
 from jkatana.render.film import film_weights
 from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
@@ -213,7 +214,7 @@ def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_
         radiance, cap_dir, cap_radius, cap_q = sun_caps(radiance, grid, b, W)
     else:
         cap_dir, cap_radius, cap_q = np.zeros((0, 3)), np.zeros((0,)), np.zeros((0, rank, 3))
-    proj = np.einsum("hwl,rl,lc->hwrc", radiance, b, W, optimize=True).reshape(H, Wd, rank * 3)
+    proj = project_on_basis(radiance, b, W, xp=np).reshape(H, Wd, rank * 3)
     bar = tqdm(mus, desc="baking the environment (μ levels)", unit="level", disable=not progress,
                file=__import__("sys").stderr)
     levels = [prefilter_level(proj, float(mu)) for mu in bar]

@@ -7,8 +7,9 @@ spherical caps (direction C, angular radius r, spectral radiance L_cap); the
 *remainder* is what is projected and prefiltered, and each cap (at most
 :data:`MAX_CAPS`) becomes shader uniforms: C, r and
 Q_{r,c} = Ω_cap Σ_λ b_r(λ) W_c(λ) L_cap(λ) (:func:`sun_caps`). The shader
-integrates the lobe against each cap by the rule of
-:mod:`jkatana.interactive.caprule`. Without a compact source nothing is split
+integrates the lobe against each cap by its closed-form rule
+(``jk_caps_xyz``; a NumPy transcription for the tests is the checkout's
+``validation/shader_cap_rule.py``). Without a compact source nothing is split
 and the shader has no cap code (``JK_CAPS`` 0).
 """
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from jkatana.light.fresnel_basis import project_on_basis
 from jkatana.spectral import WavelengthGrid
 
 #: Most compact sources (sun caps) the shaders take as uniforms (:func:`jkatana.light.sun.find_compact_sources`'s
@@ -45,6 +47,6 @@ def sun_caps(radiance: np.ndarray, grid: WavelengthGrid, b: np.ndarray, weights:
     caps = split.caps
     direction = np.stack([np.asarray(c.direction, np.float64) for c in caps])
     radius = np.array([float(c.radius) for c in caps])
-    q = np.stack([float(c.solid_angle) * np.einsum("l,rl,lc->rc", np.asarray(c.radiance, np.float64), b, weights)
+    q = np.stack([float(c.solid_angle) * project_on_basis(np.asarray(c.radiance, np.float64), b, weights, xp=np)
                   for c in caps])
     return np.asarray(split.remainder.radiance, np.float64), direction, radius, q

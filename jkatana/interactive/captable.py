@@ -1,7 +1,7 @@
 """The cap kernel table: a compact source (a sun cap) integrated against each region's lobe, for lobes that
 are not the paper's.
 
-The shader's closed-form cap rule (:mod:`jkatana.interactive.caprule`) is one Gaussian with the lobe's first
+The shader's closed-form cap rule (:mod:`validation.shader_cap_rule`, its NumPy transcription for tests) is one Gaussian with the lobe's first
 and second moments. That holds for the paper's Gaussian lobes and for Beckmann; a lobe with algebraic tails
 (GGX / Trowbridge–Reitz, GTR, a two-lobe sum with haze) has a second moment set by its tails, so the Gaussian
 is several times too low at the lobe's peak and far too high a few widths away. For such lobes the bake
@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.interactive.lobe_tables import PAPER_LOBES, lobe_integral
+from jkatana.interactive.taps import view_frame
 from jkatana.light.capquad import cap_integral
 from jkatana.models import Conductor
 
@@ -59,17 +60,6 @@ def offset_grid() -> tuple[np.ndarray, np.ndarray]:
     su = np.linspace(-1.0, 1.0, N_U)
     sv = np.linspace(0.0, 1.0, N_V)
     return np.sign(su) * EXTENT * su ** 2, EXTENT * sv ** 2
-
-
-def _frame(cos_v: np.ndarray):
-    """V, R, t, y (local frame, N = +z) for view cosines ``cos_v``; t ⟂ R towards N (x where R = N)."""
-    cv = np.maximum(cos_v, 1e-3)
-    V = np.stack([np.sqrt(1 - cv ** 2), np.zeros_like(cv), cv], -1)
-    R = V * np.array([-1.0, -1.0, 1.0])
-    nt = np.array([0.0, 0.0, 1.0]) - R[..., 2:3] * R
-    ln = np.linalg.norm(nt, axis=-1, keepdims=True)
-    t = np.where(ln > 1e-9, nt / np.maximum(ln, 1e-12), np.array([1.0, 0.0, 0.0]))
-    return V, R, t, np.cross(R, t)
 
 
 def cap_directions(R, t, y, u, v) -> np.ndarray:
@@ -100,7 +90,7 @@ def cap_kernel_table(lobes: tuple, mus, radius: float, conductor: Conductor) -> 
     conductor = Conductor(n=conductor.n[..., mid:mid + 1], k=conductor.k[..., mid:mid + 1])
     dt = conductor.n.dtype
     cos = np.linspace(0.0, 1.0, N_COS)
-    V, R, t, y = _frame(cos)
+    V, R, t, y = view_frame(np.maximum(cos, 1e-3), np)  # a grazing row at cos θv = 0.001, not 0
     uh, vh = offset_grid()
     out = np.zeros((2, len(mus), N_COS, N_V, N_U))
     for i, family in enumerate(lobes):

@@ -49,20 +49,21 @@ def prefilter_kernel(sin2_half, mu_e, family: LobeFamily = Gaussian, n_quad: int
     return reflected_lobe(lobe, jnp.asarray(sin2_half, mu_e.dtype)) / norm
 
 
-def view_frame(cos_v):
-    """The frame the lobe kernels are tabulated in, for a view at ``cos_v`` (a scalar) in the x–z plane:
-    ``(V, R, t, y)`` with V = (sin θv, 0, cos θv), R its mirror direction about N = z, t the unit vector
-    in the plane of incidence orthogonal to R, towards N (the direction of positive ``a_par``; x at
-    normal incidence, where N = R), and y = R × t across the plane."""
-    dt = jnp.asarray(cos_v).dtype
-    cv = jnp.asarray(cos_v)
-    sv = jnp.sqrt(jnp.maximum(1.0 - cv ** 2, 0.0))
-    V = jnp.stack([sv, jnp.zeros_like(sv), cv])
-    R = jnp.stack([-sv, jnp.zeros_like(sv), cv])
-    tt = jnp.asarray([0.0, 0.0, 1.0], dt) - cv * R
-    tn = jnp.linalg.norm(tt)
-    t = jnp.where(tn > 1e-9, tt / jnp.maximum(tn, 1e-12), jnp.asarray([1.0, 0.0, 0.0], dt))
-    return V, R, t, jnp.cross(R, t)
+def view_frame(cos_v, xp=jnp):
+    """The frame the lobe kernels and the cap table are tabulated in, for views at ``cos_v`` (any shape) in
+    the x–z plane, N = z: ``(V, R, t, y)``, each ``(*cos_v.shape, 3)``, with V = (sin θv, 0, cos θv), R its
+    mirror direction about N, t the unit vector in the plane of incidence orthogonal to R, towards N (the
+    direction of positive ``a_par``; x at normal incidence, where N = R), and y = R × t across the plane.
+    ``xp``: ``jax.numpy`` (differentiable) or ``numpy``."""
+    cv = xp.asarray(cos_v)
+    sv = xp.sqrt(xp.maximum(1.0 - cv ** 2, 0.0))
+    zero = xp.zeros_like(sv)
+    V = xp.stack([sv, zero, cv], axis=-1)
+    R = xp.stack([-sv, zero, cv], axis=-1)
+    tt = xp.asarray([0.0, 0.0, 1.0], cv.dtype) - cv[..., None] * R
+    tn = xp.linalg.norm(tt, axis=-1, keepdims=True)
+    t = xp.where(tn > 1e-9, tt / xp.maximum(tn, 1e-12), xp.asarray([1.0, 0.0, 0.0], cv.dtype))
+    return V, R, t, xp.cross(R, t)
 
 
 def lobe_kernel(model, conductor: Conductor, cos_v, n: int = 64, width=None):

@@ -57,13 +57,40 @@ class FresnelBasis(eqx.Module):
         return self.coeffs(cos_theta) @ self.basis
 
 
+def basis_signs(Vt, xp=np):
+    """The sign convention of every Fresnel basis: ``±1`` per row of ``Vt (k, wl)`` making its sum
+    positive (+1 where the sum is 0). ``xp``: ``numpy`` or ``jax.numpy``, the array namespace of ``Vt``."""
+    sgn = xp.sign(Vt.sum(axis=1))
+    return xp.where(sgn == 0, 1.0, sgn)
+
+
 def svd_of_table(F) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(U, S, Vt)`` of a ``(m, wl)`` Fresnel table (NumPy, float64), signs fixed so each row of ``Vt`` has a
-    positive sum (and ``U`` flipped with it, so ``U S Vt`` is unchanged)."""
+    positive sum (:func:`basis_signs`; ``U`` flipped with it, so ``U S Vt`` is unchanged)."""
     U, S, Vt = np.linalg.svd(np.asarray(F, np.float64), full_matrices=False)
-    sgn = np.sign(Vt.sum(axis=1))
-    sgn[sgn == 0] = 1.0
+    sgn = basis_signs(Vt)
     return U * sgn, S, Vt * sgn[:, None]
+
+
+def projection_matrix(basis, weights, channels=None, xp=jnp):
+    """``M[j, r, c] = Σ_λ s_j(λ) b_r(λ) w_c(λ)``: the linear map from a texel's channels to its projection on
+    the Fresnel basis ``b (rank, wl)``, XYZ per basis function (``weights (wl, 3)``: colour-matching
+    functions × Δλ). ``channels (J, wl)``: the spectra ``s_j`` the channels stand for; ``None``: the
+    channels are the spectrum itself (``M[λ, r, c] = b_r(λ) w_c(λ)``). ``xp``: ``numpy`` or ``jax.numpy``."""
+    if channels is None:
+        return xp.einsum("rl,lc->lrc", basis, weights)
+    return xp.einsum("jl,rl,lc->jrc", channels, basis, weights)
+
+
+def project_on_basis(values, basis, weights, channels=None, xp=jnp):
+    """``P[..., r, c] = Σ_λ L(λ) b_r(λ) w_c(λ)``: radiance ``values (..., J)`` (spectra, or channels of
+    ``channels``, :func:`projection_matrix`) projected on the Fresnel basis, XYZ per basis function. Shading
+    then needs ``XYZ = Σ_r c_r(cos θ) P_r`` (a bilinear lookup or a lobe's integral commutes with this
+    per-texel linear map). The renderer's fold (:func:`jkatana.render.fresnel_fold.fold_fresnel`), the
+    interactive bake and its caps (:mod:`jkatana.interactive.bake`) and the prefilter
+    (:func:`jkatana.light.prefilter.project_on_basis`) all project with this function."""
+    M = projection_matrix(basis, weights, channels, xp)
+    return xp.einsum("...j,jrc->...rc", values, M, optimize=True)
 
 
 def basis_of_table(cos, F, rank: int) -> FresnelBasis:
@@ -99,4 +126,5 @@ def fresnel_basis(conductor, rank: int = 3, n_cos: int = 2049, cos=None) -> Fres
     return basis_of_table(cos, F, rank)
 
 
-__all__ = ["FresnelBasis", "basis_of_table", "fresnel_basis", "svd_of_table", "theta_uniform_cosines"]
+__all__ = ["FresnelBasis", "basis_of_table", "basis_signs", "fresnel_basis", "project_on_basis", "projection_matrix",
+           "svd_of_table", "theta_uniform_cosines"]

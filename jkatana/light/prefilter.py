@@ -72,6 +72,7 @@ from jaxtyping import Array, ArrayLike, Float
 from jkatana.errors import InputError
 from jkatana.light.envmap import EnvMap, box_downsample  # noqa: F401 (box_downsample re-exported)
 from jkatana.light.fresnel_basis import FresnelBasis, fresnel_basis  # noqa: F401 (the basis' home; re-exported)
+from jkatana.light.fresnel_basis import project_on_basis as fresnel_basis_projection
 from jkatana.models.lobes import Gaussian, Lobe
 from jkatana.spectral.colorimetry import xyz_weights
 
@@ -228,6 +229,24 @@ def prefilter_level(image: Float[np.ndarray, "H W C"], mu: float, *, lobe: LobeF
     return convolve(img, kernel_table(lobe_of_width(lobe, mu)), sub=sub, chunk=chunk)
 
 
+def blend_levels(vals, log_mus, mu):
+    """The prefiltered radiance for width ``mu`` from the levels' lookups ``vals (m, *b, c)`` at widths
+    ``exp(log_mus) (m,)`` (increasing): linear in log μ between the two levels around ``mu``, clamped to
+    the tabulated range (μ ≤ 1e-12 counts as 1e-12, so μ = 0 takes the sharpest level). ``mu`` broadcasts
+    against ``*b``. The renderer's lookup (:func:`jkatana.render.environment.lookup_prefiltered_many`)
+    and :meth:`PrefilteredEnv.lookup` both blend with this function."""
+    m = vals.shape[0]
+    if m == 1:
+        return vals[0]
+    x = jnp.clip(jnp.log(jnp.maximum(mu, 1e-12)), log_mus[0], log_mus[-1])
+    k0 = jnp.clip(jnp.searchsorted(log_mus, x, side="right") - 1, 0, m - 2)
+    t = ((x - log_mus[k0]) / (log_mus[k0 + 1] - log_mus[k0]))[..., None]
+    idx = jnp.broadcast_to(k0[..., None], vals.shape[1:])[None]
+    lo = jnp.take_along_axis(vals, idx, axis=0)[0]
+    hi = jnp.take_along_axis(vals, idx + 1, axis=0)[0]
+    return lo * (1 - t) + hi * t
+
+
 class PrefilteredEnv(eqx.Module):
     """A stack of lobe-prefiltered maps, one per μ (increasing). See the module docstring."""
 
@@ -235,20 +254,9 @@ class PrefilteredEnv(eqx.Module):
     mus: tuple[float, ...] = eqx.field(static=True)
 
     def lookup(self, d: Float[ArrayLike, "*#b 3"], mu) -> Float[Array, "*#b wl"]:
-        """Prefiltered radiance toward ``d`` for roughness ``mu`` (clamped to the stack's range)."""
+        """Prefiltered radiance toward ``d`` for roughness ``mu`` (:func:`blend_levels`)."""
         vals = jnp.stack([lvl.lookup(d) for lvl in self.levels], axis=0)  # (m, *b, wl)
-        if len(self.mus) == 1:
-            return vals[0]
-        logm = jnp.log(jnp.asarray(self.mus, vals.dtype))
-        x = jnp.clip(jnp.log(jnp.asarray(mu, vals.dtype)), logm[0], logm[-1])
-        idx = jnp.clip(jnp.searchsorted(logm, x, side="right") - 1, 0, len(self.mus) - 2)
-        t = (x - logm[idx]) / (logm[idx + 1] - logm[idx])
-        t = t[..., None]
-        lo = jnp.take_along_axis(vals, idx[None, ..., None] * jnp.ones_like(vals[:1], jnp.int32), axis=0)[0] \
-            if jnp.ndim(idx) else vals[idx]
-        hi = jnp.take_along_axis(vals, (idx + 1)[None, ..., None] * jnp.ones_like(vals[:1], jnp.int32), axis=0)[0] \
-            if jnp.ndim(idx) else vals[idx + 1]
-        return lo * (1 - t) + hi * t
+        return blend_levels(vals, jnp.log(jnp.asarray(self.mus, vals.dtype)), jnp.asarray(mu, vals.dtype))
 
 
 def prefilter(env: EnvMap, mus: Sequence[float] = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3), *,
@@ -329,4 +337,4 @@ def project_on_basis(env_or_level: EnvMap, basis: FresnelBasis) -> Float[Array, 
     """
     W = jnp.asarray(xyz_weights(env_or_level.grid), env_or_level.radiance.dtype)  # (wl, 3)
     B = jnp.asarray(basis.basis, env_or_level.radiance.dtype)  # (rank, wl)
-    return jnp.einsum("hwl,rl,lc->hwrc", env_or_level.radiance, B, W)
+    return fresnel_basis_projection(env_or_level.radiance, B, W)

@@ -362,16 +362,30 @@ def to_world(frame, d):
 # ---------------------------------------------------------------- MIS
 
 
-def mis_weight(p_this, p_other, n_this=1, n_other=1, heuristic: str = "balance"):
-    """Veach's balance (``n p / Σ n p``) or power (β = 2) heuristic weight, 0 where both pdfs are 0."""
+def mis_weight(p_this, p_other, n_this=1, n_other=1, heuristic: str = "balance", *, valid=None,
+               per_density: bool = False):
+    """Veach's MIS weight of a sample drawn by one of two strategies (Veach & Guibas 1995, "Optimally
+    Combining Sampling Techniques for Monte Carlo Rendering", eqs. 3 and 5): the balance heuristic
+    ``w = n_this p_this / Σ n p`` or the power heuristic (β = 2) ``w = (n p)² / Σ (n p)²``.
+
+    With ``per_density`` the weight divided by its own strategy's ``n_this p_this``: what the sample's
+    ``f`` is multiplied by in the combined estimator ``Σ w f / (n p)`` (the balance heuristic's
+    ``1 / Σ n p``, which needs no division by a density that may be 0). ``valid`` (default: the
+    denominator > 0) says where the sample counts; elsewhere the result is 0. The renderer's strategies
+    (:func:`jkatana.render.shading.shade`) all weigh their samples with this function.
+    """
     a = n_this * p_this
     b = n_other * p_other
+    num = 1.0 if per_density else a
     if heuristic == "power":
+        num = a if per_density else a * a
         a, b = a * a, b * b
     elif heuristic != "balance":
         raise ValueError(f"heuristic must be 'balance' or 'power', got {heuristic!r}")
     den = a + b
-    return jnp.where(den > 0, a / jnp.where(den > 0, den, 1.0), 0.0)
+    if valid is None:
+        valid = den > 0
+    return jnp.where(valid, num / jnp.where(valid, den, 1.0), 0.0)
 
 
 def reflected_radiance(key, env: EnvMap, sampler: EnvSampler, brdf_cos: Callable, V_local, frame,

@@ -24,6 +24,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jkatana.light.envmap import EnvMap, direction_to_uv
+from jkatana.light.prefilter import blend_levels
 from jkatana.light.envmap import bilinear_uv as bilinear_equirect_uv  # the one bilinear lookup, under the render name
 from jkatana.light.sampling import EnvSampler
 from jkatana.light.sun import SunSplit, cap_solid_angle, split_compact_sources
@@ -266,7 +267,7 @@ def env_lookup(env: Environment, d_world):
 
 def _rotate(d, M):
     """``d @ M`` for ``(*b, 3)`` directions and a 3×3 matrix, as a sum of broadcast products (XLA's CPU
-    backend runs the ``(n, 3) × (3, 3)`` dot product ≈ 10× slower than this elementwise form)."""
+    backend runs the ``(n, 3) × (3, 3)`` dot product much slower than this elementwise form)."""
     return d[..., 0:1] * M[0] + d[..., 1:2] * M[1] + d[..., 2:3] * M[2]
 
 
@@ -287,8 +288,8 @@ def env_uv(env: Environment, d_world):
 
 def lookup_prefiltered(env: Environment, mu, R_world):
     """Prefiltered channels toward ``R_world`` for per-pixel ``mu``: bilinear in each level, linear
-    in log μ between levels, clamped to the tabulated range (as
-    :meth:`jkatana.light.prefilter.PrefilteredEnv.lookup`, in the environment's channel space)."""
+    in log μ between levels, clamped to the tabulated range (:func:`jkatana.light.prefilter.blend_levels`,
+    in the environment's channel space)."""
     return lookup_prefiltered_many(env, (mu,), R_world)[0]
 
 
@@ -314,19 +315,8 @@ def lookup_prefiltered_many(env: Environment, mus, R_world, level_sets=None) -> 
         allv = jnp.moveaxis(bilinear_equirect_uv(stacked, u, v).reshape(-1, len(flat), C), 1, 0)  # (S·M, P, C)
     else:
         allv = jnp.stack([bilinear_equirect(lvl, d) for lvl in flat])
-    P = R_world.shape[0]
-    out = []
-    for mu, j in zip(mus, where):
-        vals = allv[j * M:(j + 1) * M]  # (M, P, C)
-        if M == 1:
-            out.append(vals[0])
-            continue
-        logm = jnp.log(env.prefilter_mus)
-        x = jnp.clip(jnp.log(jnp.maximum(mu, 1e-12)), logm[0], logm[-1])
-        k0 = jnp.clip(jnp.searchsorted(logm, x, side="right") - 1, 0, M - 2)
-        t = ((x - logm[k0]) / (logm[k0 + 1] - logm[k0]))[:, None]
-        out.append(vals[k0, jnp.arange(P)] * (1 - t) + vals[k0 + 1, jnp.arange(P)] * t)
-    return out
+    log_mus = jnp.log(env.prefilter_mus)
+    return [blend_levels(allv[j * M:(j + 1) * M], log_mus, mu) for mu, j in zip(mus, where)]  # (M, P, C) each
 
 
 def unbasis(env: Environment):

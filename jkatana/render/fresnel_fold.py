@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jkatana.light.fresnel_basis import svd_of_table
+from jkatana.light.fresnel_basis import basis_signs, project_on_basis, svd_of_table
 from jkatana.models.fresnel import fresnel_conductor
 from jkatana.render.plan import Plan
 
@@ -93,7 +93,8 @@ def fold_fresnel(rank: int, mat: Material, env: Environment, cmf, basis=None) ->
     """Fold a rank-``R`` Fresnel factorisation and the CMFs into the environment (exact up to that rank).
 
     With ``F(c, λ) ≈ Σ_r a_r(c) b_r(λ)`` (``b`` the leading right singular
-    vectors of the table, held fixed — no gradient through the SVD; ``a = F bᵀ``
+    vectors of the table with :func:`jkatana.light.fresnel_basis.basis_signs`' sign convention, held fixed —
+    no gradient through the SVD; ``a = F bᵀ``
     is differentiable in the table) the XYZ radiance of one sample is
     ``Σ_r a_r(cos θ) G_r(L)`` with ``G_r = Σ_λ b_r(λ) E(L, λ) x̄ȳz̄(λ)``: a
     ``3R``-channel map. Bilinear lookups commute with this per-texel linear map,
@@ -107,13 +108,12 @@ def fold_fresnel(rank: int, mat: Material, env: Environment, cmf, basis=None) ->
     F = mat.ftable
     if basis is None:
         _, _, vt = jnp.linalg.svd(jax.lax.stop_gradient(F), full_matrices=False)
-        basis = vt[:rank]
+        basis = vt[:rank] * basis_signs(vt[:rank], jnp)[:, None]
     b = jnp.asarray(basis, F.dtype)  # (R, wl)
     a = F @ b.T  # (T, R)
-    M = jnp.einsum("jl,rl,lc->jrc", env.basis, b, cmf.astype(F.dtype))  # (J, R, 3)
 
     def fold(img):
-        return jnp.einsum("hwj,jrc->hwrc", img, M).reshape(img.shape[:2] + (3 * rank,))
+        return project_on_basis(img, b, cmf.astype(F.dtype), env.basis).reshape(img.shape[:2] + (3 * rank,))
 
     env2 = eqx.tree_at(lambda e: (e.channels, e.prefiltered), env,
                        (fold(env.channels), tuple(fold(lvl) for lvl in env.prefiltered)))

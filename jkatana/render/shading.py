@@ -98,6 +98,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from jkatana.light.envmap import Taps, bilinear_taps, gather_taps
+from jkatana.light.sampling import mis_weight
 from jkatana.models.geometry import tangent_frame, to_local, to_world
 from jkatana.models.lobes import reflect
 from jkatana.models.microfacet import gaussian_facet
@@ -514,7 +515,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
             Ll, Lw, pb, uv, taps = rays
             pe = (env.sampler.pdf_uv(*uv) if win is None else env.sampler.pdf_window(win, *uv)) if S_env else 0.0
             ok = (Ll[:, 2] > 0) & (pb > 0)
-            wgt = jnp.where(ok, 1.0 / jnp.where(ok, n_lobe * pb + n_env * pe, 1.0), 0.0)
+            wgt = mis_weight(pb, pe, n_lobe, n_env, valid=ok, per_density=True)
             if v1 is not None:
                 wgt = wgt * v1
             if caps is None:
@@ -524,7 +525,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
             E = wgt[:, None] * gather_taps(env.channels, taps)
             ins = caps.inside(Lw, env.rotation)
             for kc in range(caps.count):
-                wc = jnp.where(ok & ins[:, kc], 1.0 / jnp.where(ok, n_lobe * (pb + p_cap[kc]), 1.0), 0.0)
+                wc = mis_weight(pb, p_cap[kc], n_lobe, n_lobe, valid=ok & ins[:, kc], per_density=True)
                 if v1 is not None:
                     wc = wc * v1
                 E = E + wc[:, None] * Ecap[kc]
@@ -536,7 +537,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
                 Llc = to_local(Lwc, *fr)
                 pbc = sampler.pdf(Llc, Vl)
                 okc = Llc[:, 2] > 0
-                wc = jnp.where(okc, 1.0 / (n_lobe * (pbc + p_cap[kc])), 0.0)
+                wc = mis_weight(p_cap[kc], pbc, n_lobe, n_lobe, valid=okc, per_density=True)
                 if cap_vis[kc] is not None:
                     wc = wc * cap_vis[kc]
                 acc_ = acc_ + radiance_terms(Llc, Lwc, 1.0, E=wc[:, None] * Ecap[kc])
@@ -550,7 +551,7 @@ def shade(plan: Plan, mat: Material, env: Environment, lights: Light | None, px:
             Ll2, Lw2, pe2, taps2 = rays
             pb2 = sampler.pdf(Ll2, Vl)
             ok2 = (Ll2[:, 2] > 0) & (pe2 > 0)
-            wgt2 = jnp.where(ok2, 1.0 / jnp.where(ok2, n_lobe * pb2 + n_env * pe2, 1.0), 0.0)
+            wgt2 = mis_weight(pe2, pb2, n_env, n_lobe, valid=ok2, per_density=True)
             if v2 is not None:
                 wgt2 = wgt2 * v2
             return acc_ + radiance_terms(Ll2, Lw2, wgt2, taps2)

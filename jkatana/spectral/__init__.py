@@ -18,5 +18,10 @@ from jkatana.spectral.colorimetry import (
     xyz_to_rgb_matrix as xyz_to_rgb_matrix,
     xyz_weights as xyz_weights,
 )
+from jkatana.spectral.difference import (
+    delta_e_display as delta_e_display,
+    delta_e_stats as delta_e_stats,
+    reference_exposure as reference_exposure,
+)
 from jkatana.spectral.grid import DEFAULT_GRID as DEFAULT_GRID, WavelengthGrid as WavelengthGrid, resample as resample
 from jkatana.spectral.optical_constants import OpticalTable as OpticalTable, iron as iron, load as load_optical_constants

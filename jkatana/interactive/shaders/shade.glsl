@@ -28,7 +28,7 @@
 // compact bright sources split off the map as spherical caps, caps.sun_caps: each cap's radiance Q, weighted
 // by the lobe table A, times the lobe's normalised kernel over the cap's disc, in closed form — one
 // anisotropic Gaussian with the lobe's moments, jk_caps_xyz; its NumPy twin
-// jkatana.interactive.caprule.cap_response is tested against jkatana.light.capquad.cap_integral of the models),
+// validation.shader_cap_rule.cap_response is tested against jkatana.light.capquad.cap_integral of the models),
 // JK_CAP_TABLE (where a region holds a lobe other than the paper's: the caps through the bake's table of the
 // cap integrated against each region's lobe, jkatana.interactive.captable, instead of the moments' Gaussian),
 // JK_TAIL (with JK_TAP_FIT, where a region holds a long-tailed lobe: a fourth read, the tail tap, at a wider
@@ -82,7 +82,7 @@ vec3 jk_cap_xyz(vec4 a, int k)
     return q;
 }
 
-// The cap rule (NumPy twin: jkatana.interactive.caprule.cap_response, tested against
+// The cap rule (NumPy twin: validation.shader_cap_rule.cap_response, tested against
 // jkatana.light.capquad.cap_integral of the models). The reflected lobe is one anisotropic Gaussian on the sphere
 // with the lobe's own first and second moments (lobe_tables.lobe_lut): centred on its mean direction, variance
 // var_par along the plane of incidence and var_perp across it, in the prefilter kernel's form
