@@ -121,7 +121,12 @@ def run_module(name: str, *, quick: bool, budget: float, cwd: Path = HERE.parent
 
 def bench_run(args: argparse.Namespace) -> int:
     from benchmarks._harness import machine_facts
+    from jkatana.io.limits import number
 
+    # budgets checked before any work, as every command's numbers: a budget of 0 s or less starts modules
+    # that can only time out
+    number(args.budget_total, "--budget-total", lo=0, lo_open=True)
+    number(args.timeout, "--timeout", lo=0, lo_open=True)
     mode = "quick" if args.quick else "full"
     names = args.only or discover()
     unknown = [n for n in names if not (_module_path(n)).exists()]

@@ -171,7 +171,7 @@ def test_cli_numbers_checked_in_one_line(argv, field, tmp_path, monkeypatch, cap
 MEMORY_CASES = [
     (["simulate", "-o", "s", "--size", "100000", "100000"], "--size"),
     (["light", "build", "-o", "s.exr", "--resolution", "100000", "100000"], "--resolution"),
-    (["light", "build", "-o", "s.exr", "--grid", "400", "700", "0.001"], "--grid"),
+    (["light", "--max-memory", "1G", "build", "-o", "s.exr", "--grid", "360", "720", "1"], "--resolution"),
     (["shape", "--simulate", "-o", "b.ply", "--scan-resolution", "60000", "60000"], "--scan-resolution"),
     (["map", "--default", "-o", "m.exr", "--resolution", "60000", "60000"], "--resolution"),
     (["demo", "-o", "d", "--resolution", "8000", "8000", "--max-memory", "2G"], "camera.resolution"),

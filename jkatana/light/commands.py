@@ -82,11 +82,21 @@ def _grid(args):
 
 
 def _check_grid(args) -> tuple[float, float, float]:
+    """``--grid`` within the CIE observer's 360–830 nm, its step at least 1 nm (:mod:`jkatana.spectral.grid`)."""
     from jkatana.io.limits import numbers
+    from jkatana.spectral.grid import WAVELENGTH_RANGE, WavelengthGrid
 
     start, stop, step = numbers(args.grid, "--grid", lo=0, lo_open=True, hi=1e5)
     if not stop > start:
         raise InputError(f"STOP must be above START, got {start:g} {stop:g}", field="--grid")
+    lo, hi = WAVELENGTH_RANGE
+    if start < lo or stop > hi:
+        raise InputError(f"must lie within {lo:g}–{hi:g} nm (the CIE 1931 observer's domain, outside which no "
+                         f"spectrum has a colour), got {start:g}–{stop:g}", field="--grid")
+    try:
+        WavelengthGrid(start, stop, step)
+    except InputError as err:
+        raise InputError(str(err).split(": ", 1)[-1], field="--grid") from None
     return start, stop, step
 
 
@@ -95,10 +105,12 @@ def _bands(args) -> int:
     return int((stop - start) / step) + 1
 
 
-def _need(args, nbytes: float, field: str, what: str) -> None:
-    from jkatana.io.limits import require_memory
+def _need(args, nbytes: float, field: str, what: str, values: float = 0) -> None:
+    """Refuse a request of ``nbytes`` of memory (and ``values`` spectral values of work) beyond the budget."""
+    from jkatana.io.limits import require_memory, require_work
 
     require_memory(nbytes, field, what, getattr(args, "max_memory", None))
+    require_work(values, field, what)
 
 
 def preview_exposure(env) -> float:
@@ -176,8 +188,7 @@ def _build(args) -> int:
     h, w = numbers(args.resolution, "--resolution", lo=2, hi=2 ** 20, integer=True)
     nb = _bands(args)
     # radiance (float32) and its float64 copies for the XYZ preview and the EXR channels
-    _need(args, h * w * (nb * (4 + 8 + 4) + 64), "--grid" if nb > 1000 else "--resolution",
-          f"a {h}×{w} sky with {nb} bands")
+    _need(args, h * w * (nb * (4 + 8 + 4) + 64), "--resolution", f"a {h}×{w} sky with {nb} bands", h * w * nb)
     out = Path(args.output)
     png = out.with_suffix(".png")
     check_outputs([Output(out, "--output", (".exr",)), Output(png, "--output (its .png preview)", (".png",))])
@@ -217,7 +228,7 @@ def _convert(args) -> int:
     _need(args, 1e6 * grid.size * 4 * 3, "--grid", f"{grid.size} bands")  # per megapixel, before reading
     rgb = read_rgb_image(args.input)
     _need(args, rgb.shape[0] * rgb.shape[1] * grid.size * 4 * 3, "--grid",
-          f"a {rgb.shape[0]}×{rgb.shape[1]} map with {grid.size} bands")
+          f"a {rgb.shape[0]}×{rgb.shape[1]} map with {grid.size} bands", rgb.shape[0] * rgb.shape[1] * grid.size)
     rgb = rgb * args.scale
     L = rgb_to_spectrum(rgb, args.upsampling, grid)
     _finite(L, "the upsampled spectra", "--scale")

@@ -373,7 +373,7 @@ def load_envmap(path: str | Path, grid: WavelengthGrid = DEFAULT_GRID, upsamplin
         raise InputError("environment map not found", path=path)
     suffix = path.suffix.lower()
     if suffix == ".exr" and spectral_exr.is_spectral_exr(path):
-        L = spectral_exr.read_spectral_exr(path, grid)
+        L = check_radiance(spectral_exr.read_spectral_exr(path, grid), path)
     else:
         rgb = read_rgb_image(path)
         L = up.rgb_to_spectrum(rgb, upsampling, grid, colourspace=colourspace)
@@ -414,4 +414,30 @@ def read_rgb_image(path: str | Path) -> np.ndarray:
         raise InputError(f"unsupported environment map type {suffix!r} (use .exr or .hdr)", path=path)
     if rgb.ndim != 3 or rgb.shape[0] < 2 or rgb.shape[1] < 2:
         raise InputError(f"image too small: {rgb.shape}", path=path)
-    return rgb
+    return check_radiance(rgb, path)
+
+
+def check_radiance(values: np.ndarray, path) -> np.ndarray:
+    """An environment's pixels ``(H, W, channels)`` as radiance: non-finite pixels refused, negative values clamped.
+
+    A NaN or infinite pixel has no radiance to stand for (setting it to 0 would quietly remove light,
+    perhaps the sun), so the file is refused, naming how many pixels and the first. A negative value is
+    what an RGB image holds for a colour outside its primaries' gamut, and a radiance is never negative:
+    it is clamped to 0, and one warning line says how many pixels were.
+    """
+    import warnings
+
+    from jkatana.errors import SceneWarning
+
+    values = np.asarray(values)
+    bad = ~np.isfinite(values).all(axis=-1)
+    if bad.any():
+        row, col = (int(i) for i in np.argwhere(bad)[0])
+        raise InputError(f"{int(bad.sum())} of {bad.size} pixels are NaN or infinite (the first at row {row}, "
+                         f"column {col}); an environment's pixels are radiances", path=path)
+    negative = (values < 0).any(axis=-1)
+    if negative.any():
+        warnings.warn(f"{path}: {int(negative.sum())} of {negative.size} pixels have negative values (outside the "
+                      "gamut); clamped to 0", SceneWarning, stacklevel=2)
+        values = np.maximum(values, 0).astype(values.dtype, copy=False)
+    return values

@@ -20,7 +20,8 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from jkatana.spectral.grid import WavelengthGrid
+from jkatana.io.limits import ENV_VALUES
+from jkatana.spectral.grid import MAX_BANDS, WAVELENGTH_RANGE, WavelengthGrid
 
 ENV_TYPES = ("sky", "exr", "hdr", "constant")
 RENDER_MODES = ("reference", "paper", "prefiltered", "lowrank", "paper-published")
@@ -32,13 +33,12 @@ RENDER_MODES = ("reference", "paper", "prefiltered", "lowrank", "paper-published
 LIMITS = {
     "camera_side": 8192,        # pixels per side
     "env_side": 4096,           # texels per side of a sky or constant environment
-    "env_values": 1 << 28,      # texels × wavelengths of the environment (2 GiB as float64)
-    "wavelengths": 471,         # 360–830 nm at 1 nm
+    "env_values": ENV_VALUES,   # texels × wavelengths of the environment (2 GiB as float64; jkatana.io.limits)
+    "wavelengths": MAX_BANDS,   # 360–830 nm at 1 nm (jkatana.spectral.grid)
     "samples": 1 << 16,         # samples per pixel
     "chunk": 1 << 20,           # pixels shaded per device call
     "seed": (1 << 31) - 1,
 }
-WAVELENGTH_RANGE = (360.0, 830.0)  # nm, the CIE 1931 2° colour matching functions' domain
 
 
 def _plain(v):

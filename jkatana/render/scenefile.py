@@ -261,8 +261,12 @@ def _material(raw, path) -> Material:
     oc = m.string("optical_constants", "Fe-Johnson")
     uniform, mapfile = None, None
     if any(k in m.t for k in ("w", "mu0", "mu1")) and "map" not in m.t:
-        uniform = Uniform(w=m.number("w", 1.0, lo=0.0, hi=1.0), mu0=m.number("mu0", 0.05, lo=0.0, hi=1.5),
-                          mu1=m.number("mu1", 0.05, lo=1e-4, hi=1.5))
+        from jkatana.models.bounds import width
+
+        # widths > 0 (jkatana.models.bounds); mu1 from 1e-4, at most 1.5 rad here
+        uniform = Uniform(w=m.number("w", 1.0, lo=0.0, hi=1.0),
+                          mu0=width(m.number("mu0", 0.05, hi=1.5), "material.mu0", path),
+                          mu1=width(m.number("mu1", 0.05, lo=1e-4, hi=1.5), "material.mu1", path))
     else:
         mapfile = m.file("map", "builtin", builtin=("builtin",))
     regions = {region: m.file(region) if region in m.t else None for region in ("hiraji", "hamon")}

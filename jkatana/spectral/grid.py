@@ -16,6 +16,19 @@ from jaxtyping import Float
 from jkatana.errors import InputError
 
 
+#: The finest wavelength step any grid may have (nm). 1 nm is the spacing of the finest spectral table
+#: jkatana reads: the CIE 1931 2° colour matching functions (CIE 015:2018, 360–830 nm every 1 nm), through
+#: which every spectrum reaches XYZ. The other tables are coarser: CIE illuminants D65 and A and the camera
+#: sensitivities (colour-science, 5 nm), the Hosek–Wilkie sky (11 bands, 40 nm apart), the optical constants
+#: (Johnson & Christy: 49 photon energies, tens of nm apart in the visible). A finer grid only interpolates
+#: linearly between tabulated samples: it costs time and memory in proportion and resolves nothing more.
+MIN_STEP_NM = 1.0
+#: Wavelengths a grid may span (nm): the CIE 1931 2° observer's domain, outside which no spectrum has a colour.
+WAVELENGTH_RANGE = (360.0, 830.0)
+#: Most samples a grid can have: 1 nm over :data:`WAVELENGTH_RANGE`.
+MAX_BANDS = int(round((WAVELENGTH_RANGE[1] - WAVELENGTH_RANGE[0]) / MIN_STEP_NM)) + 1
+
+
 @dataclasses.dataclass(frozen=True)
 class WavelengthGrid:
     """A regular wavelength grid in nanometres, ``start`` and ``stop`` inclusive.
@@ -23,7 +36,8 @@ class WavelengthGrid:
     **Arguments:**
 
     - `start`, `stop`: first and last wavelength (nm).
-    - `step`: spacing (nm); ``(stop - start)`` must be a whole number of steps.
+    - `step`: spacing (nm), at least :data:`MIN_STEP_NM` (one sample: any step); ``(stop - start)`` must be a
+      whole number of steps.
     """
 
     start: float = 400.0
@@ -34,6 +48,10 @@ class WavelengthGrid:
         if not (self.step > 0 and self.stop >= self.start):
             raise InputError(f"invalid wavelength grid {self.start}..{self.stop} step {self.step}",
                              field="grid")
+        if self.stop > self.start and self.step < MIN_STEP_NM - 1e-12:
+            raise InputError(f"step {self.step:g} nm is below {MIN_STEP_NM:g} nm, the finest step of any spectral "
+                             "data jkatana reads (the CIE colour matching functions'): a finer grid resolves "
+                             "nothing more", field="grid")
         n = (self.stop - self.start) / self.step
         if abs(n - round(n)) > 1e-9:
             raise InputError(f"({self.stop} - {self.start}) is not a multiple of step {self.step}",
