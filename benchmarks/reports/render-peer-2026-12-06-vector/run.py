@@ -1,4 +1,4 @@
-"""Re-run this report's study: ``python benchmarks/reports/render-peer-2026-12-02/run.py [OUT_DIR]``.
+"""Re-run this report's study: ``python benchmarks/reports/render-peer-2026-12-06-vector/run.py [OUT_DIR]``.
 
 Runs :func:`benchmarks.bench_render._mitsuba` at 256² (full mode's configurations and sample counts)
 and writes ``results.json`` (with the machine's facts) and the rendered report (``report.md``, plots)
