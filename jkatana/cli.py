@@ -44,7 +44,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "brdf": ("jkatana.brdf.commands", "brdf"),
     "shape": ("jkatana.shape.commands", "shape"),
     "map": ("jkatana.maps.commands", "map"),
-    "light": ("jkatana.light.commands", "light"),
+    "light": ("jkatana.render.commands", "light"),  # light.commands, and prefilter, which prepares a render
     "view": ("jkatana.interactive.commands", "view"),
     "bench": ("benchmarks.__main__", "bench"),
 }

@@ -272,7 +272,7 @@ def _cli(module, prefix, argv):
 
 def test_brdf_slice_command_writes_tables_fit_reads(merl_file, tmp_path, capsys):
     from jkatana.brdf import commands as bc
-    from jkatana.fit.commands import load_fit_data
+    from jkatana.fit.region import load_fit_data
     from jkatana.measure.table import read_table
 
     path, _ = merl_file

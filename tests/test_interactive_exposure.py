@@ -94,7 +94,7 @@ def test_render_and_view_agree_in_mean_luminance(tmp_path):
     assert abs(win[mask].mean() / ref[mask].mean() - 1.0) <= 0.02
     # …which is not the first guess it opens with (the calibration is what makes them agree)
     from jkatana.interactive import scene as S
-    from jkatana.interactive.commands import auto_exposure
+    from jkatana.interactive.exposure import auto_exposure
 
     sc = S.from_render_scene(scene)
     calibrated = float(res.stderr.split("[view] exposure ")[1].split()[0])

@@ -1,6 +1,6 @@
 """Analytic BRDFs of the fitted models, for writing measured-BRDF files whose truth is known.
 
-:func:`analytic_brdf` turns a model of :data:`jkatana.fit._model.FIT_MODELS`
+:func:`analytic_brdf` turns a model of :data:`jkatana.models.fitted.FIT_MODELS`
 with natural parameter values into ``f(wi, wo) → (..., C)`` — the BRDF in the
 fit's camera units per unit irradiance, one column per camera channel — by
 the same lobe objects (:mod:`jkatana.models.lobes`) and band-integrated
@@ -19,7 +19,7 @@ import numpy as np
 
 
 def _spec_and_lobe(model: str, values: dict):
-    from jkatana.fit._model import ModelSpec, from_natural
+    from jkatana.models.fitted import ModelSpec, from_natural
 
     spec = ModelSpec(model)
     p = from_natural(values, spec)
@@ -29,13 +29,13 @@ def _spec_and_lobe(model: str, values: dict):
 def analytic_brdf(model: str, values: dict, *, setup=None, channels=("red", "green", "blue")):
     """``f(wi, wo) → (..., len(channels))`` for ``model`` at ``values`` (module docstring).
 
-    `setup`: a :class:`jkatana.fit.region.Setup` (optical constants, grid,
+    `setup`: a :class:`jkatana.measure.setup.Setup` (optical constants, grid,
     light); its camera names the colour-science camera whose ``channels`` are
     used (``"NAME:channel"``).
     """
-    from jkatana.fit._model import _fbar_numpy
-    from jkatana.fit.region import Setup
     from jkatana.measure.camera import band_weights, camera_sensitivity, light_spectrum
+    from jkatana.measure.setup import Setup
+    from jkatana.models.fresnel import fbar_numpy
 
     setup = Setup() if setup is None else setup
     spec, p = _spec_and_lobe(model, values)
@@ -47,7 +47,7 @@ def analytic_brdf(model: str, values: dict, *, setup=None, channels=("red", "gre
         E = light_spectrum(setup.light, setup.grid)
         for ch in channels:
             w = band_weights(E, camera_sensitivity(f"{cam}:{ch}", setup.grid), setup.grid)
-            tables.append(_fbar_numpy(grid_cos, n, k, w))
+            tables.append(fbar_numpy(grid_cos, n, k, w))
     tables = np.stack(tables)  # (C, 4097)
     scale = float(np.exp(p[0]))
 

@@ -6,7 +6,7 @@ any object with ``eval(wi, wo, channel)``) is evaluated at a protocol's
 default) and at receiver azimuths out of the plane of incidence. The
 quantity a goniometer sees is the reflected radiance for a fixed irradiance,
 i.e. ``value = f_r · cos θi`` (in units of the BRDF, 1/sr); σ follows a
-:class:`~jkatana.fit._solve.NoiseModel` of that value, optionally drawn as
+:class:`~jkatana.measure.noise.NoiseModel` of that value, optionally drawn as
 noise. In-plane slices become a measurement table
 (:mod:`jkatana.measure.table`) that ``jkatana fit`` reads like a capture
 campaign; out-of-plane slices keep their azimuth in a BRDF table
@@ -54,14 +54,14 @@ def slice_brdf(brdf, protocol=None, *, channel: str = "green", azimuths_deg=(0.0
       (θi, θr) pairs in degrees (default: the paper's protocol).
     - `channel`: the channel to slice.
     - `azimuths_deg`: receiver azimuths from the plane of incidence (0 = in plane).
-    - `noise`: a :class:`~jkatana.fit._solve.NoiseModel` of ``f_r cos θi``,
+    - `noise`: a :class:`~jkatana.measure.noise.NoiseModel` of ``f_r cos θi``,
       or ``(relative, floor_fraction)``: σ = relative·value ⊕ floor_fraction·peak
       (the peak of the slice). None: σ unknown (NaN), no noise.
     - `seed`: draw Gaussian noise of that σ with this seed (None: σ only).
 
     **Returns:** a :class:`~jkatana.brdf.table.BRDFTable` (``value`` = f_r).
     """
-    from jkatana.fit._solve import NoiseModel
+    from jkatana.measure.noise import NoiseModel
     from jkatana.measure.protocol import as_pairs
 
     pairs = np.asarray(as_pairs(protocol), np.float64)

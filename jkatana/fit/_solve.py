@@ -3,9 +3,8 @@
 Residuals are r_j = (m_j − y_j) / σ_j in linear units, σ_j from a camera
 noise model (:class:`NoiseModel`: relative + absolute floor), so points in the
 tail (where y underflows or is 0) carry the information they really have —
-almost none — instead of the absurd weight they get in log space (the issue's
-measured trap: tail points at 1e-55 of the peak made μ's interval 1e-5
-relative).
+almost none — instead of the absurd weight they get in log space, where the
+far tail of a narrow lobe would pin μ.
 
 **Start.** With F̄ divided out, log y = log s − ln2 (φ + t)²/μ² is *linear* in
 (log s, 1/μ²) without a tilt and a quadratic in φ with one: a
@@ -29,8 +28,8 @@ that the rounding of the cost rejects. The optimum itself is certified by the
 decrement below, not by the step size.
 
 **Convergence is checked, not assumed.** A solver's ``result`` is not enough
-(measured trap: optimistix LM in float32 from a far start returns the start
-with success). At the returned point we compute the Gauss–Newton decrement
+(optimistix LM in float32 from a far start can return the start with
+success). At the returned point we compute the Gauss–Newton decrement
 gᵀ(JᵀJ)⁻¹g (g = Jᵀr), i.e. how much cost one more Gauss–Newton step would
 still remove. The fit is *converged* only if the solver reported success, the
 values are finite, the decrement is below ``tol · max(1, cost)`` and the cost
@@ -55,70 +54,11 @@ import numpy as np
 import optimistix as optx
 
 from jkatana.fit._model import ModelSpec, Terms, default_shape, evaluation_point, green, to_natural
+from jkatana.measure.noise import NoiseModel
 from jkatana.models.microfacet import LN2
 
 SOLVERS = ("lm", "dogleg", "gn", "jaxopt")
 Z95 = 1.959963984540054
-
-
-@dataclasses.dataclass(frozen=True)
-class NoiseModel:
-    """σ(ρ)² = (relative·ρ)² + shot·|ρ| + absolute² (camera units).
-
-    One noise model for simulation and fitting: a multiplicative term (source
-    flicker), a Poisson-like term (variance ∝ signal) and an absolute floor
-    (read noise, quantisation, stray light). Without the floor the far tail of
-    a mirror lobe (values at 1e-55 of the peak) would count as exact
-    information. All terms default to 0 (no noise); every term must be finite
-    and ≥ 0.
-
-    **Arguments:**
-
-    - `relative`: multiplicative standard deviation (e.g. 0.02 = 2 %).
-    - `absolute`: absolute standard deviation (camera units).
-    - `shot`: variance per unit signal (camera units).
-    """
-
-    relative: float = 0.0
-    absolute: float = 0.0
-    shot: float = 0.0
-
-    def __post_init__(self):
-        from jkatana.errors import InputError
-
-        for name in ("relative", "absolute", "shot"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
-                raise InputError(f"noise parameter must be finite and >= 0, got {v!r}", field=name)
-
-    def sigma(self, rho):
-        """σ at ``rho``: a jax array for a jax input, numpy float64 otherwise."""
-        xp = jnp if isinstance(rho, jax.Array) else np
-        return _sigma(xp, rho if xp is jnp else np.asarray(rho, np.float64), self.relative, self.shot,
-                      self.absolute)
-
-    def weights(self, rho, use, dtype):
-        """1/σ(ρ) at the points ``use`` marks, 0 elsewhere: one compiled program per shape and dtype (the noise
-        terms are its arguments, so a fit of another table with another noise model compiles nothing)."""
-        return _inverse_sigma(jnp.asarray(rho, dtype), use, *(np.asarray(v, dtype) for v in
-                                                             (self.relative, self.shot, self.absolute)))
-
-    @property
-    def is_zero(self) -> bool:
-        return self.relative == 0 and self.shot == 0 and self.absolute == 0
-
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-
-def _sigma(xp, rho, relative, shot, absolute):
-    rho = xp.abs(rho)
-    return xp.sqrt((relative * rho) ** 2 + shot * rho + absolute**2)
-
-
-@jax.jit
-def _inverse_sigma(rho, use, relative, shot, absolute):
-    return jnp.where(use, 1.0 / _sigma(jnp, rho, relative, shot, absolute), 0.0).astype(rho.dtype)
 
 
 def estimate_noise(value, sigma=None, *, floor_fraction: float = 1e-4) -> NoiseModel:

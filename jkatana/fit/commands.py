@@ -88,17 +88,6 @@ def _x64():
             pass
 
 
-def load_fit_data(path, region=None, channel=None):
-    """FitData from a measurement table or a BRDF table (told apart by the header)."""
-    from jkatana.brdf.table import is_brdf_table, read_brdf_table
-    from jkatana.fit.region import FitData
-    from jkatana.measure.table import read_table
-
-    if str(path).lower().endswith(".csv") and is_brdf_table(path):
-        return FitData.from_brdf_table(read_brdf_table(path), channel, region=region or "hiraji", source=path)
-    return FitData.from_table(read_table(path), region, source=path)
-
-
 def instrument_from_args(args, table=None):
     """The instrument of a fit: the table's (``TABLE.instrument.json``, written by ``jkatana measure`` from the
     manifest and by ``jkatana brdf slice`` from its protocol), each value overridden by its CLI flag; an
@@ -176,7 +165,7 @@ def fit_run(args: argparse.Namespace) -> int:
     from jkatana.errors import InputError
     from jkatana.fit.params import write_params
     from jkatana.fit.posterior import sample
-    from jkatana.fit.region import Setup, fit_region
+    from jkatana.fit.region import Setup, fit_region, load_fit_data
 
     from jkatana.io.limits import number
     from jkatana.io.outputs import Output, check_outputs
@@ -265,7 +254,7 @@ def compare_run(args: argparse.Namespace) -> int:
     _x64()
     from jkatana.errors import InputError
     from jkatana.fit.compare import compare_models, write_comparison
-    from jkatana.fit.region import Setup
+    from jkatana.fit.region import Setup, load_fit_data
 
     from jkatana.io.outputs import Output, check_outputs
 

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from pathlib import Path
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -21,9 +19,7 @@ from jkatana.errors import InputError
 from jkatana.fit._model import MODELS, ModelSpec, Terms, from_natural, prepare, to_natural
 from jkatana.fit._solve import (NoiseModel, estimate_noise, fit_program, grid_start, laplace, model_values,
                                 residuals, verdict, weighted_residuals)
-from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
-
-DEFAULT_CAMERA = "Nikon 5100 (NPL)"
+from jkatana.measure.setup import Setup
 
 
 @dataclasses.dataclass
@@ -115,69 +111,14 @@ class FitData:
                    azimuth_deg=t.azimuth_deg if np.any(t.azimuth_deg != 0) else None)
 
 
-@dataclasses.dataclass(frozen=True)
-class Setup:
-    """Spectral setup of a fit: optical constants, grid, camera and light (names or arrays)."""
+def load_fit_data(path, region=None, channel=None):
+    """FitData from a measurement table or a BRDF table (told apart by the header)."""
+    from jkatana.brdf.table import is_brdf_table, read_brdf_table
+    from jkatana.measure.table import read_table
 
-    optical_constants: str = "Fe-Johnson"
-    grid: WavelengthGrid = DEFAULT_GRID
-    camera: Any = DEFAULT_CAMERA
-    light: Any = "D65"
-
-    def weights(self) -> np.ndarray:
-        from jkatana.measure.camera import band_weights, camera_sensitivity, light_spectrum
-
-        return band_weights(light_spectrum(self.light, self.grid), camera_sensitivity(self.camera, self.grid),
-                            self.grid)
-
-    def nk(self):
-        from jkatana.spectral.optical_constants import load
-
-        return load(self.optical_constants).on_grid(self.grid)
-
-    def describe(self) -> dict:
-        """The setup as the parameter file stores it.
-
-        Names are kept as given; the camera sensitivity and light spectrum on
-        the grid are stored too (``camera_sensitivity``, ``light_spectrum``), so
-        a file fitted with an array or a sensitivity file that has since moved
-        can still be re-read by :func:`Setup.from_dict`.
-        """
-        from jkatana.measure.camera import camera_sensitivity, light_spectrum
-
-        g = self.grid
-        return dict(optical_constants=str(self.optical_constants),
-                    grid=dict(start=float(g.start), stop=float(g.stop), step=float(g.step), size=int(g.size)),
-                    camera=str(self.camera) if isinstance(self.camera, (str, Path)) else "array",
-                    light=self.light if isinstance(self.light, (str, int, float)) else "array",
-                    camera_sensitivity=np.asarray(camera_sensitivity(self.camera, g), np.float64).tolist(),
-                    light_spectrum=np.asarray(light_spectrum(self.light, g), np.float64).tolist())
-
-    @classmethod
-    def from_dict(cls, d: dict, path=None) -> "Setup":
-        """The setup of a parameter file (inverse of :meth:`describe`; older files without arrays too)."""
-        from jkatana.spectral.grid import WavelengthGrid
-
-        g = d.get("grid") or {}
-        try:
-            grid = WavelengthGrid(g["start"], g["stop"], g["step"]) if g else DEFAULT_GRID
-        except (KeyError, TypeError, ValueError):
-            raise InputError(f"not a wavelength grid: {g!r}", path=path, field="grid") from None
-
-        def arr(key, name_key, default):
-            a = d.get(key)
-            if isinstance(a, list) and len(a) == grid.size:
-                return np.asarray(a, np.float64)
-            name = d.get(name_key)
-            if name is None:
-                return default
-            if name == "array":
-                raise InputError(f"{name_key} was an array and the file lacks {key!r}", path=path, field=key)
-            return name
-
-        return cls(optical_constants=d.get("optical_constants") or "Fe-Johnson", grid=grid,
-                   camera=arr("camera_sensitivity", "camera", DEFAULT_CAMERA),
-                   light=arr("light_spectrum", "light", "D65"))
+    if str(path).lower().endswith(".csv") and is_brdf_table(path):
+        return FitData.from_brdf_table(read_brdf_table(path), channel, region=region or "hiraji", source=path)
+    return FitData.from_table(read_table(path), region, source=path)
 
 
 @dataclasses.dataclass
@@ -273,7 +214,7 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
     - `per_incidence`: compute per-incidence quality and refits.
     - `birge`: scale the covariance by max(1, χ²/dof).
     - `dtype`: float64 (default). float32 works only with ``jax_enable_x64`` off
-      (lineax crashes on mixed dtypes otherwise; see the issue's trap):
+      (lineax fails on mixed dtypes otherwise):
       run float32 fits in a separate process.
     - `irls`: with a noise model, re-evaluate σ at the fitted model and refit
       once (σ from the data biases the fit towards low-fluctuating points).

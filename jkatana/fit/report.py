@@ -37,8 +37,7 @@ def _refit_from_params(d: dict, table_path: Path):
     import math
 
     from jkatana.fit._model import ModelSpec, from_natural, prepare
-    from jkatana.fit.commands import load_fit_data
-    from jkatana.fit.region import Setup, default_model
+    from jkatana.fit.region import Setup, default_model, load_fit_data
 
     data = load_fit_data(table_path, d["region"], (d.get("data") or {}).get("channel"))
     setup = Setup.from_dict(d)

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 import os
-
-import numpy as np
 import subprocess
 import sys
 import time
@@ -26,12 +24,12 @@ def view_add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", default="out/view", help="folder for PNGs (default out/view)")
     p.add_argument("--rank", type=int, default=2, choices=(1, 2, 3, 4),
                    help="rank of the spectral basis of the Fresnel term: one 3-D environment fetch per rank and "
-                        "tap; 2 is within ~0.01 ΔE00 of 3 on iron, 1 adds ~0.7 ΔE00 (default 2)")
+                        "tap; higher is closer to the exact spectra and slower (default 2)")
     p.add_argument("--taps", type=int, default=3, choices=(1, 3, 5),
-                   help="environment taps per pixel for the rough lobe: 1 isotropic (fastest, ΔE00 1.5–2× larger), "
+                   help="environment taps per pixel for the rough lobe: 1 isotropic (fastest, least accurate), "
                         "3 taps along the plane of incidence with offsets, weights and filter width fitted to "
-                        "the lobe per view angle (default; glint views ΔE00 p95 ~2 instead of ~3), 5 binomial "
-                        "taps matching the lobe's mean and variance (slowest)")
+                        "the lobe per view angle (default), 5 binomial taps matching the lobe's mean and variance "
+                        "(slowest)")
     p.add_argument("--flat-background", action="store_true",
                    help="a flat grey behind the blade instead of the environment (coverage checks, screenshots)")
     p.add_argument("--no-rough", action="store_true", help="mirror-like lobes (skip the roughness blur)")
@@ -56,6 +54,7 @@ def view_add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _load(args):
     from jkatana.interactive import scene as S
+    from jkatana.interactive.exposure import auto_exposure
 
     if args.scene is None:
         sc = S.default_scene(args.env)
@@ -72,44 +71,9 @@ def _load(args):
     if args.exposure is not None:
         sc.exposure = args.exposure
     sc.auto_exposure = sc.exposure != sc.exposure  # NaN: "auto"
-    if sc.auto_exposure:  # a first guess; the first frames then set it by the rule `render` uses (calibrate_exposure)
+    if sc.auto_exposure:  # a first guess; the first frames then set it by the rule `render` uses (exposure.calibrate_exposure)
         sc.exposure = auto_exposure(sc.radiance, sc.grid)
     return sc
-
-
-def calibrate_exposure(frame, state, colourspace: str = "sRGB", transfer=None, rounds: int = 6) -> float:
-    """Set ``state.exposure`` by the rule `render` applies to its frames
-    (:func:`jkatana.render.film.scene_exposure`: the object's mean displayed luminance, clipped at white,
-    at :data:`~jkatana.render.film.OBJECT_KEY`), measured on GL frames of the current view.
-
-    `frame()` draws the view at ``state.exposure`` and returns ``(rgb8 (H, W, 3), mask (H, W))``: the 8-bit
-    display RGB and the object's pixels (the depth mask). Each round decodes the frame
-    (:func:`~jkatana.render.film.xyz_from_display` with the scene's `colourspace` and `transfer`), takes the
-    object pixels' mean and scales the exposure by key / mean; the displayed mean is increasing and concave
-    in the exposure, so the steps settle within a few rounds. The headless renderer
-    (:func:`_offscreen`) and the window (:class:`jkatana.interactive.viewer.BladeViewer`, on its first
-    drawn frames) both calibrate through this function.
-    """
-    from jkatana.render.film import OBJECT_KEY, xyz_from_display
-
-    for _ in range(rounds):
-        img, mask = frame()
-        if mask is None or not mask.any():
-            break
-        shown = float(np.mean(xyz_from_display(img, colourspace, transfer)[..., 1][mask]))
-        state.exposure = float(state.exposure * OBJECT_KEY / max(shown, 1e-6))
-    return state.exposure
-
-
-def auto_exposure(radiance, grid, key: float = 0.85, percentile: float = 99.5) -> float:
-    """First guess of the exposure before a frame exists: the environment's bright end (Y at ``percentile``)
-    at ``key``/F̄ (F̄ ≈ 0.55 for iron)."""
-    import numpy as np
-
-    from jkatana.render.film import film_weights
-
-    Y = np.asarray(radiance) @ film_weights(grid)[:, 1]
-    return float(key / max(0.55 * np.percentile(Y, percentile), 1e-12))
 
 
 def _state(sc, args, glrender):
@@ -129,6 +93,7 @@ def _state(sc, args, glrender):
 
 
 def _offscreen(args) -> int:
+    from jkatana.interactive.exposure import calibrate_exposure
     from jkatana.interactive.gl import GLUnavailable
 
     sc = _load(args)

@@ -29,7 +29,7 @@ clamped to [0.25, 1]; 1 when full resolution already fits).
 
 ``calibrate=(colourspace, transfer)`` (the CLI passes it when the exposure is automatic): before the
 first frame is shown, the window's own deferred frames are read back with their depth mask and the
-exposure is set by :func:`jkatana.interactive.commands.calibrate_exposure`, the rule `render` and
+exposure is set by :func:`jkatana.interactive.exposure.calibrate_exposure`, the rule `render` and
 ``view --offscreen`` use (:func:`jkatana.render.film.scene_exposure`), so all three show a scene alike.
 
 ``measure_frames=N`` draws N frames back to back (the light turning by 1° each;
@@ -232,10 +232,10 @@ class BladeViewer(pyrender.Viewer):
         return Path(path)
 
     def _calibrate_exposure(self) -> float:
-        """Set the exposure by the shared rule (:func:`~jkatana.interactive.commands.calibrate_exposure`)
+        """Set the exposure by the shared rule (:func:`~jkatana.interactive.exposure.calibrate_exposure`)
         on this window's frames: each round draws the view at full resolution into the renderer's colour
         target and reads it back with the depth mask (the window shows the last round's frame)."""
-        from jkatana.interactive.commands import calibrate_exposure
+        from jkatana.interactive.exposure import calibrate_exposure
 
         colourspace, transfer = self._jk_calibrate
         self._jk_calibrate = None

@@ -168,8 +168,9 @@ def _finite(values, what: str, field: str) -> None:
 
 
 def light_run(args: argparse.Namespace) -> int:
-    return {"build": _build, "convert": _convert, "inspect": _inspect, "prefilter": _prefilter,
-            "cache": _cache}[args.light_command](args)
+    """``jkatana light`` but ``prefilter``, which prepares a scene for the renderer: the command line runs that
+    one from :func:`jkatana.render.commands.light_run`."""
+    return {"build": _build, "convert": _convert, "inspect": _inspect, "cache": _cache}[args.light_command](args)
 
 
 def _build(args) -> int:
@@ -260,21 +261,6 @@ def _inspect(args) -> int:
           f"brightest 0.1 % of texels carry {100 * facts['brightest_0.1%_power_share']:.1f} % of the luminous power")
     print(f"  horizontal irradiance at 550 nm: {np.interp(550, env.grid.wavelengths, p):.4g} (map units × sr)")
     print(f"  preview: {out}")
-    return 0
-
-
-def _prefilter(args) -> int:
-    import time
-
-    from jkatana.light.cache import cache_root
-    from jkatana.render.renderer import prepare
-    from jkatana.render.scenefile import load_scene
-
-    scene = load_scene(args.scene)
-    t0 = time.perf_counter()
-    prepare(scene, mode=args.mode)
-    print(f"{args.scene}: environment for mode {args.mode} built in {time.perf_counter() - t0:.1f} s and cached "
-          f"in {cache_root()}; renders of this scene load it from there")
     return 0
 
 

@@ -35,8 +35,8 @@ from __future__ import annotations
 import numpy as np
 
 from jkatana.errors import InputError
-from jkatana.fit import NoiseModel
 from jkatana.measure.camera import DEFAULT_CAMERA, band_weights, camera_sensitivity, light_spectrum
+from jkatana.measure.noise import NoiseModel
 from jkatana.measure.protocol import as_pairs
 from jkatana.measure.table import MeasurementTable, check_angles
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid

@@ -21,7 +21,9 @@ physically-based rendering", CGF 13(3)) is provided for comparison only.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from jkatana.models._safe import safe_div, safe_sqrt
@@ -86,3 +88,25 @@ def fresnel_schlick(cos_theta, f0):
     """Schlick (1994): F ≈ F0 + (1 − F0)(1 − cosθ)⁵ — an approximation, for comparison."""
     c = jnp.clip(cos_theta, 0.0, 1.0)
     return f0 + (1.0 - f0) * (1.0 - c) ** 5
+
+
+@jax.jit
+def _fresnel_table(cos_theta, n, k):
+    return fresnel_conductor(cos_theta[..., None], n, k)
+
+
+def fbar_numpy(cos_theta, n, k, w):
+    """F̄(θ) = F(n, k, θ) @ w: :func:`fresnel_conductor` at each cosine (float64, whatever the JAX precision
+    setting) integrated against band weights ``w (wl,)`` (SPEC §4), one compiled program per shape of
+    ``cos_theta`` (a table's every lookup goes through one call of :func:`fbar_many`)."""
+    with jax.enable_x64(True):
+        f = _fresnel_table(*(jnp.asarray(a, jnp.float64) for a in (cos_theta, n, k)))
+    return np.asarray(f, np.float64) @ np.asarray(w, np.float64)
+
+
+def fbar_many(cosines, n, k, w) -> list[np.ndarray]:
+    """:func:`fbar_numpy` at each array of ``cosines``, evaluated as one array (one compilation per total size)."""
+    flat = [np.ravel(np.asarray(c, np.float64)) for c in cosines]
+    out = fbar_numpy(np.concatenate(flat), n, k, w)
+    return [part.reshape(np.shape(c)) for part, c in
+            zip(np.split(out, np.cumsum([f.size for f in flat])[:-1]), cosines)]

@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+from jkatana.light.commands import LIGHT_HELP  # noqa: F401 (``jkatana light`` runs from here: light_run)
+
 DEMO_HELP = "Render the built-in blade under the built-in sky (reference mode, PNG + EXR)."
 RENDER_HELP = "Render a scene TOML: one frame, or a batch of views × lightings (resumable, optional Dask)."
 
@@ -82,6 +84,33 @@ def _common(p: argparse.ArgumentParser) -> None:
                         "bright sources (a sun's glint can vanish)")
     p.add_argument("--samples", type=int, default=None, help="samples per pixel (default: the scene's)")
     p.add_argument("--devices", type=int, default=None, help="host devices to split pixels over (default: cores)")
+
+
+def light_add_arguments(p: argparse.ArgumentParser) -> None:
+    """``jkatana light``'s arguments (:mod:`jkatana.light.commands`)."""
+    from jkatana.light.commands import light_add_arguments as add
+
+    add(p)
+
+
+def light_run(args: argparse.Namespace) -> int:
+    """``jkatana light``: ``prefilter`` builds a scene's environment for a render mode with the renderer's own
+    preparation (:func:`jkatana.render.renderer.prepare`) into the render cache; the other subcommands are the
+    light stage's (:func:`jkatana.light.commands.light_run`)."""
+    if args.light_command != "prefilter":
+        from jkatana.light.commands import light_run as run
+
+        return run(args)
+    from jkatana.light.cache import cache_root
+    from jkatana.render.renderer import prepare
+    from jkatana.render.scenefile import load_scene
+
+    scene = load_scene(args.scene)
+    t0 = time.perf_counter()
+    prepare(scene, mode=args.mode)
+    print(f"{args.scene}: environment for mode {args.mode} built in {time.perf_counter() - t0:.1f} s and cached "
+          f"in {cache_root()}; renders of this scene load it from there")
+    return 0
 
 
 def demo_add_arguments(p: argparse.ArgumentParser) -> None:

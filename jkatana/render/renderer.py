@@ -150,7 +150,7 @@ def _file_lobe(p, path, region) -> tuple[float, tuple]:
         if p.lobe is not None:
             params = p.lobe
         else:  # a file written without the lobe entry: the model's lobe at its values
-            from jkatana.fit._model import FIT_MODELS
+            from jkatana.models.fitted import FIT_MODELS
 
             fm = FIT_MODELS[p.model]
             params = fm.build(jnp.asarray(fm.shape_from_natural(p.values))).to_params()
