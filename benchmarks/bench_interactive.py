@@ -60,9 +60,8 @@ while the mouse is held; full resolution returns on release); ``viewer_drag_auto
 ``--drag-scale auto`` (the fraction that fits 60 Hz, chosen from the measured full-resolution draw;
 ``shaded_scale`` records it). Skipped (and said so) without Xvfb.
 
-Where the close-up's time goes (A/B shader variants, Mesa's knobs, G-buffer layouts) is recorded in
-``benchmarks/reports/interactive-2026-12-02/NOTES.md``, ``…-fps/`` and ``…-margin/`` (the cost of each
-part of the shading, the benchmark's one-process sequence) and the reports before it.
+Where the close-up's time goes (the cost of each part of the shading, the benchmark's one-process
+sequence) is recorded in ``benchmarks/reports/interactive-2026-12-02-margin/NOTES.md``.
 
 Error: ΔE2000 (mean, p95) over the blade's pixels of the GL frame against the reference renderer
 (:func:`validation.gl_agreement.reference_frame`: jkatana.render's reference mode, exact Fresnel,

@@ -6,8 +6,8 @@ is the supported way to limit it); no flag or config sets it. A region fit is a
 chain of several hundred small XLA operations on arrays of ~10³ points. Over a
 pool of two threads each hand-over wakes the other core, which on a virtual
 machine can cost more than the operation and varies with the host's load; on one
-thread the same fit takes less CPU and its wall time stays steady (measured
-in ``benchmarks/bench_fit.py``). The fit-stage commands therefore start the
+thread the same fit takes less CPU and its wall time stays steady
+(``benchmarks/bench_fit.py`` measures it). The fit-stage commands therefore start the
 backend with a one-thread pool (``$JKATANA_XLA_THREADS``, default 1 there); the
 render commands keep JAX's default, one thread per core, because a frame is split
 across host devices that share that pool.

@@ -3,8 +3,8 @@
 Every pixel of a reflectance map is measured at the same geometry, so the
 parameter-free terms (φ, F̄, G/cos θr) are shared and only the values differ.
 A general-purpose solver under ``vmap`` runs the whole batch until its
-slowest pixel converges (the issue's measured trap: one pixel that never
-meets the tolerance makes the batch run to ``max_steps``). Here instead:
+slowest pixel converges (one pixel that never meets the tolerance makes the
+batch run to ``max_steps``). Here instead:
 
 1. the log-linear closed form (:func:`jkatana.fit._solve.closed_form_start`)
    gives each pixel a start that is already close;

@@ -30,7 +30,7 @@ measured by :mod:`benchmarks.bench_interactive` (glFinish-timed passes, A/B shad
 
 :class:`SampleCountRenderer` is pyrender's ``Renderer`` with the sample count
 of its offscreen framebuffer as a parameter (pyrender hard-codes 4× MSAA,
-2–4× slower on llvmpipe); 0 gives single-sample rendering, which is what the
+several times slower on llvmpipe); 0 gives single-sample rendering, which is what the
 reference renderer computes (one ray through each pixel centre).
 
 Import this module only after :func:`jkatana.interactive.gl.import_pyrender`

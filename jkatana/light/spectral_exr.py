@@ -10,9 +10,8 @@ uses OpenImageIO); writing uses colour-science's channel names, sRGB preview
 (``components_to_sRGB_Fichet2021``) and attributes, but hands OpenImageIO all
 channels in one buffer: colour-science's writer appends them one at a time
 (``ImageBufAlgo.channel_append``), copying the image once per channel, so its
-time grows with pixels × bands² (15 s for a 64×128 map of 471 bands, 0.9 s in
-one buffer). Files interoperate with colour-science by construction; the
-tests check it both ways.
+time grows with pixels × bands² (one buffer: pixels × bands). Files interoperate
+with colour-science by construction; the tests check it both ways.
 """
 
 from __future__ import annotations

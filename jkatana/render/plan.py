@@ -25,9 +25,8 @@ LOBE_MODES = ("reference", "lowrank", "prefiltered")
 #: :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL`.
 SAMPLED_MODES = frozenset({"reference", "lowrank"})
 
-#: A measured ``Plan.env_window`` (the window's half-angle is 2 atan(k μ)): on the peer study's sphere (Beckmann
-#: α 0.2, courtyard map; ``benchmarks/reports/render-peer-2026-12-05-window``) k = 2 gave the lowest noise at 2
-#: and 8 samples per subpixel, k = 2.5–3 at 32.
+#: A good ``Plan.env_window`` k (the window's half-angle is 2 atan(k μ)): the lowest-noise k at low sample counts
+#: on the Mitsuba comparison's rough sphere (its benchmark report has the study).
 ENV_WINDOW = 2.0
 
 
@@ -57,12 +56,11 @@ class Plan:
       (:func:`~jkatana.render.shading.env_window`); ``None`` or 0 (default): from
       the whole map. Unbiased for any ``k`` (the lobe strategy covers what the
       window leaves out), and a large gain where the map's power is spread and
-      much of it lies below the horizon or far from the lobe (the peer
-      study's sphere: half the variance at 8 samples, :data:`ENV_WINDOW`). Not the
-      default because a bright source *outside* the window but in the lobe's
-      tail (a sun a few lobe widths from the mirror direction) is then found by
-      the lobe samples alone: on a sky with its sun in the map, narrow lobes,
-      some dim pixels' variance grew 1.5–3.6× (others fell 5×). Split the sun
+      much of it lies below the horizon or far from the lobe (:data:`ENV_WINDOW`).
+      Not the default because a bright source *outside* the window but in the
+      lobe's tail (a sun a few lobe widths from the mirror direction) is then
+      found by the lobe samples alone, which raises some pixels' variance on a
+      sky with its sun in the map. Split the sun
       into caps (``build_environment(split_sun=...)``), which MIS samples on
       their own, before turning the window on for such maps.
     - `factored`: shade in the environment's spectral basis (rank = its channels).
