@@ -98,6 +98,18 @@ def glr():
     return glrender
 
 
+def pytest_configure(config):
+    """Stop the run with one line when the shared data folder is missing: several test modules read their maps
+    from it when they are collected (:mod:`jkatana.shared` says where it is looked for)."""
+    from jkatana.shared import ENV_VAR, shared_root
+
+    data = shared_root() / "data"
+    if not data.is_dir():
+        pytest.exit(f"the tests need the shared data folder, and {data} is not a folder: put the shared folder "
+                    f"beside the checkout (../shared) or set {ENV_VAR} to the folder that holds data/",
+                    returncode=pytest.ExitCode.USAGE_ERROR)
+
+
 def pytest_unconfigure(config):
     """Remove the run's temporary cache folder (only in the process that created it: the controller)."""
     if _OWN_TEST_CACHE is not None:

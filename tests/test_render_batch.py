@@ -71,7 +71,6 @@ def test_cli_reports_bad_scene_in_one_line(tmp_path):
 
 @pytest.mark.slow
 def test_dask_local_cluster_batch(tmp_path):
-    pytest.importorskip("dask.distributed")
     scene = tmp_path / "scene.toml"
     scene.write_text(sphere_scene(24, 18, 2))
     r = subprocess.run(CLI + ["render", str(scene), "--views", "2", "--lights", "2", "--dask", "--workers", "1"],
