@@ -31,9 +31,16 @@ full scale, below any noise of interest), angle jitter, tilt, stray-light
 floor (:mod:`jkatana.measure.synthetic` for their definitions).
 
 Every capture draws from its own random stream ``(seed, index)``, so a run
-is reproducible and resumable: with ``resume=True`` files already present
-are kept. The manifest (and ``truth.csv``, the expected noiseless table with
-the predicted standard errors) is written last and atomically.
+is reproducible and resumable: with ``resume=True`` captures already written
+are kept, once verified. Each capture is written atomically, and its SHA-256
+then appended to ``raw/SHA256SUMS`` (the format of ``sha256sum``, which can
+check it); a resume keeps a capture only when its bytes still have the
+recorded digest, and redoes the others (a capture with no record: the run was
+stopped between the two; one that differs: truncated or changed since, as a
+crash can leave a file whose rename reached the disk before its data). The
+manifest (and ``truth.csv``, the expected noiseless table with the predicted
+standard errors) is written last and atomically, with ``SHA256SUMS`` rewritten
+in capture order.
 """
 
 from __future__ import annotations
@@ -205,6 +212,35 @@ def write_dng(path: str | Path, image: np.ndarray, *, black=(0, 0, 0, 0), white:
 
 #: The file beside the captures that records what produced them (``resume`` compares it).
 FINGERPRINT = ".simulation-inputs.json"
+#: In ``raw/``: one ``<sha256>  <file name>`` line per capture written (``sha256sum`` format; ``resume`` verifies).
+CHECKSUMS = "SHA256SUMS"
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _read_checksums(path: Path) -> dict[str, str]:
+    """``{file name: sha256}`` of a ``SHA256SUMS`` file; a malformed line (cut short by a kill) is no record."""
+    import re
+
+    line_re = re.compile(r"^([0-9a-f]{64})  ([^/\\]+)$")
+    out = {}
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return out
+    for line in text.split("\n"):
+        m = line_re.match(line)
+        if m:
+            out[m.group(2)] = m.group(1)
+    return out
 
 
 def _jsonable(value):
@@ -264,6 +300,8 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
     - `exposure_s`: force one exposure for all captures (else auto, ``fill``).
     - `resume`: keep DNG files already written; they were made from the same inputs (recorded in
       ``.simulation-inputs.json`` before the first capture), else :class:`InputError` naming what changed.
+      A kept file must have the SHA-256 recorded in ``raw/SHA256SUMS`` when it was written; any other
+      is written again (module docstring).
     - `progress`: called with 1 after each capture.
 
     **Returns:** a dict with the paths and counts.
@@ -325,30 +363,45 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
                           fill=fill, tilt_deg=tilt_deg, stray_floor=stray_floor,
                           angle_jitter_deg=angle_jitter_deg, grid=grid.as_dict(), seed=seed)
     stamp = out / FINGERPRINT
+    sums_path = raw_dir / CHECKSUMS
+    recorded = {}
     if resume:
         _check_resume(stamp, raw_dir, inputs)
+        recorded = _read_checksums(sums_path)
+        for tmp in raw_dir.glob(".*.dng"):  # temporaries of a writer killed mid-file (jkatana.io.atomic)
+            tmp.unlink(missing_ok=True)
     raw_dir.mkdir(parents=True, exist_ok=True)
     write_text(stamp, json.dumps(inputs, indent=2, sort_keys=True))
+    digests: dict[str, str] = {}
+    write_text(sums_path, "".join(f"{d}  {n}\n" for n, d in recorded.items()))
     rois = sensor.rois()
     n_green = {r: rois[r][2] * rois[r][3] // 2 for r in regions}
     manifest_rows, truth_rows = [], []
-    for i, (a, b) in enumerate(pairs):
-        values = {r: float(truth[r][i]) for r in regions}
-        t = exposure_s if exposure_s is not None else auto_exposure(max(values.values()), sensor.gain, fill)
-        cid = capture_id(a, b)
-        path = raw_dir / f"{cid}.dng"
-        if not (resume and path.is_file()):
-            rb = {r: (float(ratios[r][0][i]), float(ratios[r][1][i])) for r in regions}
-            frame = render_frame(values, t, sensor, np.random.default_rng([seed, i]), rb)
-            write_dng(path, frame, black=sensor.blacks, white=sensor.white, exposure_s=t)
-        for r in regions:
-            manifest_rows.append(dict(file=str(path), region=r, theta_i_deg=a, theta_r_deg=b, roi=[rois[r]],
-                                      exposure_s=t, capture=cid, gain=sensor.gain))
-            truth_rows.append(dict(capture=cid, region=r, theta_i_deg=a, theta_r_deg=b, value=values[r],
-                                   sigma=float(sensor.predicted_sigma(values[r], t, n_green[r])),
-                                   n_pixels=n_green[r], exposure_s=t))
-        if progress:
-            progress(1)
+    with open(sums_path, "a", encoding="utf-8") as sums:
+        for i, (a, b) in enumerate(pairs):
+            values = {r: float(truth[r][i]) for r in regions}
+            t = exposure_s if exposure_s is not None else auto_exposure(max(values.values()), sensor.gain, fill)
+            cid = capture_id(a, b)
+            path = raw_dir / f"{cid}.dng"
+            if resume and path.name in recorded and path.is_file() and _sha256(path) == recorded[path.name]:
+                digests[path.name] = recorded[path.name]  # verified: the bytes written then
+            else:
+                rb = {r: (float(ratios[r][0][i]), float(ratios[r][1][i])) for r in regions}
+                frame = render_frame(values, t, sensor, np.random.default_rng([seed, i]), rb)
+                write_dng(path, frame, black=sensor.blacks, white=sensor.white, exposure_s=t)
+                digests[path.name] = _sha256(path)
+                sums.write(f"{digests[path.name]}  {path.name}\n")
+                sums.flush()  # in the kernel's hands: a killed process loses no line it wrote
+            for r in regions:
+                manifest_rows.append(dict(file=str(path), region=r, theta_i_deg=a, theta_r_deg=b, roi=[rois[r]],
+                                          exposure_s=t, capture=cid, gain=sensor.gain))
+                truth_rows.append(dict(capture=cid, region=r, theta_i_deg=a, theta_r_deg=b, value=values[r],
+                                       sigma=float(sensor.predicted_sigma(values[r], t, n_green[r])),
+                                       n_pixels=n_green[r], exposure_s=t))
+            if progress:
+                progress(1)
+    write_text(sums_path, "".join(f"{digests[n]}  {n}\n" for n in dict.fromkeys(
+        f"{capture_id(a, b)}.dng" for a, b in pairs)))
     cols = {k: [row[k] for row in truth_rows] for k in truth_rows[0]}
     truth_table = MeasurementTable.from_columns(**cols)
     write_table(truth_table, out / "truth.csv")
