@@ -2,9 +2,11 @@
 
 Classes (each with at least one case here, on tiny inputs): output paths (unwritable folder, parent is a
 file, target is a folder, ``..``, an input as output, wrong extension, two outputs in one file), file
-permissions, checked CLI numbers, memory-bounded sizes (refused under 1 GB), malformed inputs (duplicate
+permissions, checked CLI numbers and budgets, memory- and work-bounded sizes (refused under 1 GB; no wavelength
+step under 1 nm), physical bounds of parameters, environments and gains, malformed inputs (duplicate
 columns, booleans as numbers, NUL bytes, non-UTF-8 text, corrupt images, header-only HDR, inconsistent
-RAW levels), no NaN written, resume with changed inputs (simulate, render), parameter files between
+RAW levels, JSON of the wrong shape), no NaN written, resume with changed inputs (simulate, render) and of a
+truncated capture (verified by checksum), parameter files between
 commands, unreachable scheduler, interrupts (SIGINT/SIGTERM: exit 130/143, one line, nothing partial,
 rerun resumes). Most cases call :func:`jkatana.cli.main` in-process: they fail before any work starts.
 Interrupts need a real process; the 20-interrupt runs are ``slow``.
@@ -588,3 +590,230 @@ def test_twenty_interrupts_at_random_moments(campaign, tmp_path):
         if kind == "render":
             assert len([p for p in (work / "out").glob("*.png") if not p.name.startswith(".")]) == 4
     assert landed >= 15, landed   # most interrupts came mid-run
+
+
+# ---------------------------------------------------------------- physical bounds of the inputs
+
+def _params_file(folder: Path, name: str = "p.json", text: str | None = None, **change) -> Path:
+    """A valid hiraji parameter file (``change`` replaces top-level fields), or ``text`` as it is."""
+    from jkatana.fit.params import FORMAT
+
+    d = {"format": FORMAT, "region": "hiraji", "model": "hiraji", "values": {"chi": 79000.0, "mu": 0.05},
+         "laplace": {"ci95": {}}, "optical_constants": "Fe-Johnson", "converged": True,
+         "diagnostics": {"chi2_dof": 1.0}} | change
+    p = folder / name
+    p.write_text(text if text is not None else json.dumps(d))
+    return p
+
+
+SIM = ["simulate", "-o", "s", "--incidences", "25", "--dense-step", "5", "--sparse-step", "20", "--size", "24", "24",
+       "--quiet"]
+
+
+@pytest.mark.parametrize("argv, needles", [
+    (SIM + ["--params", "hiraji:chi=79000,mu=0"], ["params.hiraji.mu", "> 0"]),
+    (SIM + ["--params", "hiraji:mu=-0.05"], ["params.hiraji.mu", "> 0"]),
+    (SIM + ["--params", "hiraji:chi=0"], ["params.hiraji.chi", "> 0"]),
+    (SIM + ["--params", "kissaki:chi=79000,mu=0.05"], ["params", "unknown region 'kissaki'"]),
+    (SIM + ["--regions", "hiraji", "--params", "hamon:mu=0.05"], ["params", "'hamon'", "not simulated"]),
+    (["report", "nan.json", "-o", "rep"], ["nan.json", "values.mu", "NaN"]),
+    (["report", "zero.json", "-o", "rep"], ["zero.json", "values.mu", "> 0"]),
+    (["report", "region.json", "-o", "rep"], ["region.json", "'region'", "unknown region"]),
+    (["map", "flat.exr", "-o", "m.exr", "--resolution", "8", "32"], ["flat.exr", "no contrast", "--dark"]),
+    (["map", "photo.exr", "-o", "m.exr", "--resolution", "8", "32", "--hiraji", "zero.json"],
+     ["zero.json", "values.mu", "> 0"]),
+    (["light", "convert", "nan.exr", "-o", "s.exr", "--grid", "400", "700", "50"],
+     ["nan.exr", "2 of 128 pixels", "NaN or infinite"]),
+])
+def test_invalid_physical_parameters_refused(argv, needles, tmp_path, monkeypatch, capsys):
+    """A width of zero or below, an unknown region, a NaN width, a photo without contrast, non-finite pixels:
+    one line naming the file and field, exit 2, nothing written."""
+    from jkatana.io.exr import write_exr
+
+    monkeypatch.chdir(tmp_path)
+    _params_file(tmp_path, "nan.json", text=_params_file(tmp_path).read_text().replace('"mu": 0.05', '"mu": NaN'))
+    _params_file(tmp_path, "zero.json", values={"chi": 79000.0, "mu": 0.0})
+    _params_file(tmp_path, "region.json", region="kissaki")
+    write_exr(tmp_path / "photo.exr", {"Y": np.tile(np.linspace(0.1, 1.0, 64), (16, 1))})
+    write_exr(tmp_path / "flat.exr", {"Y": np.full((16, 64), 0.4)})
+    rgb = np.ones((8, 16))
+    rgb[1, 2], rgb[3, 3] = np.nan, np.inf
+    write_exr(tmp_path / "nan.exr", {"R": rgb, "G": np.ones((8, 16)), "B": np.ones((8, 16))})
+    before = sorted(p.name for p in tmp_path.iterdir())
+    rc, _, err = run(argv, capsys)
+    one_line(rc, err, *needles)
+    assert sorted(p.name for p in tmp_path.iterdir()) == before   # nothing written
+
+
+def test_manifest_gain_beyond_bound_refused(campaign, tmp_path, capsys):
+    import shutil
+
+    shutil.copytree(campaign / "raw", tmp_path / "raw")
+    text = (campaign / "manifest.csv").read_text().splitlines()
+    gain = text[0].split(",").index("gain")
+    row = text[1].split(",")
+    row[gain] = "1e308"   # finite, but the values it makes cannot be squared in the fit
+    (tmp_path / "m.csv").write_text("\n".join([text[0], ",".join(row)] + text[2:]) + "\n")
+    rc, _, err = run(["measure", tmp_path / "m.csv", "-o", tmp_path / "t.csv", "--quiet"], capsys)
+    one_line(rc, err, "m.csv", "row 1", "'gain'", "1e+150")
+    assert not (tmp_path / "t.csv").exists()
+
+
+def test_clamped_environment_pixels_counted_in_one_warning(tmp_path):
+    """Negative pixels (colours outside the gamut) are clamped to 0, and one warning line says how many."""
+    from jkatana.io.exr import write_exr
+    from jkatana.light.spectral_exr import read_spectral_exr_raw
+
+    r = np.ones((8, 16))
+    r[2, 3], r[4, 4], r[5, 9] = -0.5, -1.0, -1e-3
+    write_exr(tmp_path / "neg.exr", {"R": r, "G": np.ones((8, 16)), "B": np.ones((8, 16))})
+    p = subprocess.run(CLI + ["light", "convert", "neg.exr", "-o", "s.exr", "--grid", "400", "700", "50"],
+                       cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "warning" in lines[0] and "3 of 128 pixels" in lines[0] and "clamped" in lines[0], \
+        p.stderr
+    assert (read_spectral_exr_raw(tmp_path / "s.exr")[1] >= 0).all()
+
+
+# ---------------------------------------------------------------- resume verifies what it keeps
+
+#: ``jkatana simulate`` whose 4th capture is left half written at its own name, and the process killed with SIGKILL
+#: (nothing runs after: no handler, no clean-up). An atomic write cannot leave that under a plain kill; a crash
+#: can, when the rename reached the disk before the data. A stray temporary of the 5th capture, half written, is
+#: left as a kill during its write leaves one.
+_KILLED_MID_CAPTURE = textwrap.dedent("""
+    import os, signal, sys
+    import jkatana.measure.goniometer as g
+
+    real, calls = g.write_dng, []
+
+    def write_dng(path, image, **kw):
+        calls.append(path)
+        if len(calls) == 4:
+            real(path, image, **kw)
+            data = path.read_bytes()
+            path.write_bytes(data[: len(data) // 2])
+            (path.parent / f".{path.stem}.x1y2z3.dng").write_bytes(data[: len(data) // 3])
+            os.kill(os.getpid(), signal.SIGKILL)
+        return real(path, image, **kw)
+
+    g.write_dng = write_dng
+    from jkatana.cli import main
+    sys.exit(main())
+""")
+
+
+def test_resume_after_kill_mid_capture_redoes_the_truncated_capture(tmp_path):
+    from jkatana.measure.decode import read_frame
+
+    argv = ["simulate", "--incidences", "25", "--dense-step", "5", "--sparse-step", "20", "--size", "24", "24",
+            "--quiet"]
+    r = subprocess.run([sys.executable, "-c", _KILLED_MID_CAPTURE] + argv + ["-o", "killed"], cwd=tmp_path,
+                       env=cli_env(), capture_output=True, text=True, timeout=300)
+    assert r.returncode == -signal.SIGKILL, (r.returncode, r.stderr)
+    raw = tmp_path / "killed" / "raw"
+    captures = sorted(p for p in raw.glob("*.dng") if not p.name.startswith("."))
+    half = captures[-1]
+    assert len(captures) == 4 and list(raw.glob(".*.dng"))
+    with pytest.raises(InputError):
+        read_frame(half)   # the capture the kill left truncated
+    r = subprocess.run(CLI + argv + ["-o", "killed", "--resume"], cwd=tmp_path, env=cli_env(), capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run(CLI + argv + ["-o", "whole"], cwd=tmp_path, env=cli_env(), capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    killed = {p.relative_to(tmp_path / "killed"): p.read_bytes() for p in (tmp_path / "killed").rglob("*")
+              if p.is_file()}
+    whole = {p.relative_to(tmp_path / "whole"): p.read_bytes() for p in (tmp_path / "whole").rglob("*")
+             if p.is_file()}
+    assert sorted(killed) == sorted(whole)   # the stray temporary is gone
+    assert killed == whole                   # byte for byte: captures, manifest, truth, checksums
+    for p in raw.glob("*.dng"):
+        assert read_frame(p).dn.size == 24 * 24   # every capture decodes (and no temporary is left)
+
+
+# ---------------------------------------------------------------- JSON of the wrong shape
+
+@pytest.mark.parametrize("text, needles", [
+    ("[1, 2]", ["(top level)", "must be an object"]),
+    ('{"format": "jkatana-params/1", "model": "hiraji", "values": [79000, 0.05]}', ["'values'", "must be an object"]),
+    ('{"parameters": {"chi": {"value": "79000"}, "mu": 0.05}}', ["'parameters.chi'", "must be a number"]),
+    ('{"chi": 79000, "mu0": true}', ["'mu0'", "must be a number"]),
+    ('{"chi": 79000, "mu0": [0.05]}', ["'mu0'", "must be a number"]),
+    ('{"chi": 79000, "mu0": -Infinity}', ["'mu0'", "-Infinity"]),
+    ('{"chi": 79000', ["not JSON", "line 1"]),
+])
+def test_parameter_file_of_wrong_json_shape_one_line(text, needles, tmp_path, monkeypatch, capsys):
+    from jkatana.io.exr import write_exr
+
+    monkeypatch.chdir(tmp_path)
+    write_exr(tmp_path / "photo.exr", {"Y": np.tile(np.linspace(0.1, 1.0, 64), (16, 1))})
+    (tmp_path / "h.json").write_text(text)
+    rc, _, err = run(["map", "photo.exr", "-o", "m.exr", "--resolution", "8", "32", "--hiraji", "h.json"], capsys)
+    one_line(rc, err, "h.json", *needles)
+    assert not (tmp_path / "m.exr").exists()
+
+
+@pytest.mark.parametrize("change, field", [
+    (dict(laplace=[1, 2]), "'laplace'"),
+    (dict(laplace={"ci95": {"mu": "wide"}}), "'laplace.ci95.mu'"),
+    (dict(diagnostics=[]), "'diagnostics'"),
+    (dict(values={"chi": "79000", "mu": 0.05}), "'values.chi'"),
+    (dict(converged="yes"), "'converged'"),
+])
+def test_report_parameter_file_of_wrong_shape_one_line(change, field, tmp_path, capsys):
+    p = _params_file(tmp_path, **change)
+    rc, _, err = run(["report", p, "-o", tmp_path / "rep"], capsys)
+    one_line(rc, err, "p.json", field)
+    assert not (tmp_path / "rep").exists()
+
+
+# ---------------------------------------------------------------- work with a bound
+
+@pytest.mark.parametrize("argv, needles", [
+    (["light", "build", "-o", "s.exr", "--resolution", "4", "8", "--grid", "400", "700", "0.001"],
+     ["--grid", "below 1 nm"]),
+    (["light", "build", "-o", "s.exr", "--resolution", "4", "8", "--grid", "500", "500.3", "0.001"],
+     ["--grid", "below 1 nm"]),
+    (["light", "build", "-o", "s.exr", "--resolution", "4", "8", "--grid", "200", "700", "5"], ["--grid", "360–830"]),
+    (["light", "convert", "x.hdr", "-o", "s.exr", "--grid", "400", "700", "0.5"], ["--grid", "below 1 nm"]),
+])
+def test_work_without_bound_refused_at_once(argv, needles, tmp_path, monkeypatch, capsys):
+    """A 0.001 nm grid (300 001 bands) on a 4×8 map ran past four minutes: a step below 1 nm (the CIE CMFs'
+    table step, the finest data jkatana reads) is refused before any work."""
+    monkeypatch.chdir(tmp_path)
+    t0 = time.perf_counter()
+    rc, _, err = run(argv, capsys)
+    one_line(rc, err, *needles)
+    assert time.perf_counter() - t0 < 30
+    assert not any(tmp_path.iterdir())
+
+
+def test_environment_work_beyond_its_limit_refused():
+    """Within the memory a machine has, a sky of more spectral values than one environment may hold is refused by
+    the work estimate, naming the option and the count (memory is checked first, so this calls the estimate)."""
+    from jkatana.io.limits import ENV_VALUES, require_work
+
+    require_work(512 * 1024 * 361, "--resolution", "a sky")   # 1.9e8 values: 103 s on 2 cores, allowed
+    with pytest.raises(InputError, match=r"--resolution.*7\.57e\+08 spectral values.*2\.68e\+08"):
+        require_work(1024 * 2048 * 361, "--resolution", "a 1024×2048 sky with 361 bands")
+    assert ENV_VALUES == 1 << 28
+
+
+# ---------------------------------------------------------------- budgets
+
+@pytest.mark.parametrize("argv, field", [
+    (["bench", "--budget", "-1"], "--budget-total"),     # argparse's prefix of --budget-total
+    (["bench", "--budget-total", "0"], "--budget-total"),
+    (["bench", "--budget-total", "nan"], "--budget-total"),
+    (["bench", "--timeout", "-5"], "--timeout"),
+    (["bench", "--timeout", "inf"], "--timeout"),
+])
+def test_non_positive_budgets_refused_before_work(argv, field, tmp_path, capsys):
+    out = tmp_path / "r.json"
+    t0 = time.perf_counter()
+    rc, _, err = run(argv + ["--only", "bench_models", "-o", out], capsys)
+    one_line(rc, err, field)
+    assert time.perf_counter() - t0 < 10 and not out.exists()
