@@ -309,3 +309,62 @@ def map_errors(w: np.ndarray, truth: np.ndarray, seen: np.ndarray, surface) -> d
             "boundary_within_1mm": float(np.mean(err <= 1.0)) if err.size else 0.0,
             "boundary_p95_mm": float(np.percentile(err, 95)) if err.size else float("inf"),
             "columns": int(err.size), "seen_percent": float(100 * seen.mean())}
+
+
+#: The test cases: name → (blade measures (nagasa, sori) in metres, w pattern, shots).
+CASES = ("whole", "sections", "sides")
+
+
+def render_case(case: str, workdir: str | Path, *, spp: int = 4, resolution: tuple[int, int] = (256, 1024),
+                unevenness: float = 0.0, tilt_deg: float | None = None, shots: list | None = None):
+    """Render one of :data:`CASES` into ``workdir``: ``(mesh, true w, photo paths)``.
+
+    - ``whole``: the built-in blade with the built-in hamon, one 2400×760 photo (2000 px along the blade),
+      10° off the normal, rolled 4°;
+    - ``sections``: a shorter, more curved blade (nagasa 0.60 m, sori 25 mm) with :func:`choji_map`, three
+      overlapping 1600×900 section photos exposed ×1, ×0.6, ×1.5, 6–12° off the normal, rolled −3°, 5°, 2°;
+    - ``sides``: the built-in blade and hamon, one omote photo and one ura photo (12° off, rolled −5°).
+
+    ``tilt_deg`` overrides every shot's angle from the normal; ``shots`` replaces the case's shots.
+    """
+    import dataclasses
+
+    from jkatana.maps import default_map
+    from jkatana.shape.katana import KatanaSpec, build_blade
+
+    workdir = Path(workdir)
+    if case == "sections":
+        mesh = build_blade(KatanaSpec(nagasa=0.60, sori=0.025))
+        truth = choji_map(resolution)
+        case_shots = section_shots(3, spp=spp)
+    elif case in ("whole", "sides"):
+        mesh = build_blade(KatanaSpec())
+        truth = default_map(resolution).w
+        case_shots = [Shot(spp=spp)]
+        if case == "sides":
+            case_shots.append(Shot(spp=spp, side="ura", roll_deg=-5.0, tilt_deg=12.0, azimuth_deg=110.0, seed=7))
+    else:
+        raise ValueError(f"unknown case {case!r} (one of {CASES})")
+    if shots is not None:
+        case_shots = shots
+    if tilt_deg is not None:
+        case_shots = [dataclasses.replace(s, tilt_deg=tilt_deg) for s in case_shots]
+    paths = []
+    for i, shot in enumerate(case_shots):
+        img, _ = render_photo(mesh, truth, shot, workdir=workdir, unevenness=unevenness)
+        paths.append(write_photo(workdir / f"{case}_{i}_{shot.side}.exr", img))
+    return mesh, truth, paths
+
+
+def crop_comparison(photo: str | Path, truth: np.ndarray, surface) -> dict:
+    """The same photo through the straight-rectangle path (``jkatana map PHOTO --crop``): the crop is the
+    bounding box of the blade found in the photo (what a user would draw around it), the figures those of
+    :func:`map_errors` over the whole map."""
+    from jkatana.maps.photo import map_from_photo, read_photo
+    from jkatana.maps.register import find_blade
+
+    y = read_photo(photo)
+    ys, xs = np.nonzero(find_blade(y).mask)
+    crop = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+    m = map_from_photo(y, resolution=truth.shape, crop=crop)
+    return {**map_errors(m.w, truth, np.ones(truth.shape, bool), surface), "crop": crop}

@@ -59,6 +59,10 @@ def shape_add_arguments(p: argparse.ArgumentParser) -> None:
     k = p.add_argument_group("the built-in katana (explicit)")
     k.add_argument("--blade", action="store_true",
                    help="write the parametric built-in blade itself (no scanning)")
+    k.add_argument("--nagasa", type=float, default=None, metavar="M",
+                   help="with --blade: blade length in metres (straight line machi → tip; default 0.70)")
+    k.add_argument("--sori", type=float, default=None, metavar="M",
+                   help="with --blade: curvature in metres (the chord's largest distance to the mune; default 0.018)")
     k.add_argument("--simulate", action="store_true",
                    help="scan the built-in blade with the simulated 640×480 scanner and fit it")
     k.add_argument("--katana-fit", action="store_true",
@@ -143,6 +147,19 @@ def shape_run(args: argparse.Namespace) -> int:
     require_memory(args.max_points * (args.degree + 1) ** 2 * 16 + n_ctrl * 8 * 32, "--patches",
                    f"{pa}×{pc} patches of degree {args.degree} fitted to {args.max_points} points", budget)
     check_outputs([Output(args.output, "--output", (".ply", ".glb", ".obj"))], inputs=args.scans)
+    if (args.nagasa is not None or args.sori is not None) and not args.blade:
+        raise InputError("--nagasa and --sori shape the built-in blade: give them with --blade", field="--nagasa")
+    if args.blade and (args.nagasa is not None or args.sori is not None):
+        import dataclasses
+
+        from jkatana.shape.katana import KatanaSpec, build_blade
+
+        spec = KatanaSpec()
+        spec = dataclasses.replace(spec, **{k: v for k, v in (("nagasa", args.nagasa), ("sori", args.sori))
+                                            if v is not None})
+        export_blade(build_blade(spec), args.output)  # validate() names a bad --nagasa or --sori
+        print(f"wrote {args.output}: nagasa {spec.nagasa:g} m, sori {spec.sori:g} m", file=sys.stderr)
+        return 0
     if args.blade:
         export_blade(default_blade(), args.output)
         print(f"wrote {args.output}", file=sys.stderr)
