@@ -15,10 +15,10 @@ import pytest
 from jkatana.interactive import lobe_tables as LT
 from jkatana.interactive import tables as T
 from jkatana.interactive.levels import MU_LEVELS
-from validation import shader_cap_rule as C
 from jkatana.light.capquad import cap_integral
 from jkatana.models.lobes import Gaussian
 from jkatana.models import Conductor, Hamon, Hiraji
+from validation import shader_cap_rule as C
 
 #: sunrise.exr's sun: a 0.31° cap
 RADIUS = 0.0055
@@ -145,7 +145,7 @@ def _table_errors(region: int, deg: float, moments: bool = False) -> float:
     model = lobe_from_params({"lobe": ("ggx", "beckmann")[region], "alpha": (0.05, 0.12)[region]}, dt)
     a = float(model.alpha)
     cv = float(np.cos(np.radians(deg)))
-    V, R, t, y = (x[0] for x in CT._frame(np.array([cv])))
+    V, R, t, y = (x[0] for x in CT.table_frame(np.array([cv])))
     offs = a * np.array([(0, 0), (0.5, 0), (-0.5, 0), (1, 0.3), (-1.3, 0.2), (0, 1), (2, 0), (-3, 1), (4, 0),
                          (0, 6), (-8, 0)])
     caps = CT.cap_directions(R, t, y, offs[:, 0], offs[:, 1])

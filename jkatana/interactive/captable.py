@@ -62,6 +62,12 @@ def offset_grid() -> tuple[np.ndarray, np.ndarray]:
     return np.sign(su) * EXTENT * su ** 2, EXTENT * sv ** 2
 
 
+def table_frame(cos_v: np.ndarray):
+    """:func:`~jkatana.interactive.taps.view_frame` (NumPy) at the table's view cosines, held at cos θv ≥ 1e-3 so
+    that the grazing row has a plane of incidence."""
+    return view_frame(np.maximum(cos_v, 1e-3), np)
+
+
 def cap_directions(R, t, y, u, v) -> np.ndarray:
     """Unit C at in-plane angle ``u`` and across-plane angle ``v`` (rad, |u|, |v| < π/2) from R:
     ``C ∝ R + tan u t + tan v y`` (the inverse of u = atan2(C·t, C·R), v = atan2(C·y, C·R))."""
@@ -90,7 +96,7 @@ def cap_kernel_table(lobes: tuple, mus, radius: float, conductor: Conductor) -> 
     conductor = Conductor(n=conductor.n[..., mid:mid + 1], k=conductor.k[..., mid:mid + 1])
     dt = conductor.n.dtype
     cos = np.linspace(0.0, 1.0, N_COS)
-    V, R, t, y = view_frame(np.maximum(cos, 1e-3), np)  # a grazing row at cos θv = 0.001, not 0
+    V, R, t, y = table_frame(cos)
     uh, vh = offset_grid()
     out = np.zeros((2, len(mus), N_COS, N_V, N_U))
     for i, family in enumerate(lobes):
