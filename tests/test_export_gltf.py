@@ -227,6 +227,76 @@ def test_an_existing_output_folder_is_refused_and_kept(tmp_path, content):
     assert not list(tmp_path.glob(".out.*"))
 
 
+# ---------------------------------------------------------------- a glTF material back as a parameter file
+
+
+def test_an_exported_material_imports_back_as_the_ggx_file_it_came_from(ggx_blade, tmp_path):
+    """Export, then import: model ggx with the median texel α (the hiraji's, the map's majority), Fe-Johnson
+    recognised from the base colour (ΔE 0), and the file renders (the renderer's own reader accepts it)."""
+    from jkatana.export.gltf import gltf_to_params
+    from jkatana.fit.params import read_params, write_params
+
+    _, summary = ggx_blade
+    d = gltf_to_params(summary["glb"])
+    assert d["model"] == "ggx" and d["optical_constants"] == "Fe-Johnson"
+    assert d["import"]["optical_constants_dE2000"] < 1e-6
+    assert d["values"]["alpha"] == pytest.approx(GA.GGX_ALPHA["hiraji"], rel=0.05)
+    p = read_params(write_params(d, tmp_path / "imported.json"))
+    assert p.model == "ggx" and p.mu == d["values"]["alpha"] and p.lobe == {"lobe": "ggx", "alpha": p.mu}
+
+
+def test_a_gltf_written_by_trimesh_alone_imports(tmp_path):
+    """A glTF not written by jkatana (trimesh's own writer, uniform factors, a copper-like colour):
+    α = roughness², and the nearest shipped metal is named with its colour distance."""
+    import trimesh
+
+    from jkatana.export.gltf import gltf_to_params
+
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(
+        uv=np.zeros((len(mesh.vertices), 2)),
+        material=trimesh.visual.material.PBRMaterial(baseColorFactor=[0.95, 0.64, 0.54, 1.0], metallicFactor=1.0,
+                                                     roughnessFactor=0.3))
+    path = tmp_path / "copper.glb"
+    path.write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Scene(mesh)))
+    d = gltf_to_params(path, region="hamon")
+    assert d["region"] == "hamon" and d["values"]["alpha"] == pytest.approx(0.09, rel=1e-6)
+    assert d["import"]["optical_constants_dE2000"] > 5       # no shipped metal is copper: said, not hidden
+
+
+def test_a_missing_texture_or_a_non_metal_is_one_line(tmp_path):
+    """A ``.gltf`` whose roughness image is gone, and a dielectric: one :class:`InputError` line each."""
+    import trimesh
+    from PIL import Image
+
+    from jkatana.export.gltf import gltf_to_params
+
+    mesh = trimesh.creation.box()
+    tex = Image.fromarray(np.tile(np.array([255, 200, 255], np.uint8), (4, 4, 1)))   # G roughness, B metal
+    mesh.visual = trimesh.visual.TextureVisuals(
+        uv=np.zeros((len(mesh.vertices), 2)),
+        material=trimesh.visual.material.PBRMaterial(baseColorFactor=[0.5, 0.5, 0.5, 1.0], roughnessFactor=1.0,
+                                                     metallicFactor=1.0, metallicRoughnessTexture=tex))
+    files = trimesh.exchange.gltf.export_gltf(trimesh.Scene(mesh))
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    gltf = next(tmp_path.glob("*.gltf"))
+    tree = json.loads(gltf.read_text())          # the image as a separate file, as "glTF Separate" writes it
+    tree["images"] = [{"uri": "rough.png", "mimeType": "image/png"}]
+    gltf.write_text(json.dumps(tree))
+    tex.save(tmp_path / "rough.png")
+    assert gltf_to_params(gltf)["values"]["alpha"] == pytest.approx((200 / 255) ** 2, rel=1e-6)
+    (tmp_path / "rough.png").unlink()
+    with pytest.raises(InputError, match=r"\.gltf, field '.*metallicRoughnessTexture': .*cannot be read"):
+        gltf_to_params(gltf)
+    mesh.visual.material = trimesh.visual.material.PBRMaterial(baseColorFactor=[0.5, 0.5, 0.5, 1.0],
+                                                               metallicFactor=0.0, roughnessFactor=0.5)
+    plastic = tmp_path / "plastic.glb"
+    plastic.write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Scene(mesh)))
+    with pytest.raises(InputError, match=r"plastic\.glb.*metallicFactor.*not a metal"):
+        gltf_to_params(plastic)
+
+
 # ---------------------------------------------------------------- pyrender's own shader against jkatana render
 
 
@@ -254,8 +324,9 @@ def _pyrender_against_reference(c, glb) -> dict:
 def test_pyrender_draws_the_closeup_as_jkatana_renders_it(glr, closeup):
     """ΔE2000 of pyrender's stock metallic-roughness frame of the ``.glb`` against ``jkatana render``
     (reference) in the close-up (the map's texels magnified, one directional light from the mirror
-    direction): measured 0.56 mean, 1.15 p95 at 200×150; the luminance of the lit pixels within 3 %
-    (pyrender's Schlick–Smith shadowing darkens the peak by ~5 %, :func:`validation.gltf_agreement.term_ratios`)."""
+    direction): measured 0.54 mean, 1.08 p95 at 200×150 (0.38 / 0.41 with a uniform α: the rest is the
+    8-bit, bilinearly filtered roughness texture); the lit pixels' luminance sums to 0.97 of the
+    reference's (per pixel 0.99–0.996; one row on the shinogi crease falls on the other face)."""
     res = _pyrender_against_reference(closeup, closeup["summary"]["glb"])
     stats = res["blade"]
     assert stats["pixels"] > 10000, stats
@@ -297,9 +368,9 @@ def test_pyrender_agrees_at_the_glint_and_darkens_at_grazing_as_its_shadowing_pr
 
     - ``glint`` (the map minified 5–17×: pyrender's mipmaps average the map's grain that jkatana samples
       at pixel centres; crease rows a pixel apart): 1.95 mean, 6.8 p95, lit luminance within 1 %;
-    - ``grazing`` (70°): 5.4 / 13.0, pyrender 35 % darker: its Schlick–Smith shadowing with k = (r + 1)²/8
+    - ``grazing`` (69°): 5.4 / 13.0, pyrender 35 % darker: its Schlick–Smith shadowing with k = (r + 1)²/8
       and Schlick's Fresnel, whose product at the peak (:func:`validation.gltf_agreement.term_ratios`,
-      0.62) the measured luminance ratio (0.65) must match.
+      0.642) the measured luminance ratio (0.645) must match.
     """
     res = GA.run(tmp_path, names=("glint", "grazing"))
     for name, (mean, p95) in {"glint": (3.0, 10.0), "grazing": (8.0, 18.0)}.items():

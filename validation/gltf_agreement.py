@@ -67,10 +67,11 @@ def _unit(v) -> np.ndarray:
 def views(width: int = 200, height: int = 150) -> dict:
     """``{name: (View, light direction)}``: the views compared, each with its light (towards the light).
 
-    - ``glint``: the light 30° off the flat's normal, the camera in its mirror
+    - ``glint``: the light 25° off the flat's normal, the camera in its mirror
       direction (:func:`jkatana.interactive.scene.glint_view`): the peak of the lobe on the flat.
-    - ``tail``: the same camera with the light turned 8° away: the flat shows the lobe's tail.
-    - ``grazing``: the light 70° off the normal and its mirror camera: Fresnel and shadowing far from normal.
+    - ``tail``: the same camera with the light turned 8° about +Y (30° off the normal): the flat shows
+      the lobe's shoulder.
+    - ``grazing``: the light 69° off the normal and its mirror camera: Fresnel and shadowing far from normal.
     - ``closeup``: :func:`jkatana.interactive.scene.closeup_view` (the flat near the hamon fills the
       frame) lit from its mirror direction.
     """
@@ -78,16 +79,16 @@ def views(width: int = 200, height: int = 150) -> dict:
     from jkatana.shape.katana import default_blade
 
     mesh = default_blade()
-    l30 = _unit([0.25, 0.4, 1.0])
+    l25 = _unit([0.25, 0.4, 1.0])
     c, s = np.cos(np.deg2rad(8.0)), np.sin(np.deg2rad(8.0))
-    l_tail = np.array([c * l30[0] + s * l30[2], l30[1], -s * l30[0] + c * l30[2]])
+    l_tail = np.array([c * l25[0] + s * l25[2], l25[1], -s * l25[0] + c * l25[2]])
     l70 = _unit([0.6, 2.5, 1.0])
     close = closeup_view(mesh, width, height)
     to_cam = np.asarray(close.pose)[:3, 2]     # the camera looks along its −z
     n = np.array([0.0, 0.0, 1.0])
     l_close = _unit(2 * (n @ to_cam) * n - to_cam)
-    return {"glint": (glint_view(mesh, l30, width, height), l30),
-            "tail": (glint_view(mesh, l30, width, height), l_tail),
+    return {"glint": (glint_view(mesh, l25, width, height), l25),
+            "tail": (glint_view(mesh, l25, width, height), l_tail),
             "grazing": (glint_view(mesh, l70, width, height), l70),
             "closeup": (close, l_close)}
 

@@ -105,7 +105,8 @@ def base_colour(n: np.ndarray, k: np.ndarray, grid) -> np.ndarray:
 
     XYZ = Σ F0 D65 x̄ȳz̄ Δλ / Σ D65 ȳ Δλ (CIE 1931 2° observer, eq. 6 of Mochizuki
     et al.), then sRGB's XYZ → RGB matrix (IEC 61966-2-1, eq. 7): a white
-    reflector gives (1, 1, 1) within the CMFs' rounding, since D65 is sRGB's white.
+    reflector gives (1, 1, 1) up to D65's chromaticity on a truncated grid (0.3 % on the paper's
+    400–700 nm), since D65 is sRGB's white.
     Linear, as glTF's ``baseColorFactor`` is (glTF 2.0 §3.9.2).
     """
     from jkatana.spectral.colorimetry import illuminant, xyz_to_linear_rgb, xyz_weights
@@ -400,5 +401,98 @@ def export_gltf(scene, out_dir: Path, *, texture_size: int | None = None, blend:
     return {"glb": out_dir / f"{name}.glb", "notes": out_dir / f"{name}.gltf.json", **summary}
 
 
-__all__ = ["export_gltf", "BLENDS", "base_colour", "normal_incidence_reflectance", "region_alpha", "texel_alpha",
+def _glb_or_gltf_json(path: Path) -> dict:
+    """The glTF JSON of a ``.glb`` (its first chunk, glTF 2.0 §4.4) or a ``.gltf`` file."""
+    data = path.read_bytes()
+    if data[:4] == b"glTF":
+        import struct
+
+        length, kind = struct.unpack("<I4s", data[12:20])
+        if kind != b"JSON":
+            raise InputError("first chunk of the .glb is not JSON", path=path)
+        data = data[20:20 + length]
+    try:
+        return json.loads(data)
+    except (ValueError, UnicodeDecodeError) as err:
+        raise InputError(f"not a glTF file ({err})", path=path) from None
+
+
+def gltf_to_params(path: Path, *, region: str = "hiraji") -> dict:
+    """A ``jkatana-params/1`` parameter file (model ``"ggx"``) from a glTF file's metallic-roughness material.
+
+    The inverse of :func:`export_gltf` for one region: α = roughness² (glTF 2.0
+    Appendix B) per texel of ``roughnessFactor`` × the roughness texture's G
+    channel, and the file's width is their median (a parameter file holds one;
+    the 5th–95th percentiles are kept under ``"import"``). The optical constants
+    are the shipped table whose base colour (:func:`base_colour`) is nearest to the
+    file's ``baseColorFactor`` in CIEDE2000 (the distance is kept): a base colour
+    is three numbers, n and k are spectra, so this names the closest known metal
+    rather than recovering n, k. The scale (camera units) is 1: the file renders in
+    the normalised convention. ``converged`` is false (no fit was made).
+
+    **Raises:** :class:`~jkatana.errors.InputError` when the file cannot be read,
+    has no metallic-roughness material, names a texture that cannot be read
+    (missing), or is not a metal (metallic < 1).
+    """
+    import trimesh
+
+    from jkatana.fit.params import FORMAT, params_from_dict
+    from jkatana.models.lobes import GGX
+    from jkatana.spectral import DEFAULT_GRID
+    from jkatana.spectral.colorimetry import delta_e_2000, xyz_to_rgb_matrix
+    from jkatana.spectral.optical_constants import SHIPPED
+    from jkatana.spectral.optical_constants import load as load_oc
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such file", path=path)
+    tree = _glb_or_gltf_json(path)
+    mats = tree.get("materials") or []
+    if not mats or "pbrMetallicRoughness" not in mats[0]:
+        raise InputError("holds no metallic-roughness material", path=path, field="materials")
+    pbr = mats[0]["pbrMetallicRoughness"]
+    try:
+        loaded = trimesh.load(str(path), process=False)
+    except Exception as err:  # trimesh raises many types, a missing image among them
+        raise InputError(f"cannot be read ({type(err).__name__}: {err})", path=path) from None
+    geoms = list(getattr(loaded, "geometry", {"": loaded}).values())
+    mat = next((g.visual.material for g in geoms if isinstance(getattr(g.visual, "material", None),
+                                                                trimesh.visual.material.PBRMaterial)), None)
+    if mat is None:
+        raise InputError("holds no metallic-roughness material trimesh can read", path=path, field="materials")
+    rough = float(pbr.get("roughnessFactor", 1.0))
+    metal = float(pbr.get("metallicFactor", 1.0))
+    if "metallicRoughnessTexture" in pbr:
+        tex = mat.metallicRoughnessTexture
+        if tex is None:
+            raise InputError("names a metallic-roughness texture that cannot be read (missing image?)", path=path,
+                             field="materials[0].pbrMetallicRoughness.metallicRoughnessTexture")
+        t = np.asarray(tex.convert("RGB"), np.float64) / 255.0
+        r, m = rough * t[..., 1], metal * t[..., 2]
+    else:
+        r, m = np.full((1, 1), rough), np.full((1, 1), metal)
+    if float(np.median(m)) < 0.99:
+        raise InputError(f"is not a metal (metallic {float(np.median(m)):.3g}): jkatana's models are conductors",
+                         path=path, field="materials[0].pbrMetallicRoughness.metallicFactor")
+    alpha = np.maximum(r, 0.0) ** 2
+    a = float(np.median(alpha))
+    base = np.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])[:3], np.float64)
+    to_xyz = np.linalg.inv(xyz_to_rgb_matrix("sRGB"))
+    best, best_de = None, np.inf
+    for name in sorted(SHIPPED):
+        n, k = load_oc(name).on_grid(DEFAULT_GRID)
+        de = float(delta_e_2000(to_xyz @ base_colour(n, k, DEFAULT_GRID), to_xyz @ base))
+        if de < best_de:
+            best, best_de = name, de
+    d = {"format": FORMAT, "region": region, "model": "ggx",
+         "lobe": {"lobe": GGX.name, "alpha": a},  # GGX.to_params() of α, without a float32 round trip
+         "values": {"scale": 1.0, "alpha": a}, "optical_constants": best, "converged": False,
+         "import": {"source": str(path), "alpha_p5_p95": [float(np.percentile(alpha, 5)),
+                                                           float(np.percentile(alpha, 95))],
+                    "base_color": base.tolist(), "optical_constants_dE2000": best_de}}
+    params_from_dict(d, path)  # what a reader checks, naming the file
+    return d
+
+
+__all__ = ["export_gltf", "gltf_to_params", "BLENDS", "base_colour", "normal_incidence_reflectance", "region_alpha", "texel_alpha",
            "roughness_texture", "sphere_mesh", "APPROXIMATIONS"]
