@@ -321,7 +321,8 @@ def export_gltf(scene, out_dir: Path, *, texture_size: int | None = None, blend:
       loaders, so the export holds what ``jkatana render`` shades.
     - `out_dir`: a folder that must not exist yet: the files are written into a
       temporary folder beside it, which is renamed to ``out_dir`` when complete
-      (nothing is ever overwritten; an interrupted export leaves no ``out_dir``).
+      (nothing is ever overwritten; an interrupted export leaves no ``out_dir``, at
+      most an empty hidden ``.<out_dir>.*`` folder beside it).
     - `texture_size`: the roughness texture's longer side in texels (the map
       resampled by the renderer's bilinear lookup); ``None``: the map's own texels.
     - `blend`: how a texel's two lobes become one α (:data:`BLENDS`; ``"linear"``, module docstring).
@@ -343,7 +344,8 @@ def export_gltf(scene, out_dir: Path, *, texture_size: int | None = None, blend:
     if out_dir.exists() or out_dir.is_symlink():
         raise InputError("output folder exists: nothing was overwritten (choose a new folder)", path=out_dir,
                          field="output")
-    if texture_size is not None and (isinstance(texture_size, bool) or not 1 <= int(texture_size) <= 8192):
+    if texture_size is not None and (isinstance(texture_size, bool) or not isinstance(texture_size, int)
+                                     or not 1 <= texture_size <= 8192):
         raise InputError(f"texture size must be an integer in [1, 8192], got {texture_size!r}",
                          field="texture_size")
     name = scene.output.name
