@@ -134,3 +134,43 @@ def test_photos_of_different_blades(tmp_path, capsys, blade_ply):
     _fails(capsys, ["map", a, c, "--mesh", str(blade_ply), "-o", str(out), "--resolution", "128", "512"],
            "c.exr", "did not converge")
     assert not out.exists()
+
+
+def test_clicked_points(tmp_path, capsys, blade_ply):
+    """--points: a photo's clicked (x, y) ↔ (u, v) pairs join the fit; fewer than 3 are refused naming the field."""
+    import json
+
+    from validation.photos import Shot, _spec, camera_frame
+
+    from jkatana.cli import main
+    from jkatana.maps import default_map
+    from jkatana.maps.register import blade_surface
+    from jkatana.shape.katana import default_blade
+
+    mesh = default_blade()
+    shot = Shot(width=1200, height=400, tilt_deg=8, roll_deg=3)
+    photo = _exr(tmp_path / "p.exr", _raycast_photo(mesh, default_map((128, 512)).w, shot))
+    origin, target, up = camera_frame(_spec(mesh), shot)
+    fwd = (target - origin) / np.linalg.norm(target - origin)
+    right = np.cross(fwd, up)
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    f = (shot.width / 2) / (0.5 * shot.span_m / shot.distance_m)
+    surf = blade_surface(mesh, (128, 512))
+    pts = []
+    for u, v in ((0.1, 0.2), (0.5, 0.8), (0.9, 0.3), (0.3, 0.5)):
+        X = surf.points["omote"][int(v * 128), int(u * 512)] - origin
+        x = f * (X @ right) / (X @ fwd) + shot.width / 2 - 0.5
+        y = f * (X @ down) / (X @ fwd) + shot.height / 2 - 0.5
+        pts.append([float(x), float(y), (int(u * 512) + 0.5) / 512, (int(v * 128) + 0.5) / 128])
+    clicks = tmp_path / "clicks.json"
+    clicks.write_text(json.dumps({"p.exr": {"side": "omote", "points": pts}}))
+    out = tmp_path / "map.exr"
+    capsys.readouterr()
+    assert main(["map", photo, "--mesh", str(blade_ply), "-o", str(out), "--points", str(clicks),
+                 "--resolution", "128", "512"]) == 0
+    report = json.loads((tmp_path / "map_registration.json").read_text())
+    assert report["photos"][0]["side"] == "omote" and report["photos"][0]["residual_px"] < 1.0
+    clicks.write_text(json.dumps({"p.exr": {"side": "omote", "points": pts[:2]}}))
+    _fails(capsys, ["map", photo, "--mesh", str(blade_ply), "-o", str(tmp_path / "m2.exr"), "--points", str(clicks)],
+           "clicks.json", "'points'")

@@ -142,9 +142,15 @@ def _map_on_mesh(args: argparse.Namespace) -> int:
         if not isinstance(points, dict):
             raise InputError("must be an object {photo name: {side, points}}", path=args.points)
         names = {Path(p).name for p in args.photo}
-        for k in points:
+        for k, v in points.items():
             if k not in names:
                 raise InputError(f"names {k!r}, which is not one of the photos", path=args.points, field=k)
+            pts = v.get("points") if isinstance(v, dict) else None
+            if (not isinstance(pts, list) or len(pts) < 3
+                    or not all(isinstance(q, list) and len(q) == 4 for q in pts)):
+                raise InputError(f"{k}: need at least 3 points [x, y, u, v]", path=args.points, field="points")
+            if v.get("side", "omote") not in ("omote", "ura"):
+                raise InputError(f"{k}: side must be omote or ura", path=args.points, field="side")
     surface = blade_surface(read_mesh(args.mesh), tuple(args.resolution), path=args.mesh)
     photos = [(p, read_photo(p)) for p in args.photo]
     flat_img = [read_photo(f) for f in flats] if flats else None

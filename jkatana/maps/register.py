@@ -89,9 +89,7 @@ photo sees take the built-in map's values and confidence 0.
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import trimesh
@@ -551,7 +549,7 @@ def _icp(surface: BladeSurface, cam: Camera, edge: np.ndarray, normal: np.ndarra
 def _initial_cameras(surface: BladeSurface, out: PhotoOutline, W: int, H: int, f: float, sides):
     """Candidate starting cameras: each face × each direction of the blade along the outline's axis,
     anchored at a visible end (or, with none, at several points along the blade)."""
-    from jkatana.shape.katana import KatanaSpec  # noqa: F401  (the frame's conventions)
+    from scipy.spatial.transform import Rotation
 
     V = np.asarray(surface.mesh.vertices)
     L = surface.length
@@ -599,8 +597,6 @@ def _initial_cameras(surface: BladeSurface, out: PhotoOutline, W: int, H: int, f
             for X0, x0, Z in anchors:
                 pc = np.array([Z * (x0[0] - (W - 1) / 2) / f, Z * (x0[1] - (H - 1) / 2) / f, Z])
                 t = pc - R @ X0
-                from scipy.spatial.transform import Rotation
-
                 cands.append((side, Camera(Rotation.from_matrix(R).as_rotvec(), t, f, (W - 1) / 2, (H - 1) / 2)))
     return cands
 
