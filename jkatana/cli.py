@@ -46,6 +46,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "map": ("jkatana.maps.commands", "map"),
     "light": ("jkatana.render.commands", "light"),  # light.commands, and prefilter, which prepares a render
     "view": ("jkatana.interactive.commands", "view"),
+    "export": ("jkatana.export.commands", "export"),
     "bench": ("benchmarks.__main__", "bench"),
 }
 

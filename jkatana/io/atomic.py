@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
+import shutil
 import tempfile
 import threading
 import time
@@ -59,7 +60,10 @@ def remove_live() -> None:
         paths = list(LIVE)
     for p in paths:
         with contextlib.suppress(OSError):
-            p.unlink()
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p)
+            else:
+                p.unlink()
 
 
 @contextlib.contextmanager
@@ -109,3 +113,48 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return Path(path)
+
+
+@contextlib.contextmanager
+def atomic_folder(path: str | Path, *, exists_error=None) -> Iterator[Path]:
+    """Yield a temporary folder beside ``path``; on success it becomes ``path``, which must not exist.
+
+    The folder's files appear together or not at all: they are written into a
+    hidden temporary folder (listed in :data:`LIVE`, so an interrupt removes
+    it), then ``path`` is claimed with ``mkdir`` (which fails if it exists or
+    anyone made it meanwhile) and the temporary folder renamed onto that empty
+    claim (``rename(2)`` replaces an empty folder atomically). Nothing is
+    ever overwritten: an existing ``path`` raises ``exists_error()`` (default
+    :class:`FileExistsError`) before or after the work. Permissions: the
+    umask's, folders searchable where readable.
+    """
+    path = Path(path)
+    fail = exists_error or (lambda: FileExistsError(17, "exists", str(path)))
+    if path.exists() or path.is_symlink():
+        raise fail()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with _LOCK:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+        LIVE.add(tmp)
+    claimed = False
+    try:
+        yield tmp
+        mode = file_mode()
+        for f in tmp.rglob("*"):
+            os.chmod(f, (mode | ((mode & 0o444) >> 2)) if f.is_dir() else mode)
+        os.chmod(tmp, mode | ((mode & 0o444) >> 2))
+        try:
+            os.mkdir(path)
+        except FileExistsError:
+            raise fail() from None
+        claimed = True
+        os.rename(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if claimed:
+            with contextlib.suppress(OSError):
+                path.rmdir()
+        raise
+    finally:
+        with _LOCK:
+            LIVE.discard(tmp)
