@@ -141,6 +141,11 @@ def test_outputs_get_the_umask_permissions(tmp_path):
     (["simulate", "-o", "s", "--seed", "-1"], "--seed"),
     (["simulate", "-o", "s", "--params", "hiraji:chi=nan"], "--params"),
     (["fit", "t.csv", "-o", "f.json", "--seed", "-1"], "--seed"),
+    (["fit", "t.csv", "-o", "f.json", "--bootstrap", "-1"], "--bootstrap"),        # was a traceback
+    (["fit", "t.csv", "-o", "f.json", "--bootstrap", "100000000"], "--bootstrap"),  # was work without a bound
+    (["brdf", "slice", "x.binary", "-o", "t.csv", "--seed", "-1"], "--seed"),
+    (["shape", "--simulate", "-o", "b.ply", "--smooth", "-1"], "--smooth"),
+    (["shape", "m.ply", "-o", "b.ply", "--crease-deg", "nan"], "--crease-deg"),
     (["light", "build", "-o", "s.exr", "--azimuth", "inf"], "--azimuth"),
     (["light", "build", "-o", "s.exr", "--grid", "700", "400", "5"], "--grid"),
     (["light", "convert", "x.hdr", "-o", "s.exr", "--scale", "nan"], "--scale"),

@@ -58,6 +58,9 @@ def brdf_run(args: argparse.Namespace) -> int:
     from jkatana.io.outputs import Output, check_outputs
 
     check_outputs([Output(args.output, "--output", (".csv", ".parquet"))], inputs=[args.brdf])
+    from jkatana.io.limits import number
+
+    number(args.seed, "--seed", lo=0, hi=2 ** 32 - 1, integer=True)
     inst = Instrument(*(instrument_angle(getattr(args, f), f.replace("_", "-"))
                         for f in ("source_radius_deg", "aperture_radius_deg")))
     src = load_brdf(args.brdf)

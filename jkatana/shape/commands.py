@@ -115,6 +115,12 @@ def _shape_any_mesh(args: argparse.Namespace) -> int:
 
 
 def shape_run(args: argparse.Namespace) -> int:
+    from jkatana.io.limits import number
+
+    # the mesh options, checked whatever the mode (a mode that does not use them still refuses nonsense)
+    number(args.smooth, "--smooth", lo=0, hi=10000, integer=True)
+    number(args.crease_deg, "--crease-deg", lo=0, hi=180)
+    number(args.max_hole_edges, "--max-hole-edges", lo=0, hi=2 ** 20, integer=True)
     if not (args.blade or args.simulate or args.katana_fit or args.height_field):
         return _shape_any_mesh(args)
     import jax
