@@ -10,7 +10,9 @@ The steps and their reasons are in :mod:`jkatana.maps.register`'s docstring
    weight cos θ × feather;
 3. sections that show neither end of the blade slid along u to where their
    content matches the photos that do (:func:`_slide`);
-4. one gain per photo from the overlaps; photos of the same face whose
+4. texels where a photo shows a mirror glint of the light (far brighter than
+   its hamon) dropped from that photo (:func:`_drop_glints`); one gain per
+   photo from the overlaps; photos of the same face whose
    overlaps disagree are refused (photos of different blades);
 5. the weighted blend, then w: Otsu's threshold of the relative
    brightness (Otsu 1979) splits hiraji from hamon; w = 1 at and below the
@@ -56,6 +58,7 @@ class PhotoView:
     cos: np.ndarray  # (H, W)
     gain: float = 1.0
     slide_texels: int = 0
+    glints: int = 0
 
 
 @dataclass
@@ -169,12 +172,39 @@ def _camera_slid(surface: BladeSurface, view: PhotoView, shift: int) -> Camera:
     return Camera(Rotation.from_matrix(R_new).as_rotvec(), t_new, cam.f, cam.cx, cam.cy)
 
 
-def _levels(values: np.ndarray) -> tuple[float, float]:
-    """(dark, bright) relative brightness: Otsu's split, then the dark class's 90th and the bright class's
-    10th percentile (a mune roof that mirrors some light stays in the dark class: w = 1)."""
+#: A texel brighter than this many times the 90th percentile of the photo's bright (hamon) class is a
+#: glint: the mirror-like hiraji reflecting the light itself, which says nothing of w.
+GLINT_FACTOR = 3.0
+
+
+def _drop_glints(view: PhotoView) -> None:
+    """Texels where the photo shows a mirror glint of the light (far brighter than any hamon: the camera
+    sits in the light's mirror direction there) are not seen by that photo; their count is reported."""
     from jkatana.maps.photo import otsu_threshold
 
-    t = otsu_threshold(values)
+    seen = view.weight > 0
+    vals = view.value[seen]
+    if vals.size < 100:
+        return
+    t = otsu_threshold(np.minimum(vals, np.percentile(vals, 95)))
+    bright = vals[vals > t]
+    if bright.size < 10:
+        return
+    glint = seen & (view.value > GLINT_FACTOR * np.percentile(bright, 90))
+    view.glints = int(glint.sum())
+    view.weight = np.where(glint, 0.0, view.weight)
+    view.cos = np.where(glint, 0.0, view.cos)
+
+
+def _levels(values: np.ndarray) -> tuple[float, float]:
+    """(dark, bright) relative brightness: Otsu's split, then the dark class's 90th and the bright class's
+    10th percentile (a mune roof that mirrors some light stays in the dark class: w = 1). Values above the
+    99th percentile enter Otsu's histogram at that percentile: a mirror glint of the light on the hiraji
+    (a camera far off the normal) is a few texels far brighter than the hamon, and would otherwise split
+    off alone, leaving hamon and hiraji in one class."""
+    from jkatana.maps.photo import otsu_threshold
+
+    t = otsu_threshold(np.minimum(values, np.percentile(values, 99)))  # a glint's few texels do not set it
     lo, hi = values[values <= t], values[values > t]
     if lo.size < 10 or hi.size < 10:
         raise InputError("the photos show no hiraji/hamon contrast on the blade (one brightness class)",
@@ -207,7 +237,9 @@ def build_map(photos: list[tuple[str, np.ndarray]], surface: BladeSurface, *, fl
         value, weight, cos = sample_texels(surface, reg.camera, reg.side, rel, out.mask)
         if not (weight > 0).any():
             raise InputError("the registered blade covers no texel of the map", path=path)
-        views.append(PhotoView(str(path), y.shape, out, reg, value, weight, cos))
+        view = PhotoView(str(path), y.shape, out, reg, value, weight, cos)
+        _drop_glints(view)
+        views.append(view)
     # sections without an end: slide along u to match the others
     anchored = [v for v in views if v.reg.ends_seen > 0]
     for v in views:
@@ -224,6 +256,7 @@ def build_map(photos: list[tuple[str, np.ndarray]], surface: BladeSurface, *, fl
             v.reg.residual_px = outline_residual(surface, cam, v.outline.edge, W, H)
             rel = _prefilter(photos[views.index(v)][1] / v.outline.light)
             v.value, v.weight, v.cos = sample_texels(surface, cam, v.reg.side, rel, v.outline.mask)
+            _drop_glints(v)
             v.slide_texels = s
         anchored.append(v)
     _gains(views)
@@ -258,13 +291,16 @@ def build_map(photos: list[tuple[str, np.ndarray]], surface: BladeSurface, *, fl
                + ", ".join(f"{Path(v.path).name} {v.reg.residual_px:.2f} px {v.reg.side}" for v in views)
                + f"); {100 - unseen:.1f} % of texels seen"
                + (f", {unseen:.1f} % from the built-in map" if unseen > 0 else "")
-               + (" (omote and ura share UVs: blended)" if len(sides_seen) == 2 else ""))
+               + (" (omote and ura share UVs: blended)" if len(sides_seen) == 2 else "")
+               + (f"; {sum(v.glints for v in views)} texels showing a glint of the light left out"
+                  if any(v.glints for v in views) else ""))
     report = {
         "photos": [{"path": v.path, "side": v.reg.side, "residual_px": v.reg.residual_px,
                     "outline_points": v.reg.outline_points, "ends_seen": v.reg.ends_seen,
                     "focal_px": v.reg.camera.f, "off_normal_deg": v.reg.camera.off_normal_deg(),
                     "camera_centre_m": v.reg.camera.centre.tolist(), "rotvec": v.reg.camera.rotvec.tolist(),
                     "t": v.reg.camera.t.tolist(), "gain": v.gain, "slide_texels": v.slide_texels,
+                    "glint_texels": v.glints,
                     "texels_seen_percent": float(100 * (v.weight > 0).mean())} for v in views],
         "dark": float(dark), "bright": float(bright), "unseen_percent": float(unseen),
         "filled_from": "the built-in map (jkatana.maps.default_map)" if unseen > 0 else None,
