@@ -57,7 +57,6 @@ from jaxtyping import Array, Float
 from jkatana.models.fitted import (FIT_MODELS, MODELS, SCALE_NAME, SHAPE_NAMES, FitModel, ModelSpec,  # noqa: F401
                                    _sigmoid, build_lobe, default_shape, from_natural, to_natural)
 from jkatana.models.fresnel import fbar_many as _fbar_many
-from jkatana.models.fresnel import fbar_numpy as _fbar_numpy  # noqa: F401
 from jkatana.models.lobes import Geometry
 from jkatana.models.microfacet import vcavity_over_cos
 
