@@ -175,11 +175,19 @@ def _check(args) -> None:
     number(args.refresh, "--refresh", lo=0, lo_open=True, hi=1e6)
     number(args.exposure, "--exposure", lo=0, lo_open=True)
     number(args.msaa, "--msaa", lo=0, hi=16, integer=True)
+    frame = 0
     if args.resolution:
         w, h = numbers(args.resolution, "--resolution", lo=1, hi=16384, integer=True)
         # RGBA8 colour, depth and the deferred G-buffer (about 16 float32 per pixel), MSAA multiplies
-        require_memory(w * h * 80 * max(1, args.msaa), "--resolution", f"a {w}×{h} view",
-                       getattr(args, "max_memory", None))
+        frame = w * h * 80 * max(1, args.msaa)
+        require_memory(frame, "--resolution", f"a {w}×{h} view", getattr(args, "max_memory", None))
+    if args.scene is not None and Path(args.scene).is_file():
+        # the environment's load and bake, from its header's size, before any of it is read
+        from jkatana.render.memory import check_environment_memory
+        from jkatana.render.scenefile import load_scene
+
+        check_environment_memory(load_scene(args.scene), interactive=True, extra=frame,
+                                 max_memory=getattr(args, "max_memory", None))
     outs = [Output(args.output, "--output", folder=True)]
     if args.screenshot:
         outs.append(Output(args.screenshot, "--screenshot", (".png",)))

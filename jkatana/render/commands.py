@@ -47,32 +47,43 @@ def _check_common(args) -> None:
     number(args.devices, "--devices", lo=1, hi=max(8, 4 * cores), integer=True)
 
 
-def check_render_memory(scene, *, samples=None, devices=None, max_memory=None) -> None:
-    """Refuse, naming the field that dominates, a frame whose estimated peak memory exceeds the budget.
+def render_memory(scene, *, samples=None, devices=None) -> tuple[float, str, str]:
+    """Estimated peak bytes of a frame of ``scene``, the field whose part dominates and what that part is.
 
     The estimate counts the arrays a frame allocates: the G-buffer and film (per pixel ~40 float64
-    values, XYZ and, for spectral output, one float32 per band), the environment (float32 per texel
-    and band: radiance, its rotated or factored copy and the sampling tables), and one shading call
-    (``devices × chunk`` pixels × bands, ~16 float32 temporaries, plus ~32 bytes per sample).
+    values, XYZ and, for spectral output, one float32 per band), the environment's preparation (its
+    size read from the file's header: the upsampled map, its float64 copies, the sun split, the
+    sampling tables and levels; :mod:`jkatana.render.memory`), and one shading call (``devices × chunk``
+    pixels × bands, ~16 float32 temporaries, plus ~32 bytes per sample), on top of the process itself
+    (:data:`jkatana.render.memory.BASE_BYTES`).
     """
-    from jkatana.io.limits import require_memory
+    from jkatana.render.memory import BASE_BYTES, describe, environment_bytes, environment_field
 
     w, h = scene.camera.resolution
     bands = scene.spectral.grid.size
-    eh, ew = scene.environment.resolution or (16, 32)
     samples = int(samples or scene.render.samples)
     devices = int(devices or _cores())
     parts = {
         "camera.resolution": (w * h * (40 * 8 + 3 * 8 + (4 * bands if scene.output.spectral else 0)),
                               f"a {w}×{h} frame"),
-        "environment.resolution": (eh * ew * bands * 4 * 3, f"a {eh}×{ew} environment with {bands} bands"),
+        environment_field(scene.environment): (environment_bytes(scene.environment, bands),
+                                               describe(scene.environment, bands)),
         "render.chunk": (devices * min(scene.render.chunk, w * h) * bands * 4 * 16,
                          f"{devices} × {scene.render.chunk} pixels per shading call"),
         "--samples": (devices * samples * 32, f"{samples} samples per pixel"),
     }
-    total = sum(v for v, _ in parts.values())
     field = max(parts, key=lambda k: parts[k][0])
-    require_memory(total, field, f"{parts[field][1]} (the whole frame)", max_memory)
+    return BASE_BYTES + sum(v for v, _ in parts.values()), field, parts[field][1]
+
+
+def check_render_memory(scene, *, samples=None, devices=None, max_memory=None) -> float:
+    """Refuse, naming the field that dominates, a frame whose estimated peak memory (:func:`render_memory`)
+    exceeds the budget; returns the estimate in bytes."""
+    from jkatana.io.limits import require_memory
+
+    total, field, what = render_memory(scene, samples=samples, devices=devices)
+    require_memory(total, field, f"{what} (the whole frame)", max_memory)
+    return total
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -105,7 +116,10 @@ def light_run(args: argparse.Namespace) -> int:
     from jkatana.render.renderer import prepare
     from jkatana.render.scenefile import load_scene
 
+    from jkatana.render.memory import check_environment_memory
+
     scene = load_scene(args.scene)
+    check_environment_memory(scene, max_memory=getattr(args, "max_memory", None))
     t0 = time.perf_counter()
     prepare(scene, mode=args.mode)
     print(f"{args.scene}: environment for mode {args.mode} built in {time.perf_counter() - t0:.1f} s and cached "

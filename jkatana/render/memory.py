@@ -1,0 +1,117 @@
+"""Memory a scene's environment needs, estimated from the map's size before a pixel of it is read.
+
+A map read from a file is turned into spectra and prepared in several steps,
+each holding full-size copies of the map at once: the RGB → spectrum
+upsampling and its clean-up in float64 (:func:`jkatana.light.envmap.load_envmap`),
+the sun detection and its remainder (:func:`jkatana.light.sun.split_compact_sources`),
+the sampling tables (:class:`jkatana.light.sampling.EnvSampler`), the channels and
+prefiltered levels (:func:`jkatana.render.environment.build_environment`), and
+for ``view`` the float64 copy the viewer holds and the baked levels resampled to
+the map's size (:func:`jkatana.interactive.bake.cached_bake`). The peak therefore
+grows with texels × bands, many times the 4 bytes per value of the map itself;
+a frame's own arrays (:func:`jkatana.render.commands.check_render_memory`) come on top.
+
+:func:`environment_resolution` reads the size from the image header
+(OpenImageIO opens the header only), so that :func:`environment_bytes` can be
+checked against the budget (:func:`jkatana.io.limits.require_memory`) before
+any work: a map that cannot fit is refused in one line naming its size and the
+estimate, instead of the kernel's out-of-memory killer ending the process
+minutes later.
+
+The per-value costs and the base are the slope and intercept of the peak RSS of a
+first use on an empty cache against map size (the shared 1k HDR and its 2k resize,
+``benchmarks/bench_first_use.py``); ``tests/test_memory_estimate.py`` holds the
+estimate of the 1k map within a factor 1.5 of the measured peak.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+#: Bytes per spectral value (texel × band) at the peak of a first ``render`` / ``light prefilter`` of a map
+#: read from a file: the upsampled float32 map, its float64 clean-up copies, the sun split's remainder and
+#: the sampler's float64 luminance work arrays alive together.
+RENDER_BYTES_PER_VALUE = 48.0
+#: Bytes per spectral value at the peak of a first ``view``: the render path's load, then the viewer's
+#: float64 copy and the bake's float64 projection and levels.
+VIEW_BYTES_PER_VALUE = 48.0
+#: Bytes per texel of the baked levels ``view`` keeps at the map's size (11 μ levels × rank 3 × XYZ float32).
+VIEW_BYTES_PER_TEXEL = 11 * 3 * 3 * 4
+#: The process before the environment: Python, NumPy, JAX and XLA's compiled programs, the mesh, the map.
+BASE_BYTES = 0.6 * 2 ** 30
+
+
+def image_resolution(path: str | Path) -> tuple[int, int] | None:
+    """``(height, width)`` of an EXR or Radiance HDR from its header alone (no pixel decoded), or None when the
+    header cannot be read (the reader then reports the file's fault in its own words)."""
+    try:
+        import OpenImageIO as oiio
+    except ImportError:  # pragma: no cover - OpenImageIO is a dependency
+        return None
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()  # clear the error: the reader names it
+        return None
+    try:
+        spec = inp.spec()
+        return int(spec.height), int(spec.width)
+    finally:
+        inp.close()
+
+
+def environment_resolution(environment) -> tuple[int, int] | None:
+    """``(height, width)`` of a scene's :class:`~jkatana.render.scene.Environment`: its ``resolution`` for the
+    built-in sky and constant environments, the file's header for ``exr`` and ``hdr``."""
+    if environment.resolution is not None:
+        return tuple(int(v) for v in environment.resolution)
+    if environment.type in ("exr", "hdr") and environment.path is not None:
+        return image_resolution(environment.path)
+    return None
+
+
+def environment_bytes(environment, bands: int, *, interactive: bool = False) -> float:
+    """Estimated peak bytes of preparing ``environment`` on ``bands`` wavelengths (``interactive``: for ``view``),
+    not counting :data:`BASE_BYTES` nor the frame."""
+    size = environment_resolution(environment)
+    if size is None:
+        return 0.0
+    texels = size[0] * size[1]
+    if interactive:
+        return texels * (bands * VIEW_BYTES_PER_VALUE + VIEW_BYTES_PER_TEXEL)
+    return texels * bands * RENDER_BYTES_PER_VALUE
+
+
+def describe(environment, bands: int) -> str:
+    """``"a 6000×3000 (width × height) environment map big.exr, 61 bands"``, for the refusal."""
+    size = environment_resolution(environment)
+    shape = "an" if size is None else f"a {size[1]}×{size[0]} (width × height)"
+    name = f" map {Path(environment.path).name}" if getattr(environment, "path", None) else ""
+    return f"{shape} environment{name}, {bands} bands"
+
+
+def environment_estimate(scene, *, interactive: bool = False, extra: float = 0.0) -> float:
+    """Estimated peak bytes of preparing ``scene``'s environment, plus ``extra`` bytes of frame and the
+    process itself (:data:`BASE_BYTES`)."""
+    return BASE_BYTES + environment_bytes(scene.environment, scene.spectral.grid.size, interactive=interactive) \
+        + extra
+
+
+def check_environment_memory(scene, *, interactive: bool = False, max_memory=None, extra: float = 0.0) -> float:
+    """Refuse, in one line naming the map's size and the estimate (:func:`environment_estimate`), a scene whose
+    environment cannot fit the memory budget; returns the estimate in bytes."""
+    from jkatana.io.limits import require_memory
+
+    total = environment_estimate(scene, interactive=interactive, extra=extra)
+    what = describe(scene.environment, scene.spectral.grid.size) + (" in view" if interactive else "")
+    require_memory(total, environment_field(scene.environment), f"{what} (the whole request)", max_memory)
+    return total
+
+
+def environment_field(environment) -> str:
+    """The scene field a refusal names: the file for a map read from one, else the resolution."""
+    return "environment.path" if environment.type in ("exr", "hdr") else "environment.resolution"
+
+
+__all__ = ["image_resolution", "environment_resolution", "environment_bytes", "environment_estimate",
+           "check_environment_memory", "environment_field", "RENDER_BYTES_PER_VALUE", "VIEW_BYTES_PER_VALUE",
+           "BASE_BYTES"]
