@@ -61,12 +61,8 @@ F0 is its base colour. Blender, three.js and model-viewer read it. What
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -271,43 +267,17 @@ def _tree_fix(base: np.ndarray, name: str):
 
 
 def _write_folder(out_dir: Path, files: dict) -> None:
-    """Create ``out_dir`` holding ``files`` ({name: bytes}) all at once, never replacing anything.
+    """Create ``out_dir`` holding ``files`` ({name: bytes}) all at once, never replacing anything
+    (:func:`jkatana.io.atomic.atomic_folder`)."""
+    from jkatana.io.atomic import atomic_folder
 
-    The files are written into a hidden temporary folder beside ``out_dir`` (listed
-    in :data:`jkatana.io.atomic.LIVE` while written, so that an interrupt removes
-    them), then ``out_dir`` is claimed with ``mkdir`` (which fails if anyone made
-    it meanwhile) and the temporary folder renamed onto that empty claim
-    (``rename(2)`` replaces an empty folder atomically). Permissions: the umask's,
-    as :func:`jkatana.io.atomic.file_mode` gives files (folders also get x where r).
-    """
-    from jkatana.io.atomic import LIVE, file_mode
+    def exists():
+        return InputError("output folder exists: nothing was overwritten (choose a new folder)", path=out_dir,
+                          field="output")
 
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    claimed = False
-    try:
+    with atomic_folder(out_dir, exists_error=exists) as tmp:
         for fname, data in files.items():
-            path = tmp / fname
-            LIVE.add(path)
-            path.write_bytes(data)
-            os.chmod(path, file_mode())
-        os.chmod(tmp, file_mode() | ((file_mode() & 0o444) >> 2))
-        try:
-            os.mkdir(out_dir)
-        except FileExistsError:
-            raise InputError("output folder exists: nothing was overwritten (choose a new folder)",
-                             path=out_dir, field="output") from None
-        claimed = True
-        os.rename(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if claimed:
-            with contextlib.suppress(OSError):
-                out_dir.rmdir()
-        raise
-    finally:
-        for fname in files:
-            LIVE.discard(tmp / fname)
+            (tmp / fname).write_bytes(data)
 
 
 def export_gltf(scene, out_dir: Path, *, texture_size: int | None = None, blend: str = "linear") -> dict:
