@@ -55,3 +55,47 @@ def agreement(scene, out_dir: Path, *, spp_mitsuba: int, spp_jkatana: int, seed:
     rgb_jk, mask = render_jkatana(scene, spp=spp_jkatana, seed=seed, supersample=supersample)
     stats = compare(rgb_jk, rgb_mi, mask, erode=1)
     return {**stats, "mitsuba": rgb_mi, "jkatana": rgb_jk, "mask": mask}
+
+
+def self_shadowed(scene, shape: tuple[int, int], *, cone: float, rays: int = 32, seed: int = 0) -> np.ndarray:
+    """``(H, W)`` bool: pixels whose reflected lobe the object itself blocks.
+
+    jkatana casts no shadow rays against the rendered object (only against ``[[occluders]]``), while
+    Mitsuba's ``direct`` integrator shadows every light path by the whole scene: on a concave object the
+    two integrals differ where the object hides part of the lobe's cone from the surface point. Per
+    pixel centre (trimesh ray casting, Embree), ``rays`` directions uniform in the cone of half-angle
+    ``cone`` about the mirror direction of the face normal are tested against the mesh.
+    """
+    from jkatana.render.renderer import camera_for, load_geometry
+
+    mesh = load_geometry(scene)
+    if isinstance(mesh, tuple):
+        return np.zeros(shape, bool)
+    cam = camera_for(scene)
+    cam = type(cam)(cam.position, cam.look_at, cam.up, cam.fov_deg, shape[1], shape[0])
+    origin, d = cam.rays()
+    d = d.reshape(-1, 3)
+    loc, ray, tri = mesh.ray.intersects_location(np.broadcast_to(origin, d.shape), d, multiple_hits=False)
+    out = np.zeros(d.shape[0], bool)
+    if not len(ray):
+        return out.reshape(shape)
+    n = mesh.face_normals[tri]
+    n = np.where((np.sum(n * d[ray], -1) > 0)[:, None], -n, n)
+    r = d[ray] - 2 * np.sum(d[ray] * n, -1, keepdims=True) * n
+    rng = np.random.default_rng(seed)
+    # directions uniform in the cone about r: a frame (t, b, r)
+    t = np.cross(r, [0.0, 0.0, 1.0])
+    t = np.where(np.linalg.norm(t, axis=-1, keepdims=True) < 1e-6, np.cross(r, [1.0, 0.0, 0.0]), t)
+    t /= np.linalg.norm(t, axis=-1, keepdims=True)
+    b = np.cross(r, t)
+    cos_t = 1 - rng.random((len(r), rays)) * (1 - np.cos(cone))
+    sin_t = np.sqrt(1 - cos_t ** 2)
+    phi = 2 * np.pi * rng.random((len(r), rays))
+    dirs = (cos_t[..., None] * r[:, None] + (sin_t * np.cos(phi))[..., None] * t[:, None]
+            + (sin_t * np.sin(phi))[..., None] * b[:, None]).reshape(-1, 3)
+    start = np.repeat(loc + 1e-6 * n, rays, axis=0) + 1e-6 * dirs
+    up = np.sum(dirs * np.repeat(n, rays, axis=0), -1) > 0  # below the surface the lobe is 0 anyway
+    hit = np.zeros(len(dirs), bool)
+    hit[up] = mesh.ray.intersects_any(start[up], dirs[up])
+    out[ray] = hit.reshape(-1, rays).any(-1)
+    return out.reshape(shape)
