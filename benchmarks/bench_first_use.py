@@ -127,6 +127,16 @@ def bench_budget() -> int:
 
 
 def run(quick: bool) -> list[dict]:
+    import shutil
+
+    work = Path(tempfile.mkdtemp(prefix="bench_first_use-"))
+    try:
+        return _run(quick, work)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _run(quick: bool, work: Path) -> list[dict]:
     from benchmarks._harness import budget_s, record
     from jkatana.io.limits import human, memory_budget
     from jkatana.render.commands import render_memory
@@ -138,7 +148,6 @@ def run(quick: bool) -> list[dict]:
     deadline = budget_s(math.inf)
     hdr = str(shared_data("envmaps", "pedestrian_overpass_1k.hdr"))
     limit = bench_budget()
-    work = Path(tempfile.mkdtemp(prefix="bench_first_use-"))
     records = []
     w, h = (160, 120) if quick else (400, 300)
     big = ("6000×3000", resized_hdr(hdr, 6000, 3000, work / "map6k.hdr"))
