@@ -353,3 +353,30 @@ def test_pbrt_scene_names_its_assets_and_its_environment_is_equal_area(tmp_path)
     d = equal_area_square_to_sphere(*np.meshgrid(g, g, indexing="xy")).reshape(-1, 3)
     np.testing.assert_allclose(np.linalg.norm(d, axis=-1), 1.0, atol=1e-12)
     assert abs(d[:, 2].mean()) < 1e-3 and abs(np.mean(d[:, 2] > 0.5) - 0.25) < 0.01
+
+
+def test_a_mitsuba_roughconductor_imports_as_a_parameter_file(tmp_path):
+    """A ``roughconductor`` back as a ``jkatana-params/1`` file: one written by hand as Mitsuba's documentation
+    writes it (named material, Beckmann by default), one from jkatana's own export (η, k spectra → the
+    shipped iron table, ΔE 0), and the refusals (anisotropic, a metal jkatana does not ship), one line each."""
+    from jkatana.export.mitsuba import roughconductor_to_params
+    from jkatana.fit.params import params_from_dict
+
+    hand = tmp_path / "hand.xml"
+    hand.write_text('<scene version="3.0.0"><shape type="sphere"><bsdf type="twosided" id="steel">'
+                    '<bsdf type="roughconductor"><string name="material" value="Cr"/>'
+                    '<float name="alpha" value="0.15"/></bsdf></bsdf></shape></scene>')
+    d = roughconductor_to_params(hand, bsdf_id="steel")
+    assert d["model"] == "beckmann" and d["values"]["alpha"] == 0.15 and d["optical_constants"] == "Cr-Johnson"
+    assert params_from_dict(d).model == "beckmann"
+    export_scene(load_scene(sphere_ggx(tmp_path)), "mitsuba", tmp_path / "mi")
+    back = roughconductor_to_params(tmp_path / "mi" / "scene.xml", region="hamon")
+    assert back["model"] == "ggx" and back["values"]["alpha"] == pytest.approx(VALUES["ggx"]["alpha"], rel=1e-7)
+    assert back["optical_constants"] == "Fe-Johnson" and back["import"]["optical_constants_dE2000"] < 1e-6
+    for body, why in (('<float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/>', "anisotropic"),
+                      ('<string name="material" value="Au"/>', "no shipped optical constants")):
+        bad = tmp_path / "bad.xml"
+        bad.write_text(f'<scene version="3.0.0"><bsdf type="roughconductor">{body}</bsdf></scene>')
+        with pytest.raises(InputError, match=why) as err:
+            roughconductor_to_params(bad)
+        assert len(str(err.value).splitlines()) == 1 and "bad.xml" in str(err.value)

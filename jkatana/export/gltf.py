@@ -96,6 +96,24 @@ def normal_incidence_reflectance(n: np.ndarray, k: np.ndarray) -> np.ndarray:
     return ((n - 1.0) ** 2 + k * k) / ((n + 1.0) ** 2 + k * k)
 
 
+def nearest_shipped_metal(base: np.ndarray) -> tuple[str, float]:
+    """``(name, ΔE2000)``: the shipped optical-constant table whose :func:`base_colour` is nearest to the linear
+    sRGB colour ``base`` (an imported material's metal, when the file names none jkatana ships)."""
+    from jkatana.spectral import DEFAULT_GRID
+    from jkatana.spectral.colorimetry import delta_e_2000, xyz_to_rgb_matrix
+    from jkatana.spectral.optical_constants import SHIPPED
+    from jkatana.spectral.optical_constants import load as load_oc
+
+    to_xyz = np.linalg.inv(xyz_to_rgb_matrix("sRGB"))
+    best, best_de = "", np.inf
+    for name in sorted(SHIPPED):
+        n, k = load_oc(name).on_grid(DEFAULT_GRID)
+        de = float(delta_e_2000(to_xyz @ base_colour(n, k, DEFAULT_GRID), to_xyz @ np.asarray(base, np.float64)))
+        if de < best_de:
+            best, best_de = name, de
+    return best, best_de
+
+
 def base_colour(n: np.ndarray, k: np.ndarray, grid) -> np.ndarray:
     """``(3,)`` linear sRGB of the reflectance F0(λ) (:func:`normal_incidence_reflectance`) under CIE D65.
 
@@ -410,10 +428,6 @@ def gltf_to_params(path: Path, *, region: str = "hiraji") -> dict:
 
     from jkatana.fit.params import FORMAT, params_from_dict
     from jkatana.models.lobes import GGX
-    from jkatana.spectral import DEFAULT_GRID
-    from jkatana.spectral.colorimetry import delta_e_2000, xyz_to_rgb_matrix
-    from jkatana.spectral.optical_constants import SHIPPED
-    from jkatana.spectral.optical_constants import load as load_oc
 
     path = Path(path)
     if not path.is_file():
@@ -449,13 +463,7 @@ def gltf_to_params(path: Path, *, region: str = "hiraji") -> dict:
     alpha = np.maximum(r, 0.0) ** 2
     a = float(np.median(alpha))
     base = np.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])[:3], np.float64)
-    to_xyz = np.linalg.inv(xyz_to_rgb_matrix("sRGB"))
-    best, best_de = None, np.inf
-    for name in sorted(SHIPPED):
-        n, k = load_oc(name).on_grid(DEFAULT_GRID)
-        de = float(delta_e_2000(to_xyz @ base_colour(n, k, DEFAULT_GRID), to_xyz @ base))
-        if de < best_de:
-            best, best_de = name, de
+    best, best_de = nearest_shipped_metal(base)
     d = {"format": FORMAT, "region": region, "model": "ggx",
          "lobe": {"lobe": GGX.name, "alpha": a},  # GGX.to_params() of α, without a float32 round trip
          "values": {"scale": 1.0, "alpha": a}, "optical_constants": best, "converged": False,
@@ -466,5 +474,5 @@ def gltf_to_params(path: Path, *, region: str = "hiraji") -> dict:
     return d
 
 
-__all__ = ["export_gltf", "gltf_to_params", "BLENDS", "base_colour", "normal_incidence_reflectance", "region_alpha", "texel_alpha",
+__all__ = ["export_gltf", "gltf_to_params", "BLENDS", "base_colour", "nearest_shipped_metal", "normal_incidence_reflectance", "region_alpha", "texel_alpha",
            "roughness_texture", "sphere_mesh", "APPROXIMATIONS"]

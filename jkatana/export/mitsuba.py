@@ -366,4 +366,101 @@ def check_exportable(res: Resolved) -> None:
                              field=f"material.{r}")
 
 
-__all__ = ["export_mitsuba", "scene_dict", "to_xml", "for_load_dict", "write_ply", "Matrix", "LookAt", "TAGS"]
+# ------------------------------------------------------------------------------------------- import
+
+
+def _named_values(el) -> dict:
+    return {c.get("name"): c for c in el if c.get("name")}
+
+
+def _spectrum_values(el, path, field) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(wavelengths, values)`` of a Mitsuba ``<spectrum value="λ:v, ..."/>``; ``None`` for a constant."""
+    text = el.get("value", "")
+    try:
+        if ":" not in text:
+            return None
+        pairs = [tuple(float(x) for x in item.split(":")) for item in text.split(",") if item.strip()]
+        wl, v = (np.asarray(a, np.float64) for a in zip(*pairs))
+    except ValueError:
+        raise InputError(f"is not a spectrum of 'wavelength:value' pairs ({text[:40]!r})", path=path,
+                         field=field) from None
+    return wl, v
+
+
+def roughconductor_to_params(path, *, bsdf_id: str | None = None, region: str = "hiraji") -> dict:
+    """A Mitsuba 3 ``roughconductor`` of a scene XML as a ``jkatana-params/1`` parameter file (a dict).
+
+    The lobe is the file's: ``distribution`` ggx or beckmann (Mitsuba's default) and ``alpha`` (its default
+    0.1; an anisotropic ``alpha_u`` ≠ ``alpha_v`` is refused: jkatana's lobes are isotropic), the same α as
+    :class:`~jkatana.models.lobes.GGX` / :class:`~jkatana.models.lobes.Beckmann` take. The optical constants
+    are the shipped table Mitsuba's ``material`` names (Fe, Cr, Ni, Mo, W), or, for η and k given as
+    spectra, the shipped table of nearest normal-incidence colour (its ΔE2000 recorded under ``"import"``).
+    ``bsdf_id`` picks one BSDF by its ``id`` (default: the only ``roughconductor``, possibly inside a
+    ``twosided``). The scale is 1: a rendered material, not a fit to camera units.
+    """
+    import xml.etree.ElementTree as ET
+
+    from jkatana.export.gltf import base_colour, nearest_shipped_metal
+    from jkatana.fit.params import FORMAT, params_from_dict
+    from jkatana.spectral.grid import WavelengthGrid
+    from jkatana.spectral.optical_constants import ALIASES, SHIPPED
+
+    path = Path(path)
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError) as err:
+        raise InputError(f"not a readable Mitsuba XML file ({err})", path=path) from None
+    found = [b for b in root.iter("bsdf") if b.get("type") == "roughconductor"
+             and (bsdf_id is None or b.get("id") == bsdf_id or _parent_id(root, b) == bsdf_id)]
+    if len(found) != 1:
+        ids = [b.get("id") or _parent_id(root, b) for b in root.iter("bsdf") if b.get("type") == "roughconductor"]
+        raise InputError(f"holds {len(found)} roughconductor BSDFs{'' if bsdf_id is None else f' with id {bsdf_id!r}'}"
+                         f" (ids: {ids}); name one with its id", path=path, field="bsdf")
+    el = _named_values(found[0])
+    field = f"bsdf {found[0].get('id') or _parent_id(root, found[0]) or 'roughconductor'}"
+    dist = el["distribution"].get("value") if "distribution" in el else "beckmann"
+    if dist not in ("ggx", "beckmann"):
+        raise InputError(f"distribution {dist!r} is not one jkatana renders (ggx, beckmann)", path=path, field=field)
+    if "alpha_u" in el or "alpha_v" in el:
+        au, av = (float(el[k].get("value", 0.1)) if k in el else 0.1 for k in ("alpha_u", "alpha_v"))
+        if not np.isclose(au, av):
+            raise InputError(f"is anisotropic (alpha_u {au:g}, alpha_v {av:g}): jkatana's lobes are isotropic",
+                             path=path, field=field)
+        alpha = au
+    else:
+        alpha = float(el["alpha"].get("value", 0.1)) if "alpha" in el else 0.1
+    if not (np.isfinite(alpha) and alpha > 0):
+        raise InputError(f"alpha must be finite and > 0, got {alpha!r}", path=path, field=f"{field}.alpha")
+    imported = {"source": str(path), "distribution": dist}
+    if "eta" in el and "k" in el:
+        sp = [_spectrum_values(el[k], path, f"{field}.{k}") for k in ("eta", "k")]
+        if sp[0] is None or sp[1] is None:
+            raise InputError("eta and k must be spectra ('wavelength:value' pairs) to be matched to a metal",
+                             path=path, field=field)
+        grid = WavelengthGrid(400.0, 700.0, 5.0)
+        n = np.interp(grid.wavelengths, *sp[0])
+        k = np.interp(grid.wavelengths, *sp[1])
+        oc, de = nearest_shipped_metal(base_colour(n, k, grid))
+        imported["optical_constants_dE2000"] = de
+    else:
+        name = el["material"].get("value", "Cu") if "material" in el else "Cu"  # Mitsuba's default metal
+        oc = ALIASES.get(name.lower())
+        if oc is None or oc not in SHIPPED:
+            raise InputError(f"material {name!r}: no shipped optical constants for it (shipped: "
+                             f"{sorted(SHIPPED)}); give eta and k spectra instead", path=path, field=f"{field}.material")
+        imported["material"] = name
+    d = {"format": FORMAT, "region": region, "model": dist, "lobe": {"lobe": dist, "alpha": alpha},
+         "values": {"scale": 1.0, "alpha": alpha}, "optical_constants": oc, "converged": False, "import": imported}
+    params_from_dict(d, path)  # what every reader of a parameter file checks
+    return d
+
+
+def _parent_id(root, child) -> str | None:
+    """The ``id`` of the ``twosided`` (or other) element that wraps ``child``, if any."""
+    for parent in root.iter():
+        if child in list(parent) and parent.get("id"):
+            return parent.get("id")
+    return None
+
+
+__all__ = ["export_mitsuba", "scene_dict", "roughconductor_to_params", "to_xml", "for_load_dict", "write_ply", "Matrix", "LookAt", "TAGS"]
