@@ -40,10 +40,10 @@ def _rel(a, b):
 def mitsuba_rgb_variant():
     from validation.mitsuba import mitsuba_variant
 
-    v = mitsuba_variant()
+    v = mitsuba_variant("rgb")
     if v is None:
         pytest.skip("Mitsuba 3 is not installed (the mitsuba extra)")
-    return v.replace("spectral", "rgb")
+    return v
 
 
 @pytest.mark.mitsuba

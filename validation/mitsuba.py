@@ -71,14 +71,15 @@ MITSUBA_ENV_ROTATION_DEG = 180.0
 ENV_NODES = 3
 
 
-@functools.lru_cache(maxsize=1)
-def mitsuba_variant() -> str | None:
-    """The best spectral variant that runs here, probed in a subprocess (an LLVM abort can't kill us)."""
+@functools.lru_cache(maxsize=2)
+def mitsuba_variant(kind: str = "spectral") -> str | None:
+    """The best ``kind`` (``"spectral"`` or ``"rgb"``) variant that runs here — LLVM, else scalar — probed in a
+    subprocess (an LLVM abort can't kill us); ``None`` without Mitsuba."""
     try:
         import mitsuba  # noqa: F401
     except ImportError:
         return None
-    for variant in ("llvm_ad_spectral", "scalar_spectral"):
+    for variant in (f"llvm_ad_{kind}", f"scalar_{kind}"):
         code = ("import mitsuba as mi; mi.set_variant('%s'); "
                 "mi.render(mi.load_dict({'type': 'scene', 'i': {'type': 'path'}, 'e': {'type': 'constant'}, "
                 "'s': {'type': 'perspective', 'film': {'type': 'hdrfilm', 'width': 4, 'height': 4}}}), spp=1)"

@@ -39,10 +39,7 @@ maps, compared texel by texel with the truth, would fail otherwise).
 
 from __future__ import annotations
 
-import functools
 import math
-import subprocess
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -56,25 +53,11 @@ IRON_ETA, IRON_K = 2.87, 3.0
 BACKDROP_RADIANCE = 0.2
 
 
-@functools.lru_cache(maxsize=1)
 def rgb_variant() -> str | None:
-    """The fastest RGB variant that runs here, probed in a subprocess (an LLVM abort can't kill us)."""
-    try:
-        import mitsuba  # noqa: F401
-    except ImportError:
-        return None
-    for variant in ("llvm_ad_rgb", "scalar_rgb"):
-        code = ("import mitsuba as mi; mi.set_variant('%s'); "
-                "mi.render(mi.load_dict({'type': 'scene', 'i': {'type': 'path'}, 'e': {'type': 'constant'}, "
-                "'s': {'type': 'perspective', 'film': {'type': 'hdrfilm', 'width': 4, 'height': 4}}}), spp=1)"
-                % variant)
-        try:
-            r = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=180)
-        except subprocess.TimeoutExpired:
-            continue
-        if r.returncode == 0:
-            return variant
-    return None
+    """The fastest RGB variant of Mitsuba 3 that runs here (:func:`validation.mitsuba.mitsuba_variant`)."""
+    from validation.mitsuba import mitsuba_variant
+
+    return mitsuba_variant("rgb")
 
 
 def choji_map(resolution: tuple[int, int] = (256, 1024), *, seed: int = 1) -> np.ndarray:
