@@ -263,9 +263,10 @@ def _material(raw, path) -> Material:
     if any(k in m.t for k in ("w", "mu0", "mu1")) and "map" not in m.t:
         from jkatana.models.bounds import width
 
-        # widths > 0 (jkatana.models.bounds); mu1 from 1e-4, at most 1.5 rad here
+        # mu1 a width > 0 (jkatana.models.bounds) from 1e-4; mu0 may be 0: the hiraji as a perfect mirror
+        # (Plan.mirror below MIRROR_MU), the normalised Gaussian lobe's limit as mu -> 0; both at most 1.5 rad
         uniform = Uniform(w=m.number("w", 1.0, lo=0.0, hi=1.0),
-                          mu0=width(m.number("mu0", 0.05, hi=1.5), "material.mu0", path),
+                          mu0=m.number("mu0", 0.05, lo=0.0, hi=1.5),
                           mu1=width(m.number("mu1", 0.05, lo=1e-4, hi=1.5), "material.mu1", path))
     else:
         mapfile = m.file("map", "builtin", builtin=("builtin",))
