@@ -124,8 +124,8 @@ def require_memory(estimate: float, field: str, what: str, max_memory: int | Non
 
 #: Most spectral values (texels × wavelengths) one environment may hold: 2^28, 2 GiB as float64. A scene's
 #: environment is held to it (``jkatana.render.scene.LIMITS["env_values"]``), and so are ``light build`` and
-#: ``light convert``, whose time grows with it: a 512×1024 sky of 361 bands (1.9e8 values) took 103 s on 2
-#: cores, so the limit is about 2.5 minutes of work there, whatever the memory would allow.
+#: ``light convert``, whose time grows in proportion to it: a bound on the work, whatever the memory would
+#: allow (a few minutes on a 2-core machine).
 ENV_VALUES = 1 << 28
 
 
@@ -133,7 +133,7 @@ def require_work(count: float, field: str, what: str, limit: float = ENV_VALUES)
     """Refuse (naming ``field``) a request of ``count`` spectral values, estimated from its sizes, beyond ``limit``."""
     if count > limit:
         raise InputError(f"{what} is {count:.3g} spectral values (texels × wavelengths), more than the {limit:.3g} "
-                         "one environment may hold (about 2.5 min of work on 2 cores); a coarser grid step or a "
+                         "one environment may hold (minutes of work); a coarser grid step or a "
                          "smaller resolution", field=field)
 
 
