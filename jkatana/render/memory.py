@@ -20,8 +20,8 @@ minutes later.
 
 The per-value costs and the base are the slope and intercept of the peak RSS of a
 first use on an empty cache against map size (the shared 1k HDR and its 2k resize,
-``benchmarks/bench_first_use.py``); ``tests/test_memory_estimate.py`` holds the
-estimate of the 1k map within a factor 1.5 of the measured peak.
+``benchmarks/bench_first_use.py``), rounded up; ``tests/test_memory_estimate.py``
+holds the estimate of the 1k map within a factor 1.5 of the measured peak.
 """
 
 from __future__ import annotations
@@ -32,11 +32,14 @@ from pathlib import Path
 #: read from a file: the upsampled float32 map, its float64 clean-up copies, the sun split's remainder and
 #: the sampler's float64 luminance work arrays alive together.
 RENDER_BYTES_PER_VALUE = 48.0
-#: Bytes per spectral value at the peak of a first ``view``: the render path's load, then the viewer's
-#: float64 copy and the bake's float64 projection and levels.
-VIEW_BYTES_PER_VALUE = 48.0
+#: Bytes per spectral value at the peak of a first ``view``: the render path's load (through the environment
+#: cache), then the viewer's float64 copy and the bake's projection on the Fresnel basis.
+VIEW_BYTES_PER_VALUE = 24.0
 #: Bytes per texel of the baked levels ``view`` keeps at the map's size (11 μ levels × rank 3 × XYZ float32).
 VIEW_BYTES_PER_TEXEL = 11 * 3 * 3 * 4
+#: ``view``'s fit of a lobe family's taps on its first use (a region holding a parameter file: the paper's
+#: lobes' tables ship with the package), whatever the map's size.
+TAP_FIT_BYTES = 0.7 * 2 ** 30
 #: The process before the environment: Python, NumPy, JAX and XLA's compiled programs, the mesh, the map.
 BASE_BYTES = 0.6 * 2 ** 30
 
@@ -90,10 +93,12 @@ def describe(environment, bands: int) -> str:
 
 
 def environment_estimate(scene, *, interactive: bool = False, extra: float = 0.0) -> float:
-    """Estimated peak bytes of preparing ``scene``'s environment, plus ``extra`` bytes of frame and the
-    process itself (:data:`BASE_BYTES`)."""
+    """Estimated peak bytes of preparing ``scene``'s environment, plus ``extra`` bytes of frame, the process
+    itself (:data:`BASE_BYTES`) and, for ``view`` of a scene whose regions name parameter files, a lobe
+    family's tap fit (:data:`TAP_FIT_BYTES`)."""
+    fit = interactive and (scene.material.hiraji is not None or scene.material.hamon is not None)
     return BASE_BYTES + environment_bytes(scene.environment, scene.spectral.grid.size, interactive=interactive) \
-        + extra
+        + extra + (TAP_FIT_BYTES if fit else 0.0)
 
 
 def check_environment_memory(scene, *, interactive: bool = False, max_memory=None, extra: float = 0.0) -> float:
@@ -114,4 +119,4 @@ def environment_field(environment) -> str:
 
 __all__ = ["image_resolution", "environment_resolution", "environment_bytes", "environment_estimate",
            "check_environment_memory", "environment_field", "RENDER_BYTES_PER_VALUE", "VIEW_BYTES_PER_VALUE",
-           "BASE_BYTES"]
+           "TAP_FIT_BYTES", "BASE_BYTES"]
