@@ -238,7 +238,7 @@ def plot(results: dict | str | Path, path: str | Path) -> Path:
         results = json.loads(Path(results).read_text())
     rows = results["benchmarks"]["bench_first_use"]["records"] if "benchmarks" in results else results
     rows = [r for r in rows if r.get("texels")]
-    fig, (ax_t, ax_m) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, (ax_t, ax_m) = plt.subplots(1, 2, figsize=(12, 6.8))
     for i, use in enumerate(dict.fromkeys(r["case"]["use"] for r in rows)):
         mine = sorted((r for r in rows if r["case"]["use"] == use), key=lambda r: r["texels"])
         ran = [r for r in mine if not r["refused"] and r["rc"] == 0]
@@ -269,8 +269,8 @@ def plot(results: dict | str | Path, path: str | Path) -> Path:
     ax_t.set_title("time: first use (empty cache), second use")
     ax_m.set_ylabel("peak RSS / estimate (GiB)")
     ax_m.set_title("memory: first use; × = refused before work")
-    ax_t.legend(fontsize=7)
-    ax_m.legend(fontsize=7)
+    for ax in (ax_t, ax_m):
+        ax.legend(fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
