@@ -514,7 +514,7 @@ def test_windowed_viewer_under_xvfb(glr, tmp_path):
 
     if shutil.which("Xvfb") is None:  # pragma: no cover
         pytest.skip("Xvfb not installed (Debian package xvfb)")
-    from jkatana.interactive.commands import auto_exposure
+    from jkatana.interactive.exposure import auto_exposure
 
     sc = S.default_scene("sky", 320, 240)
     # a fixed exposure (the CLI's first guess), so the window does not calibrate: a pure shading comparison
