@@ -94,10 +94,13 @@ def test_export_refuses_an_existing_folder_and_a_missing_asset_in_one_line(tmp_p
     # a scene naming a parameter file that is not there: one line naming it, and no output folder
     text = scene.read_text().replace('hiraji = "ggx.json"', 'hiraji = "gone.json"')
     scene.write_text(text)
-    for target in ("mitsuba", "pbrt", "gltf"):
-        r = _run(scene, "--to", target, "-o", tmp_path / f"out_{target}", cwd=tmp_path)
-        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "gone.json" in r.stderr, r.stderr
-        assert not (tmp_path / f"out_{target}").exists()
+    r = _run(scene, "--to", "mitsuba", "-o", tmp_path / "out_mitsuba", cwd=tmp_path)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "gone.json" in r.stderr, r.stderr
+    assert not (tmp_path / "out_mitsuba").exists()
+    for target in ("pbrt", "gltf"):  # the same refusal from the other writers (in process: one CLI start is enough)
+        with pytest.raises(InputError, match="gone.json") as err:
+            export_scene(load_scene(scene), target, tmp_path / f"out_{target}")
+        assert len(str(err.value).splitlines()) == 1 and not (tmp_path / f"out_{target}").exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out_")]  # no temporary left behind
 
 

@@ -335,6 +335,7 @@ def test_pyrender_draws_the_closeup_as_jkatana_renders_it(glr, closeup):
 
 
 @pytest.mark.gl
+@pytest.mark.slow  # two more pyrender frames; the close-up test itself is in the everyday suite
 @pytest.mark.parametrize("mistake", ["srgb_base_colour", "roughness_is_alpha"])
 def test_a_wrong_export_fails_the_closeup_bound(glr, closeup, mistake):
     """The close-up bounds are not loose: two classic mistakes leave them — the base colour written

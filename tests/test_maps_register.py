@@ -113,6 +113,7 @@ def test_registration_that_does_not_converge(tmp_path, capsys, blade_ply):
     assert not out.exists()
 
 
+@pytest.mark.slow  # four ray-cast photos and two registrations: the slow stage
 def test_photos_of_different_blades(tmp_path, capsys, blade_ply):
     from validation.photos import Shot, choji_map
 

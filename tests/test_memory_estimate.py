@@ -79,9 +79,10 @@ def test_header_size_without_decoding(big_scene):
 
 @pytest.mark.parametrize("argv", [
     ["render", "{scene}", "-o", "{out}", "--mode", "prefiltered"],
-    ["render", "{scene}", "-o", "{out}", "--mode", "reference"],
-    ["view", "{scene}", "--offscreen", "--frames", "1", "-o", "{out}"],
-    ["light", "--max-memory", "2G", "prefilter", "{scene}"],
+    # the other commands in the slow stage (each is a CLI start with JAX; the everyday suite keeps one)
+    pytest.param(["render", "{scene}", "-o", "{out}", "--mode", "reference"], marks=pytest.mark.slow),
+    pytest.param(["view", "{scene}", "--offscreen", "--frames", "1", "-o", "{out}"], marks=pytest.mark.slow),
+    pytest.param(["light", "--max-memory", "2G", "prefilter", "{scene}"], marks=pytest.mark.slow),
 ], ids=["render-prefiltered", "render-reference", "view", "light-prefilter"])
 def test_large_map_refused_in_one_line(big_scene, tmp_path, argv):
     out = tmp_path / "out"
