@@ -171,17 +171,6 @@ def _mirror_only(res: Resolved) -> bool:
     return all(v is None or v.mirror for v in res.regions.values())
 
 
-def _scene_reach(res: Resolved) -> float:
-    """The size of the scene: the object's bounding radius plus the camera's distance from it (m)."""
-    geom = res.geometry
-    if isinstance(geom, tuple):
-        c, r = np.asarray(geom[1], np.float64), float(geom[2])
-    else:
-        lo, hi = np.asarray(geom.bounds, np.float64)
-        c, r = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) / 2
-    return r + float(np.linalg.norm(np.subtract(res.camera.position, c)))
-
-
 def scene_dict(res: Resolved, out_dir: Path, *, spp: int | None = None) -> tuple[dict, dict, list]:
     """``(mitsuba scene dict with plain values, {asset file: what it is}, caps split off the environment)``,
     writing the assets into ``out_dir`` (module docstring). File names in the dict are relative to
@@ -213,7 +202,7 @@ def scene_dict(res: Resolved, out_dir: Path, *, spp: int | None = None) -> tuple
                             "to_world": _matrix(_rotation_y4(180.0 - float(env.rotation_deg)))}
     elif env.radiance:
         d["environment"] = {"type": "constant", "radiance": {"type": "rgb", "value": [constant_radiance_rgb(scene)] * 3}}
-    reach = _scene_reach(res)
+    reach = res.reach
     for i, cap in enumerate(caps):
         # a cap of uniform radiance at infinity: a sphere emitter far outside the scene subtending its angle
         dist = reach * 1e3
@@ -352,18 +341,6 @@ def approximations(res: Resolved, renderer: str = "Mitsuba") -> list[str]:
     out.append(f"the render mode and its sampling are jkatana's own: {renderer} renders direct lighting with "
                f"its own sampler")
     return out
-
-
-def check_exportable(res: Resolved) -> None:
-    """Every lobe jkatana renders has a Mitsuba form (a closed form or a table); geometry must have UVs
-    where a map needs them (checked by the loader). Kept as the one place to refuse a lobe Mitsuba
-    cannot hold, should one be registered."""
-    for r, v in res.regions.items():
-        if v is None or v.mirror:
-            continue
-        if not hasattr(v.lobe, "pdf_h"):
-            raise InputError(f"the {v.lobe.name!r} lobe has no facet density to tabulate for Mitsuba",
-                             field=f"material.{r}")
 
 
 # ------------------------------------------------------------------------------------------- import

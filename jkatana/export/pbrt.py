@@ -127,7 +127,7 @@ def scene_text(res: Resolved, out_dir: Path, *, spp: int | None = None) -> tuple
         g = constant_radiance_rgb(scene)
         lines += [f'LightSource "infinite" "rgb L" [ {g:.7g} {g:.7g} {g:.7g} ]']
     geom = res.geometry
-    reach = float(np.linalg.norm(np.subtract(cam.position, cam.look_at))) * 10 + 1.0
+    reach = res.reach
     for cap in caps:
         dist = reach * 1e3
         lines += ["AttributeBegin", f"    Translate {f3(np.asarray(cap.direction) * dist)}",

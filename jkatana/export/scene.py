@@ -26,7 +26,6 @@ luminance back.
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 
@@ -76,6 +75,18 @@ class Resolved:
     camera: object              # jkatana.render.camera.Camera
     n: np.ndarray
     k: np.ndarray
+
+    @property
+    def reach(self) -> float:
+        """The size of the scene (m): the object's bounding radius plus the camera's distance from its centre;
+        emitters placed far beyond it (a cap at 1000× this) are at infinity for every point of the scene."""
+        geom = self.geometry
+        if isinstance(geom, tuple):
+            c, r = np.asarray(geom[1], np.float64), float(geom[2])
+        else:
+            lo, hi = np.asarray(geom.bounds, np.float64)
+            c, r = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) / 2
+        return r + float(np.linalg.norm(np.subtract(self.camera.position, c)))
 
     @property
     def uniform_w(self) -> float | None:
@@ -216,15 +227,5 @@ def light_spectrum(light, wavelengths=EXPORT_WAVELENGTHS) -> np.ndarray:
     return illuminant(light.spectrum, grid) / 100.0 * light.intensity
 
 
-def prepare_output_dir(out_dir: Path, *, force: bool = False) -> None:
-    """Refuse an output folder that exists and is not empty (nothing is overwritten) unless ``force``."""
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError("exists and is not a folder", path=out_dir, field="--output")
-    if out_dir.exists() and any(out_dir.iterdir()) and not force:
-        raise InputError("output folder exists and is not empty: nothing was overwritten (choose a new folder)",
-                         path=out_dir, field="--output")
-
-
 __all__ = ["EXPORT_WAVELENGTHS", "MITSUBA_Y_NORM", "RegionLobe", "CapLight", "Resolved", "resolve", "region_lobe",
-           "environment_rgb", "constant_radiance_rgb", "light_spectrum", "prepare_output_dir"]
+           "environment_rgb", "constant_radiance_rgb", "light_spectrum"]
