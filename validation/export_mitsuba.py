@@ -9,6 +9,7 @@ The jkatana frame is the reference; Mitsuba renders the exported files with its 
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -72,7 +73,7 @@ def self_shadowed(scene, shape: tuple[int, int], *, cone: float, rays: int = 32,
     if isinstance(mesh, tuple):
         return np.zeros(shape, bool)
     cam = camera_for(scene)
-    cam = type(cam)(cam.position, cam.look_at, cam.up, cam.fov_deg, shape[1], shape[0])
+    cam = dataclasses.replace(cam, width=shape[1], height=shape[0])
     origin, d = cam.rays()
     d = d.reshape(-1, 3)
     loc, ray, tri = mesh.ray.intersects_location(np.broadcast_to(origin, d.shape), d, multiple_hits=False)
