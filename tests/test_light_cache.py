@@ -93,15 +93,15 @@ def test_second_prepare_reads_the_cache_and_renders_the_same(tmp_path, monkeypat
 
 
 def test_key_follows_content_and_method(tmp_path):
-    from jkatana.render.scene import Environment
+    from jkatana.render.scene import EnvironmentSpec
     from jkatana.spectral.grid import WavelengthGrid
 
     path = _env_file(tmp_path)
     grid = WavelengthGrid(400.0, 700.0, 20.0)
-    e = Environment(type="exr", path=path, upsampling="Jakob 2019", scale=1.0, colourspace="sRGB")
+    e = EnvironmentSpec(type="exr", path=path, upsampling="Jakob 2019", scale=1.0, colourspace="sRGB")
     k0 = cache.radiance_key(e, grid)
     assert k0 == cache.radiance_key(e, grid)
-    assert k0 != cache.radiance_key(Environment(type="exr", path=path, upsampling="Smits 1999", scale=1.0,
+    assert k0 != cache.radiance_key(EnvironmentSpec(type="exr", path=path, upsampling="Smits 1999", scale=1.0,
                                                 colourspace="sRGB"), grid)
     assert k0 != cache.radiance_key(e, WavelengthGrid(400.0, 700.0, 10.0))
     _env_file(tmp_path, bright=(4, 4))  # same name, new bytes

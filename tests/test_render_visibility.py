@@ -18,7 +18,7 @@ from jkatana.render.camera import Camera
 from jkatana.render.film import film_weights
 from jkatana.render.frame import render_frame
 from jkatana.render.gbuffer import Occluders, gbuffer_sphere, occluder_mesh
-from jkatana.render.scene import Occluder
+from jkatana.render.scene import OccluderSpec
 from jkatana.render.scenefile import load_scene, scene_from_dict
 from jkatana.render.shading import Light, Material, Plan, build_environment, fresnel_table
 from jkatana.spectral import DEFAULT_GRID
@@ -28,7 +28,7 @@ CMF = film_weights(GRID)
 SPHERE = ("sphere", (0.0, 0.0, 0.0), 1.0)
 CAM = Camera(position=(0.0, 0.0, 4.0), fov_deg=32.0, width=24, height=24)
 # beside the sphere, outside the camera's view, seen in reflection by the sphere's right-hand side
-BOX = Occluder("box", center=(1.9, 0.0, 0.6), extents=(0.8, 3.0, 1.6))
+BOX = OccluderSpec("box", center=(1.9, 0.0, 0.6), extents=(0.8, 3.0, 1.6))
 
 
 def _mat():
@@ -109,8 +109,8 @@ def test_point_light_is_shadowed_only_by_an_occluder_in_front_of_it():
     plan = Plan(samples=1, hiraji=True, hamon=False, lights=1, factored=fac, visibility=True)
     maps = _maps(1.0, 0.3, 0.3)
     centre = 0.5 * pos + [0.0, 0.1, 0.0]
-    between = Occluders(occluder_mesh([Occluder("sphere", tuple(centre), radius=0.2)]))
-    beyond = Occluders(occluder_mesh([Occluder("sphere", tuple(1.5 * pos), radius=0.2)]))
+    between = Occluders(occluder_mesh([OccluderSpec("sphere", tuple(centre), radius=0.2)]))
+    beyond = Occluders(occluder_mesh([OccluderSpec("sphere", tuple(1.5 * pos), radius=0.2)]))
     f0 = render_frame(dataclasses.replace(plan, visibility=False), mat, env, lights, SPHERE, CAM, maps, CMF)
     f_between = render_frame(plan, mat, env, lights, SPHERE, CAM, maps, CMF, occluders=between)
     f_beyond = render_frame(plan, mat, env, lights, SPHERE, CAM, maps, CMF, occluders=beyond)
@@ -136,7 +136,7 @@ def test_point_light_is_shadowed_only_by_an_occluder_in_front_of_it():
 def test_an_occluder_in_front_of_the_camera_hides_the_object_and_the_sky():
     env, fac, _ = build_environment(_sky())
     plan = Plan(mode="reference", samples=2, hiraji=True, hamon=False, mirror=True, factored=fac, visibility=True)
-    wall = Occluders(occluder_mesh([Occluder("box", (-1.0, 0.0, 2.5), extents=(2.0, 0.5, 0.1))]))
+    wall = Occluders(occluder_mesh([OccluderSpec("box", (-1.0, 0.0, 2.5), extents=(2.0, 0.5, 0.1))]))
     f = render_frame(plan, _mat(), env, None, SPHERE, CAM, _maps(1.0, 0.0, 0.05), CMF, occluders=wall)
     gb = gbuffer_sphere(CAM)
     hidden = gb.mask & ~f.mask

@@ -97,7 +97,7 @@ def _key(*parts) -> str:
 def radiance_key(env, grid) -> str | None:
     """Content key of a scene environment's spectral radiance, or None when it is cheaper to build.
 
-    `env` is a :class:`jkatana.render.scene.Environment`; the rotation is not part of the key.
+    `env` is a :class:`jkatana.render.scene.EnvironmentSpec`; the rotation is not part of the key.
     """
     g = (float(grid.start), float(grid.stop), int(grid.size))
     if env.type in ("exr", "hdr"):

@@ -18,7 +18,7 @@ import trimesh
 
 from jkatana.errors import InputError
 from jkatana.render.camera import Camera
-from jkatana.render.scene import Occluder
+from jkatana.render.scene import OccluderSpec
 
 
 @dataclasses.dataclass
@@ -426,7 +426,7 @@ class Occluders:
         return dist
 
 
-def occluder_mesh(specs: Sequence[Occluder]) -> trimesh.Trimesh | None:
+def occluder_mesh(specs: Sequence[OccluderSpec]) -> trimesh.Trimesh | None:
     """One mesh from the scene's ``[[occluders]]`` (box, sphere or mesh file, each with a translation)."""
     parts = []
     for i, s in enumerate(specs):

@@ -63,7 +63,7 @@ def image_resolution(path: str | Path) -> tuple[int, int] | None:
 
 
 def environment_resolution(environment) -> tuple[int, int] | None:
-    """``(height, width)`` of a scene's :class:`~jkatana.render.scene.Environment`: its ``resolution`` for the
+    """``(height, width)`` of a scene's :class:`~jkatana.render.scene.EnvironmentSpec`: its ``resolution`` for the
     built-in sky and constant environments, the file's header for ``exr`` and ``hdr``."""
     if environment.resolution is not None:
         return tuple(int(v) for v in environment.resolution)

@@ -1,9 +1,11 @@
 """The scene: what to render and how, as one typed, validated value.
 
-Every section of a scene file is a frozen dataclass here (:class:`Geometry`,
-:class:`Material`, :class:`Environment`, :class:`Light`, :class:`Occluder`,
-:class:`Camera`, :class:`Spectral`, :class:`Render`, :class:`Film`,
-:class:`Output`), gathered in :class:`Scene`; ``to_dict`` gives each back in
+Every section of a scene file is a frozen dataclass here, named ``*Spec`` so that the render-time objects
+of the same idea (:class:`jkatana.render.environment.Environment`, :class:`jkatana.render.camera.Camera`, ...)
+keep the plain names (:class:`GeometrySpec`,
+:class:`MaterialSpec`, :class:`EnvironmentSpec`, :class:`LightSpec`, :class:`OccluderSpec`,
+:class:`CameraSpec`, :class:`SpectralSpec`, :class:`RenderSpec`, :class:`FilmSpec`,
+:class:`OutputSpec`), gathered in :class:`Scene`; ``to_dict`` gives each back in
 the file's schema. Reading, validating and writing the TOML file (every error
 naming its field) is :mod:`jkatana.render.scenefile`, whose
 :func:`~jkatana.render.scenefile.load_scene`,
@@ -61,7 +63,7 @@ Vec3 = tuple[float, float, float]
 
 
 @dataclasses.dataclass(frozen=True)
-class Geometry:
+class GeometrySpec:
     """What is rendered: a triangle mesh with UVs (``"builtin:katana"`` or a file), or an analytic sphere."""
 
     kind: str                    # "mesh" | "sphere"
@@ -76,7 +78,7 @@ class Geometry:
 
 
 @dataclasses.dataclass(frozen=True)
-class Uniform:
+class UniformSpec:
     """A spatially uniform reflectance map: hamon weight ``w`` and lobe widths ``mu0``, ``mu1`` (rad)."""
 
     w: float
@@ -85,12 +87,12 @@ class Uniform:
 
 
 @dataclasses.dataclass(frozen=True)
-class Material:
+class MaterialSpec:
     """The blade's reflectance: a map (or a uniform one), region parameter files, optical constants."""
 
     optical_constants: str
     map: Path | str | None          # "builtin", a map EXR, or None with `uniform`
-    uniform: Uniform | None = None
+    uniform: UniformSpec | None = None
     hiraji: Path | None = None
     hamon: Path | None = None
     calibration: float | None = None
@@ -103,7 +105,7 @@ class Material:
 
 
 @dataclasses.dataclass(frozen=True)
-class Environment:
+class EnvironmentSpec:
     """Distant illumination: a Hosek–Wilkie sky, an HDR/EXR file, or a constant grey radiance.
 
     Only the fields of the chosen ``type`` are set; the others are ``None``.
@@ -128,7 +130,7 @@ class Environment:
 
 
 @dataclasses.dataclass(frozen=True)
-class Light:
+class LightSpec:
     """A point light (``vector`` = position, m) or a directional one (``vector`` = direction to the light)."""
 
     type: str
@@ -142,7 +144,7 @@ class Light:
 
 
 @dataclasses.dataclass(frozen=True)
-class Occluder:
+class OccluderSpec:
     """Black geometry that blocks light: a box (``extents``), a sphere (``radius``) or a mesh file."""
 
     kind: str                    # "box" | "sphere" | "mesh"
@@ -164,7 +166,7 @@ class Occluder:
 
 
 @dataclasses.dataclass(frozen=True)
-class Camera:
+class CameraSpec:
     """A pinhole camera: ``"orbit"`` about a target or ``"lookat"``; ``resolution`` is (width, height)."""
 
     type: str
@@ -184,7 +186,7 @@ class Camera:
 
 
 @dataclasses.dataclass(frozen=True)
-class Spectral:
+class SpectralSpec:
     """The wavelength grid (nm) every spectrum of the render is sampled on."""
 
     start: float = 400.0
@@ -200,7 +202,7 @@ class Spectral:
 
 
 @dataclasses.dataclass(frozen=True)
-class Render:
+class RenderSpec:
     """How to integrate: the mode, samples per pixel, low-rank environment rank, seed, precision, chunk,
     and two sampling choices: ``split_sun`` (compact bright sources split off as cap lights; ``None``: the
     mode's default, :data:`~jkatana.render.environment.SPLIT_MODES`) and ``env_window`` (the MIS modes'
@@ -221,7 +223,7 @@ class Render:
 
 
 @dataclasses.dataclass(frozen=True)
-class Film:
+class FilmSpec:
     """XYZ → display: the RGB colourspace, its transfer (name, ``"linear"`` or a gamma), the exposure."""
 
     colourspace: str = "sRGB"
@@ -233,7 +235,7 @@ class Film:
 
 
 @dataclasses.dataclass(frozen=True)
-class Output:
+class OutputSpec:
     """Where frames go: ``directory/name.{exr,png}`` and, with ``spectral``, ``name_spectral.exr``."""
 
     directory: Path
@@ -249,16 +251,16 @@ class Scene:
     """A validated scene: one typed section per TOML table (paths resolved, nothing loaded yet)."""
 
     path: Path | None
-    geometry: Geometry
-    material: Material
-    environment: Environment
-    lights: tuple[Light, ...]
-    camera: Camera
-    spectral: Spectral
-    render: Render
-    film: Film
-    output: Output
-    occluders: tuple[Occluder, ...] = ()
+    geometry: GeometrySpec
+    material: MaterialSpec
+    environment: EnvironmentSpec
+    lights: tuple[LightSpec, ...]
+    camera: CameraSpec
+    spectral: SpectralSpec
+    render: RenderSpec
+    film: FilmSpec
+    output: OutputSpec
+    occluders: tuple[OccluderSpec, ...] = ()
 
     def with_output_directory(self, directory: str | Path) -> "Scene":
         """The same scene writing into ``directory``."""

@@ -101,8 +101,8 @@ from typing import Any
 import tomli_w
 
 from jkatana.errors import InputError
-from jkatana.render.scene import (ENV_TYPES, LIMITS, RENDER_MODES, WAVELENGTH_RANGE, Camera, Environment, Film,
-                                  Geometry, Light, Material, Occluder, Output, Render, Scene, Spectral, Uniform)
+from jkatana.render.scene import (ENV_TYPES, LIMITS, RENDER_MODES, WAVELENGTH_RANGE, CameraSpec, EnvironmentSpec, FilmSpec,
+                                  GeometrySpec, LightSpec, MaterialSpec, OccluderSpec, OutputSpec, RenderSpec, Scene, SpectralSpec, UniformSpec)
 
 SECTIONS = ("scene", "geometry", "material", "environment", "lights", "occluders", "camera", "spectral",
             "render", "film", "output")
@@ -243,20 +243,20 @@ def scene_from_dict(raw: dict, path: Path | None = None) -> Scene:
                  _occluders(raw.get("occluders", []), path))
 
 
-def _geometry(raw, path) -> Geometry:
+def _geometry(raw, path) -> GeometrySpec:
     g = _Section("geometry", raw.get("geometry", {}), path)
     if "sphere" in g.t:
         s = _Section("geometry.sphere", g.get("sphere"), path)
-        geometry = Geometry("sphere", center=s.vector("center", 3, [0.0, 0.0, 0.0]),
+        geometry = GeometrySpec("sphere", center=s.vector("center", 3, [0.0, 0.0, 0.0]),
                             radius=s.number("radius", 1.0, positive=True))
         s.check_unknown()
     else:
-        geometry = Geometry("mesh", mesh=g.file("mesh", "builtin:katana", builtin=("builtin:katana",)))
+        geometry = GeometrySpec("mesh", mesh=g.file("mesh", "builtin:katana", builtin=("builtin:katana",)))
     g.check_unknown()
     return geometry
 
 
-def _material(raw, path) -> Material:
+def _material(raw, path) -> MaterialSpec:
     m = _Section("material", raw.get("material", {}), path)
     oc = m.string("optical_constants", "Fe-Johnson")
     uniform, mapfile = None, None
@@ -265,7 +265,7 @@ def _material(raw, path) -> Material:
 
         # mu1 a width > 0 (jkatana.models.bounds) from 1e-4; mu0 may be 0: the hiraji as a perfect mirror
         # (Plan.mirror below MIRROR_MU), the normalised Gaussian lobe's limit as mu -> 0; both at most 1.5 rad
-        uniform = Uniform(w=m.number("w", 1.0, lo=0.0, hi=1.0),
+        uniform = UniformSpec(w=m.number("w", 1.0, lo=0.0, hi=1.0),
                           mu0=m.number("mu0", 0.05, lo=0.0, hi=1.5),
                           mu1=width(m.number("mu1", 0.05, lo=1e-4, hi=1.5), "material.mu1", path))
     else:
@@ -278,15 +278,15 @@ def _material(raw, path) -> Material:
         if not p.is_file():
             raise InputError("file not found", path=p, field="material.optical_constants")
         oc = str(p)
-    return Material(oc, mapfile, uniform, regions["hiraji"], regions["hamon"], calibration)
+    return MaterialSpec(oc, mapfile, uniform, regions["hiraji"], regions["hamon"], calibration)
 
 
-def _environment(raw, path, spectral: Spectral) -> Environment:
+def _environment(raw, path, spectral: SpectralSpec) -> EnvironmentSpec:
     e = _Section("environment", raw.get("environment", {}), path)
     etype = e.string("type", "sky", choices=ENV_TYPES)
     rotation = e.number("rotation_deg", 0.0)
     if etype == "sky":
-        env = Environment(etype, rotation, elevation_deg=e.number("elevation_deg", 30.0, lo=0.0, hi=90.0),
+        env = EnvironmentSpec(etype, rotation, elevation_deg=e.number("elevation_deg", 30.0, lo=0.0, hi=90.0),
                           azimuth_deg=e.number("azimuth_deg", 180.0),
                           turbidity=e.number("turbidity", 3.0, lo=1.0, hi=10.0),
                           albedo=e.number("albedo", 0.1, lo=0.0, hi=1.0),
@@ -295,7 +295,7 @@ def _environment(raw, path, spectral: Spectral) -> Environment:
     elif etype in ("exr", "hdr"):
         from jkatana.light.upsampling import UPSAMPLING_METHODS
 
-        env = Environment(etype, rotation, path=e.file("path"),
+        env = EnvironmentSpec(etype, rotation, path=e.file("path"),
                           upsampling=e.string("upsampling", "Jakob 2019"),
                           scale=e.number("scale", 1.0, positive=True),
                           colourspace=e.string("colourspace", "sRGB"))
@@ -303,7 +303,7 @@ def _environment(raw, path, spectral: Spectral) -> Environment:
             raise e.err("upsampling", f"must be one of {sorted(UPSAMPLING_METHODS)}, got {env.upsampling!r}")
         _check_colourspace(env.colourspace, path, "environment.colourspace")
     else:
-        env = Environment(etype, rotation, radiance=e.number("radiance", 1.0, positive=True),
+        env = EnvironmentSpec(etype, rotation, radiance=e.number("radiance", 1.0, positive=True),
                           resolution=e.resolution("resolution", (16, 32), hi=LIMITS["env_side"]))
     e.check_unknown()
     if env.resolution is not None:
@@ -315,7 +315,7 @@ def _environment(raw, path, spectral: Spectral) -> Environment:
     return env
 
 
-def _lights(raw, path, spectral: Spectral) -> tuple[Light, ...]:
+def _lights(raw, path, spectral: SpectralSpec) -> tuple[LightSpec, ...]:
     from jkatana.spectral.colorimetry import illuminant
 
     raw_lights = raw.get("lights", [])
@@ -336,33 +336,33 @@ def _lights(raw, path, spectral: Spectral) -> tuple[Light, ...]:
             illuminant(spec, spectral.grid)
         except InputError as err:
             raise s.err("spectrum", str(err).split(": ", 1)[-1]) from None
-        lights.append(Light(kind, vec, spec, s.number("intensity", 1.0, positive=True)))
+        lights.append(LightSpec(kind, vec, spec, s.number("intensity", 1.0, positive=True)))
         s.check_unknown()
     return tuple(lights)
 
 
-def _camera(raw, path) -> Camera:
+def _camera(raw, path) -> CameraSpec:
     c = _Section("camera", raw.get("camera", {}), path)
     ctype = c.string("type", "orbit", choices=("orbit", "lookat"))
     common = dict(fov_deg=c.number("fov_deg", 30.0, open_range=(0.0, 180.0)),
                   resolution=c.resolution("resolution", (800, 600), hi=LIMITS["camera_side"]),
                   roll_deg=c.number("roll_deg", 0.0))
     if ctype == "orbit":
-        cam = Camera(ctype, **common, target=c.vector("target", 3, [0.45, -0.022, 0.0]),
+        cam = CameraSpec(ctype, **common, target=c.vector("target", 3, [0.45, -0.022, 0.0]),
                      distance=c.number("distance", 0.3, positive=True),
                      azimuth_deg=c.number("azimuth_deg", 20.0),
                      elevation_deg=c.number("elevation_deg", -40.0, lo=-89.9, hi=89.9))
     else:
-        cam = Camera(ctype, **common, position=c.vector("position", 3), look_at=c.vector("look_at", 3),
+        cam = CameraSpec(ctype, **common, position=c.vector("position", 3), look_at=c.vector("look_at", 3),
                      up=c.vector("up", 3, [0.0, 1.0, 0.0]))
     c.check_unknown()
     return cam
 
 
-def _spectral(raw, path) -> Spectral:
+def _spectral(raw, path) -> SpectralSpec:
     sp = _Section("spectral", raw.get("spectral", {}), path)
     lo, hi = WAVELENGTH_RANGE
-    s = Spectral(sp.number("start", 400.0, lo=lo, hi=hi), sp.number("stop", 700.0, lo=lo, hi=hi),
+    s = SpectralSpec(sp.number("start", 400.0, lo=lo, hi=hi), sp.number("stop", 700.0, lo=lo, hi=hi),
                  sp.number("step", 5.0, positive=True))
     sp.check_unknown()
     if s.stop <= s.start:
@@ -378,9 +378,9 @@ def _spectral(raw, path) -> Spectral:
     return s
 
 
-def _render(raw, path, spectral: Spectral) -> Render:
+def _render(raw, path, spectral: SpectralSpec) -> RenderSpec:
     r = _Section("render", raw.get("render", {}), path)
-    render = Render(mode=r.string("mode", "reference", choices=RENDER_MODES),
+    render = RenderSpec(mode=r.string("mode", "reference", choices=RENDER_MODES),
                     samples=r.integer("samples", 64, lo=1, hi=LIMITS["samples"]),
                     rank=r.integer("rank", 3, lo=1, hi=spectral.grid.size),
                     seed=r.integer("seed", 0, lo=0, hi=LIMITS["seed"]),
@@ -420,7 +420,7 @@ def _check_colourspace(name, path, field):
         raise InputError(str(err).split(": ", 1)[-1], path=path, field=field) from None
 
 
-def _film(raw, path) -> Film:
+def _film(raw, path) -> FilmSpec:
     f = _Section("film", raw.get("film", {}), path)
     colourspace = f.string("colourspace", "sRGB")
     transfer = f.get("transfer", None)
@@ -436,23 +436,23 @@ def _film(raw, path) -> Film:
     for key, name in (("colourspace", colourspace), ("transfer", transfer)):
         if isinstance(name, str) and name.lower() != "linear":
             _check_colourspace(name, path, f"film.{key}")
-    return Film(colourspace, transfer if isinstance(transfer, str) or transfer is None else float(transfer),
+    return FilmSpec(colourspace, transfer if isinstance(transfer, str) or transfer is None else float(transfer),
                 exposure if exposure == "auto" else float(exposure))
 
 
-def _output(raw, path) -> Output:
+def _output(raw, path) -> OutputSpec:
     o = _Section("output", raw.get("output", {}), path)
     out_dir = Path(o.string("directory", "out")).expanduser()
     if not out_dir.is_absolute() and path is not None:
         out_dir = path.parent / out_dir
-    output = Output(out_dir, o.string("name", "frame"), o.boolean("spectral", False))
+    output = OutputSpec(out_dir, o.string("name", "frame"), o.boolean("spectral", False))
     if "/" in output.name or "\\" in output.name or output.name.strip(".") == "" or "\0" in output.name:
         raise o.err("name", f"must be a plain file stem, got {output.name!r}")
     o.check_unknown()
     return output
 
 
-def _occluders(raw_occ, path) -> tuple[Occluder, ...]:
+def _occluders(raw_occ, path) -> tuple[OccluderSpec, ...]:
     """``[[occluders]]``: each exactly one of ``box`` (extents), ``sphere`` (radius), ``mesh`` (file)."""
     if not isinstance(raw_occ, list):
         raise InputError("must be an array of tables ([[occluders]])", path=path, field="occluders")
@@ -468,11 +468,11 @@ def _occluders(raw_occ, path) -> tuple[Occluder, ...]:
             ext = s.vector("box", 3)
             if min(ext) <= 0:
                 raise s.err("box", f"extents must be > 0, got {list(ext)}")
-            occ = Occluder("box", center, extents=ext)
+            occ = OccluderSpec("box", center, extents=ext)
         elif kinds[0] == "sphere":
-            occ = Occluder("sphere", center, radius=s.number("sphere", positive=True))
+            occ = OccluderSpec("sphere", center, radius=s.number("sphere", positive=True))
         else:
-            occ = Occluder("mesh", center, mesh=s.file("mesh"), scale=s.number("scale", 1.0, positive=True))
+            occ = OccluderSpec("mesh", center, mesh=s.file("mesh"), scale=s.number("scale", 1.0, positive=True))
         s.check_unknown()
         out.append(occ)
     return tuple(out)
