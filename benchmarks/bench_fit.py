@@ -56,7 +56,8 @@ def _campaign(region="hiraji", seed=0):
 def _pixels(P, dtype, seed=0):
     import jax.numpy as jnp
 
-    from jkatana.fit import NoiseModel, Setup, prepare
+    from jkatana.fit import Setup, prepare
+    from jkatana.measure.noise import NoiseModel
     from jkatana.fit._model import ModelSpec, green
 
     pairs = np.array([(45.0, 35.0 + 0.1 * i) for i in range(200)])
@@ -106,7 +107,7 @@ def _float32_worker(quick: bool = False):
 def _region_fit_time(terms, spec, y, w, reps: int) -> tuple[dict, float]:
     """Wall time (timeit) and mean process CPU of one region fit (:data:`REGION_FIT`) of ``y`` with weights
     ``w``."""
-    from jkatana.fit._solve import fit_program
+    from jkatana.fit.solve import fit_program
 
     return (timeit(lambda: fit_program(terms, y, w, spec), repeats=reps),
             _mean_cpu(lambda: fit_program(terms, y, w, spec), reps))
@@ -122,7 +123,7 @@ def _default_pool_worker(quick: bool = False):
 
     import jax.numpy as jnp
 
-    from jkatana.fit._solve import fit_program
+    from jkatana.fit.solve import fit_program
     from jkatana.fit.region import fit_region
 
     out = {}
@@ -147,7 +148,7 @@ def _lobe_campaign(model, seed=0):
 
     from jkatana.fit import FitData, Setup
     from jkatana.fit._model import ModelSpec, from_natural, prepare
-    from jkatana.fit._solve import model_values  # one compiled program, not green's eager operations
+    from jkatana.fit.solve import model_values  # one compiled program, not green's eager operations
     from jkatana.measure.protocol import as_pairs, paper_protocol
 
     setup = Setup()
@@ -189,7 +190,8 @@ def _lobes(quick: bool, rows: list, log) -> None:
     import jax.numpy as jnp
 
     from jkatana.fit._model import MODELS
-    from jkatana.fit._solve import solve, start_vector
+    from jkatana.fit.solve import solve
+    from jkatana.fit.starts import start_vector
     from jkatana.fit.compare import compare_models
     from jkatana.fit.region import fit_region
 
@@ -271,7 +273,8 @@ def run(quick: bool) -> list[dict]:
     import jax.numpy as jnp
 
     from jkatana.fit import fit_pixels, fit_region, sample
-    from jkatana.fit._solve import closed_form_start, solve
+    from jkatana.fit.solve import solve
+    from jkatana.fit.starts import closed_form_start
 
     rows = []
     log = lambda *a: print(*a, file=sys.stderr, flush=True)  # noqa: E731

@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 
 from jkatana.errors import InputError
-from jkatana.fit import FitData, NoiseModel, Setup, fit_pixels, fit_region, prepare, read_params, write_params
+from jkatana.fit import FitData, Setup, fit_pixels, fit_region, prepare, read_params, write_params
 from jkatana.fit._model import ModelSpec, green
-from jkatana.fit._solve import closed_form_start, estimate_noise, laplace
+from jkatana.fit.laplace import laplace
 from jkatana.fit.region import fit_arrays
 from jkatana.measure import synthetic
+from jkatana.measure.noise import NoiseModel, estimate_noise
 from jkatana.measure.protocol import paper_protocol
 from jkatana.measure.synthetic import simulate_table
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jkatana.errors import InputError
-from jkatana.fit._solve import NoiseModel
+from jkatana.measure.noise import NoiseModel
 from jkatana.measure.camera import camera_sensitivity, green_sensitivity
 from jkatana.spectral.grid import DEFAULT_GRID
 from jkatana.spectral.optical_constants import SHIPPED, load

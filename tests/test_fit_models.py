@@ -15,8 +15,9 @@ jax.config.update("jax_enable_x64", True)
 
 from jkatana.fit import FitData, Setup, fit_region  # noqa: E402
 from jkatana.fit._model import FIT_MODELS, ModelSpec, from_natural, green, prepare, to_natural  # noqa: E402
-from jkatana.fit._solve import (moment_start, natural_intervals, solve, start_vector,  # noqa: E402
-                                two_level_start, verdict)
+from jkatana.fit.laplace import natural_intervals  # noqa: E402
+from jkatana.fit.solve import solve, verdict  # noqa: E402
+from jkatana.fit.starts import moment_start, start_vector, two_level_start  # noqa: E402
 from jkatana.fit.compare import choose_aic, choose_loio, select_batch  # noqa: E402
 from jkatana.fit.uncertainty import _refits, sandwich_batch  # noqa: E402
 from jkatana.measure.protocol import Protocol, as_pairs  # noqa: E402
@@ -396,7 +397,7 @@ def test_green_with_the_precomputed_geometry_is_the_direct_evaluation(geometry, 
 def test_convergence_check_is_evaluated_at_the_returned_point(geometry, model, solver):
     """solve's cost, gradient and JᵀJ (taken from the solver's last linearisation) are those of a fresh
     evaluation of the residuals and their Jacobian at the parameters it returns."""
-    from jkatana.fit._solve import residuals
+    from jkatana.fit.solve import residuals
 
     _, sig, Y = campaigns(geometry, model, TRUTH[model], 1, seed=5)
     spec = ModelSpec(model)
@@ -415,7 +416,7 @@ def test_convergence_check_is_evaluated_at_the_returned_point(geometry, model, s
 def test_two_lobe_start_fits_the_weight_and_scale(geometry):
     """The two-lobe start's scale and weight are the weighted least-squares ones at its widths (the cost's
     gradient in log scale and logit weight vanishes there), with the haze at the model's default ratio."""
-    from jkatana.fit._solve import residuals
+    from jkatana.fit.solve import residuals
 
     _, sig, Y = campaigns(geometry, "two-lobe", TRUTH["two-lobe"], 1, seed=3)
     spec = ModelSpec("two-lobe")

@@ -11,7 +11,6 @@
 """
 
 from jkatana.fit._model import ModelSpec as ModelSpec, green as green, prepare as prepare
-from jkatana.fit._solve import NoiseModel as NoiseModel, estimate_noise as estimate_noise
 from jkatana.fit.params import Params as Params, read_params as read_params, write_params as write_params
 from jkatana.fit.pixels import fit_pixels as fit_pixels
 from jkatana.fit.posterior import sample as sample

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.fit._model import MODELS
-from jkatana.fit._solve import residuals
+from jkatana.fit.solve import residuals
 
 
 def _loio(fit, *, solver: str = "lm", max_steps: int = 200) -> list[float]:

@@ -6,7 +6,7 @@ A general-purpose solver under ``vmap`` runs the whole batch until its
 slowest pixel converges (one pixel that never meets the tolerance makes the
 batch run to ``max_steps``). Here instead:
 
-1. the log-linear closed form (:func:`jkatana.fit._solve.closed_form_start`)
+1. the log-linear closed form (:func:`jkatana.fit.starts.closed_form_start`)
    gives each pixel a start that is already close;
 2. a *fixed* number of Levenberg–Marquardt-damped Gauss–Newton steps
    (Levenberg 1944, Marquardt 1963) with the analytic 2×2 normal equations
@@ -27,7 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.fit._model import ModelSpec, Terms
-from jkatana.fit._solve import NoiseModel, closed_form_start
+from jkatana.fit.starts import closed_form_start
+from jkatana.measure.noise import NoiseModel
 from jkatana.models.microfacet import LN2, gaussian_facet
 
 

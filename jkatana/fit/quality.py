@@ -20,7 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from jkatana.fit._model import to_natural
-from jkatana.fit._solve import laplace, verdict, weighted_residuals
+from jkatana.fit.laplace import laplace
+from jkatana.fit.solve import verdict, weighted_residuals
 
 
 def per_incidence(fit, *, solver: str = "lm", max_steps: int = 200, refit: bool = True) -> list[dict]:

@@ -17,8 +17,10 @@ import numpy as np
 
 from jkatana.errors import InputError
 from jkatana.fit._model import MODELS, ModelSpec, Terms, from_natural, prepare, to_natural
-from jkatana.fit._solve import (NoiseModel, estimate_noise, fit_program, grid_start, laplace, model_values,
-                                residuals, verdict, weighted_residuals)
+from jkatana.fit.laplace import laplace
+from jkatana.fit.solve import fit_program, model_values, residuals, verdict, weighted_residuals
+from jkatana.fit.starts import STARTS
+from jkatana.measure.noise import NoiseModel, estimate_noise
 from jkatana.measure.setup import Setup
 
 
@@ -155,11 +157,17 @@ def default_model(region: str) -> str:
 
 
 def _start(start, terms, y, w, spec, dtype):
-    """The start vector a fit is given, or None for the default start (computed in the solver's program)."""
-    if start is None or (isinstance(start, str) and start == "closed"):
+    """The start vector a fit is given, or None for the default start (computed in the solver's program).
+
+    A name is a strategy of :data:`~jkatana.fit.starts.STARTS`; ``closed`` and ``default`` are the default start
+    (the closed form for the paper's models, the moment start for other lobes)."""
+    if start is None or (isinstance(start, str) and start in ("closed", "default")):
         return None
-    if isinstance(start, str) and start == "grid":
-        return grid_start(terms, y, w, spec)
+    if isinstance(start, str):
+        if start not in STARTS:
+            raise InputError(f"start must be one of {', '.join(sorted(STARTS))}, a dict of values or a vector, "
+                             f"got {start!r}", field="start")
+        return STARTS[start](terms, y, w, spec)
     p0 = np.asarray(from_natural(start, spec) if isinstance(start, dict) else start, dtype)
     if p0.shape != (spec.size,) or not np.all(np.isfinite(p0)):
         raise InputError(f"start must be {spec.size} finite values ({', '.join(spec.log_names)}), got {start!r}",
@@ -171,12 +179,12 @@ def fit_arrays(terms: Terms, y, w, spec: ModelSpec, *, start=None, solver: str =
                max_steps: int = 200, multistart: bool = False) -> dict:
     """Solve from a start (closed form by default) with an optional grid multi-start; numpy dict out.
 
-    Every solve is :func:`~jkatana.fit._solve.fit_program` (the default start in the solver's program), so
+    Every solve is :func:`~jkatana.fit.solve.fit_program` (the default start in the solver's program), so
     the fits of a region, whatever their start, run one compiled program per spec and table shape."""
     dtype = y.dtype
     starts = [_start(start, terms, y, w, spec, dtype)]
     if multistart:
-        starts.append(grid_start(terms, y, w, spec))
+        starts.append(STARTS["grid"](terms, y, w, spec))
     best = None
     for p0 in starts:
         out = fit_program(terms, y, w, spec, start=p0, solver=solver, max_steps=max_steps)
@@ -206,11 +214,12 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
       (Gauss–Newton) or ``"jaxopt"`` (jaxopt LM, Madsen–Nielsen stop).
     - `noise`: ``"auto"`` (default): the table's per-row σ as given when every
       usable row has a positive finite σ, else a :class:`NoiseModel` estimated
-      from the table (:func:`~jkatana.fit._solve.estimate_noise`);
+      from the table (:func:`~jkatana.measure.noise.estimate_noise`);
       ``"given"``: the per-row σ (an error without it); ``"model"``: always
       the estimated noise model; or a :class:`NoiseModel`.
-    - `start`: None/"closed" (log-linear closed form), "grid", a dict of
-      natural values, or a parameter vector. `multistart`: also try the grid start.
+    - `start`: None/"closed"/"default" (log-linear closed form; the moment start for other lobes), another
+      strategy of :data:`~jkatana.fit.starts.STARTS` by name ("grid", …), a dict of natural values, or a
+      parameter vector. `multistart`: also try the grid start.
     - `per_incidence`: compute per-incidence quality and refits.
     - `birge`: scale the covariance by max(1, χ²/dof).
     - `dtype`: float64 (default). float32 works only with ``jax_enable_x64`` off

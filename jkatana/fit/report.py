@@ -65,8 +65,8 @@ def write_report(params_path, out_dir, *, table=None) -> Path:
     import matplotlib.pyplot as plt
 
     from jkatana.fit._model import green
-    from jkatana.fit._solve import NoiseModel
     from jkatana.fit.params import read_params
+    from jkatana.measure.noise import NoiseModel
     from jkatana.io.atomic import atomic_path, write_text
 
     params_path = Path(params_path)

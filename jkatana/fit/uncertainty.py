@@ -1,6 +1,6 @@
 """Uncertainty that stays honest when the model is wrong: misfit flag, sandwich covariance, bootstrap, robust loss.
 
-The Laplace interval (:func:`jkatana.fit._solve.laplace`) is the curvature of
+The Laplace interval (:func:`jkatana.fit.laplace.laplace`) is the curvature of
 χ² under the assumption that the model is right and only noise remains. On
 measured metal the model is not right (χ²/dof of 20–60), and then
 
@@ -44,7 +44,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.fit._model import ModelSpec, to_natural
-from jkatana.fit._solve import fit_program, natural_intervals, residuals, solve, start_vector, verdict
+from jkatana.fit.laplace import natural_intervals
+from jkatana.fit.solve import fit_program, residuals, solve, verdict
+from jkatana.fit.starts import start_vector
 
 LOSSES = {"squared": None, "huber": 1.345, "cauchy": 2.385}
 
@@ -136,7 +138,7 @@ def sandwich(fit) -> dict:
 def refit_each(terms, y, W, p_hat, *, spec, solver="lm", max_steps=200) -> dict:
     """The fits of one table under each row of weights ``W`` ``(k, n)``, from the default start or, where it has
     no peak to measure, from ``p_hat`` (the whole table's optimum): :func:`_refits`' values, as k calls of the
-    region fit's own compiled program (:func:`~jkatana.fit._solve.fit_program`) instead of a batched program
+    region fit's own compiled program (:func:`~jkatana.fit.solve.fit_program`) instead of a batched program
     compiled for them. Returns numpy arrays stacked over the rows."""
     outs = [fit_program(terms, y, wk, spec, fallback=p_hat, solver=solver, max_steps=max_steps)
             for wk in np.asarray(W)]
@@ -195,7 +197,7 @@ def sandwich_batch(terms, Y, W, P, spec: ModelSpec, theta_i_deg, theta_r_deg, us
 
     ``Y``, ``W`` ``(C, n)`` values and weights, ``P`` ``(C, p)`` fitted vectors.
     Returns ``(cov_sandwich, cov_laplace)``, each ``(C, p, p)`` (same formulas
-    as :func:`sandwich` and :func:`jkatana.fit._solve.laplace`).
+    as :func:`sandwich` and :func:`jkatana.fit.laplace.laplace`).
     """
     J, H, R = (np.asarray(a, np.float64) for a in jax.vmap(
         lambda p, y, w: _hessian_parts(p, terms, y, w, spec))(jnp.asarray(P), jnp.asarray(Y), jnp.asarray(W)))
