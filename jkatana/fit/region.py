@@ -241,21 +241,51 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
 
     **Returns:** :class:`RegionFit`.
     """
-    from jkatana.fit import uncertainty as U
-
     t0 = time.perf_counter()
-    model = model or default_model(data.region)
+    spec = _spec(data.region, model, tilt, floor, instrument, loss, dtype)
+    n, k = setup.nk()
+    terms = prepare(spec.model, data.theta_i_deg, data.theta_r_deg, n, k, setup.weights(), dtype,
+                    azimuth_deg=data.azimuth_deg)
+    noise, given = _noise(data, noise)
+    y = jnp.asarray(np.where(data.usable, data.value, 0.0), dtype)
+    w = _weights(y, data.usable, noise, given, dtype)
+    out = fit_arrays(terms, y, w, spec, start=start, solver=solver, max_steps=max_steps, multistart=multistart)
+    steps = int(out["steps"])
+    if irls and given is None and np.all(np.isfinite(out["p"])):
+        out, w = _irls_refit(out, terms, y, data.usable, noise, spec, dtype, solver, max_steps)
+        steps += int(out["steps"])
+    if loss != "squared" and np.all(np.isfinite(out["p"])):
+        out, w, more = _robust_loss_refits(out, terms, y, w, spec, loss, dtype, solver, max_steps)
+        steps += more
+    ok, reasons, lap, diagnostics = _summary(out, data, spec, noise, given, steps, solver, birge, dtype)
+    values = to_natural(out["p"], spec) if np.all(np.isfinite(out["p"])) else {n_: float("nan") for n_ in spec.names}
+    fit = RegionFit(region=data.region, spec=spec, p=np.asarray(out["p"], np.float64), values=values,
+                    converged=ok, reasons=reasons, laplace=lap, noise=noise, diagnostics=diagnostics,
+                    per_incidence=[], setup=setup, data=data, terms=terms, weight=np.asarray(w), loss=loss)
+    _uncertainty(fit, robust, bootstrap, seed, per_incidence, solver, max_steps)
+    fit.diagnostics["time_s"] = time.perf_counter() - t0
+    return fit
+
+
+def _spec(region: str, model: str | None, tilt: bool, floor: bool, instrument, loss: str, dtype) -> ModelSpec:
+    """The model a fit solves (the region's own paper model by default), its options checked."""
+    from jkatana.fit.uncertainty import LOSSES
+
+    model = model or default_model(region)
     if model not in MODELS:
         raise InputError(f"unknown model {model!r}; known: {list(MODELS)}", field="model")
-    if loss not in U.LOSSES:
-        raise InputError(f"loss must be one of {list(U.LOSSES)}, got {loss!r}", field="loss")
+    if loss not in LOSSES:
+        raise InputError(f"loss must be one of {list(LOSSES)}, got {loss!r}", field="loss")
     spec = ModelSpec(model, tilt, floor, instrument)
     if dtype == jnp.float32 and jax.config.jax_enable_x64:
         raise ValueError("float32 fits need jax_enable_x64 off (lineax fails on mixed dtypes); "
                          "run them in a separate process")
-    n, k = setup.nk()
-    terms = prepare(model, data.theta_i_deg, data.theta_r_deg, n, k, setup.weights(), dtype,
-                    azimuth_deg=data.azimuth_deg)
+    return spec
+
+
+def _noise(data: FitData, noise: NoiseModel | str) -> tuple[NoiseModel, np.ndarray | None]:
+    """The noise model of a fit (:func:`fit_region`'s `noise`), and the per-row σ where the table's is used as
+    given (else None)."""
     given = None
     if isinstance(noise, str):
         if noise not in ("auto", "given", "model"):
@@ -268,45 +298,63 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
                              field="sigma")
         noise = estimate_noise(data.value[data.usable],
                                None if data.sigma is None else data.sigma[data.usable])
-    y_np = np.where(data.usable, data.value, 0.0)
-    y = jnp.asarray(y_np, dtype)
-    use = data.usable
+    return noise, given
+
+
+def _weights(y, use, noise: NoiseModel, given, dtype):
+    """1/σ at the usable points, 0 elsewhere: σ the given per-row σ, else the noise model's at the data."""
     if given is not None:
-        w = jnp.asarray(np.where(use, 1.0 / np.asarray(given, dtype), 0.0), dtype)
-    else:
-        w = noise.weights(y, use, dtype)
-    out = fit_arrays(terms, y, w, spec, start=start, solver=solver, max_steps=max_steps, multistart=multistart)
-    steps = int(out["steps"])
-    if irls and given is None and np.all(np.isfinite(out["p"])):
-        w = noise.weights(model_values(jnp.asarray(out["p"], dtype), terms, spec), use, dtype)
-        out2 = fit_arrays(terms, y, w, spec, start=out["p"], solver=solver, max_steps=max_steps)
-        # the cost check compares with the very first start, under the final weights
-        r0 = np.asarray(weighted_residuals(jnp.asarray(out["p0"], dtype), terms, y, w, spec))
-        out2["cost0"] = 0.5 * float(np.sum(r0 * r0))
-        out2["p0"] = out["p0"]
-        steps += int(out2["steps"])
-        out = out2
-    if loss != "squared" and np.all(np.isfinite(out["p"])):
-        w_base = w
-        for _ in range(5):
-            r = weighted_residuals(jnp.asarray(out["p"], dtype), terms, y, w_base, spec)
-            w = (w_base * jnp.sqrt(U.irls_weights(r, loss))).astype(dtype)
-            nxt = fit_arrays(terms, y, w, spec, start=out["p"], solver=solver, max_steps=max_steps)
-            steps += int(nxt["steps"])
-            nxt["p0"] = out["p0"]
-            r0 = np.asarray(weighted_residuals(jnp.asarray(out["p0"], dtype), terms, y, w, spec))
-            nxt["cost0"] = 0.5 * float(np.sum(r0 * r0))
-            done = np.allclose(nxt["p"], out["p"], rtol=1e-8, atol=1e-10)
-            out = nxt
-            if done:
-                break
+        return jnp.asarray(np.where(use, 1.0 / np.asarray(given, dtype), 0.0), dtype)
+    return noise.weights(y, use, dtype)
+
+
+def _with_first_start(out: dict, first: dict, terms: Terms, y, w, spec: ModelSpec, dtype) -> dict:
+    """A refit's result with the very first start and its cost under the refit's weights, so that the
+    verdict's cost check compares with where the fit began."""
+    r0 = np.asarray(weighted_residuals(jnp.asarray(first["p0"], dtype), terms, y, w, spec))
+    out["cost0"] = 0.5 * float(np.sum(r0 * r0))
+    out["p0"] = first["p0"]
+    return out
+
+
+def _irls_refit(out: dict, terms: Terms, y, use, noise: NoiseModel, spec: ModelSpec, dtype, solver: str,
+                max_steps: int) -> tuple[dict, jnp.ndarray]:
+    """One refit with σ re-evaluated at the fitted model instead of the data (σ from the data biases a fit
+    towards points that happen to fluctuate low): the refit and its weights."""
+    w = noise.weights(model_values(jnp.asarray(out["p"], dtype), terms, spec), use, dtype)
+    out2 = fit_arrays(terms, y, w, spec, start=out["p"], solver=solver, max_steps=max_steps)
+    return _with_first_start(out2, out, terms, y, w, spec, dtype), w
+
+
+def _robust_loss_refits(out: dict, terms: Terms, y, w_base, spec: ModelSpec, loss: str, dtype, solver: str,
+                        max_steps: int) -> tuple[dict, jnp.ndarray, int]:
+    """A robust loss by iteratively reweighted least squares (:func:`~jkatana.fit.uncertainty.irls_weights`),
+    at most 5 refits, until the parameters stop moving: the last refit, its weights and the steps taken."""
+    from jkatana.fit.uncertainty import irls_weights
+
+    steps, w = 0, w_base
+    for _ in range(5):
+        r = weighted_residuals(jnp.asarray(out["p"], dtype), terms, y, w_base, spec)
+        w = (w_base * jnp.sqrt(irls_weights(r, loss))).astype(dtype)
+        nxt = fit_arrays(terms, y, w, spec, start=out["p"], solver=solver, max_steps=max_steps)
+        steps += int(nxt["steps"])
+        nxt = _with_first_start(nxt, out, terms, y, w, spec, dtype)
+        done = np.allclose(nxt["p"], out["p"], rtol=1e-8, atol=1e-10)
+        out = nxt
+        if done:
+            break
+    return out, w, steps
+
+
+def _summary(out: dict, data: FitData, spec: ModelSpec, noise: NoiseModel, given, steps: int, solver: str,
+             birge: bool, dtype) -> tuple[bool, list, dict, dict]:
+    """A solved fit's verdict, its reasons, its Laplace intervals and its diagnostics."""
     ok, reasons = verdict(out, np.dtype(dtype))
     n_used = int(np.sum(data.usable))
     lap = laplace(out["jtj"], float(out["cost"]), n_used, out["p"], spec, birge=birge)
     if not lap["ok"]:
         reasons = reasons + ["Laplace covariance is singular (parameters not identifiable from these data)"]
         ok = False
-    values = to_natural(out["p"], spec) if np.all(np.isfinite(out["p"])) else {n_: float("nan") for n_ in spec.names}
     diagnostics = dict(solver=solver, steps=steps, cost=float(out["cost"]), cost_start=float(out["cost0"]),
                        gn_decrement=float(out["decrement"]), grad_inf_norm=float(out["grad_norm"]),
                        chi2_dof=lap["chi2_dof"], n_points=n_used, n_excluded=int(data.value.size - n_used),
@@ -314,10 +362,15 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
                        noise=noise.as_dict() | dict(sigma="per-row (given)" if given is not None else "model"),
                        start=to_natural(out["p0"], spec) if np.all(np.isfinite(out["p0"])) else None,
                        dtype=str(np.dtype(dtype)), reasons=reasons)
-    fit = RegionFit(region=data.region, spec=spec, p=np.asarray(out["p"], np.float64), values=values,
-                    converged=ok, reasons=reasons, laplace=lap, noise=noise, diagnostics=diagnostics,
-                    per_incidence=[], setup=setup, data=data, terms=terms, weight=np.asarray(w), loss=loss)
-    fit.misfit = U.misfit(lap["chi2_dof"], diagnostics["dof"])
+    return ok, reasons, lap, diagnostics
+
+
+def _uncertainty(fit: RegionFit, robust: bool, bootstrap: int, seed: int, per_incidence: bool, solver: str,
+                 max_steps: int) -> None:
+    """The fit's misfit flag, and where asked its sandwich and bootstrap intervals and per-incidence quality."""
+    from jkatana.fit import uncertainty as U
+
+    fit.misfit = U.misfit(fit.laplace["chi2_dof"], fit.diagnostics["dof"])
     if robust and np.all(np.isfinite(fit.p)):
         fit.robust = U.sandwich(fit)
     if bootstrap:
@@ -326,8 +379,6 @@ def fit_region(data: FitData, *, model: str | None = None, setup: Setup = Setup(
         from jkatana.fit.quality import per_incidence as _pi
 
         fit.per_incidence = _pi(fit, solver=solver, max_steps=max_steps)
-    fit.diagnostics["time_s"] = time.perf_counter() - t0
-    return fit
 
 
 def fit_table(table, region: str | None = None, **kwargs) -> RegionFit:
