@@ -309,9 +309,35 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
     out = Path(out_dir)
     sensor = Sensor() if sensor is None else sensor
     pairs = as_pairs(protocol)
+    regions = tuple(regions)
+    params = _checked_inputs(pairs, regions, params, fill=fill, stray_floor=stray_floor, tilt_deg=tilt_deg,
+                             angle_jitter_deg=angle_jitter_deg, exposure_s=exposure_s)
+    ti, tr = true_angles(pairs, tilt_deg=tilt_deg, angle_jitter_deg=angle_jitter_deg,
+                         rng=np.random.default_rng([seed, 2 ** 31]))
+    kw = dict(optical_constants=optical_constants, light=light, grid=grid)
+    truth, ratios = _true_values(pairs, ti, tr, regions, params, camera, stray_floor, kw)
+    settings = dict(regions=list(regions), params={r: params.get(r) for r in regions},
+                    optical_constants=optical_constants, light=light, camera=camera,
+                    sensor=dataclasses.asdict(sensor), exposure_s=exposure_s, fill=fill, tilt_deg=tilt_deg,
+                    stray_floor=stray_floor, angle_jitter_deg=angle_jitter_deg, grid=grid.as_dict(), seed=seed)
+    inputs = _fingerprint(pairs=[[float(a), float(b)] for a, b in pairs], **settings)
+    recorded = _start_raw(out, inputs, resume)
+    manifest_rows, truth_rows = _write_captures(out / "raw", pairs, regions, truth, ratios, sensor, exposure_s,
+                                                fill, seed, recorded if resume else {}, progress)
+    cols = {k: [row[k] for row in truth_rows] for k in truth_rows[0]}
+    write_table(MeasurementTable.from_columns(**cols), out / "truth.csv")
+    write_text(out / "simulation.json", json.dumps(_simulation_record(len(pairs), settings), indent=2))
+    write_text(out / "manifest.csv", manifest_csv(manifest_rows, folder=out))
+    return dict(manifest=out / "manifest.csv", truth=out / "truth.csv", captures=len(pairs),
+                rows=len(manifest_rows))
+
+
+def _checked_inputs(pairs, regions: tuple, params, *, fill, stray_floor, tilt_deg, angle_jitter_deg,
+                    exposure_s) -> dict:
+    """:func:`simulate_campaign`'s inputs checked before any work (:class:`InputError` naming the first
+    wrong one); returns the per-region parameters (empty: the paper's)."""
     for row, (a, b) in enumerate(pairs, start=1):
         check_angles(a, b, path="protocol", row=row)
-    regions = tuple(regions)
     for r in regions:
         if r not in ("hiraji", "hamon"):
             raise InputError(f"can simulate 'hiraji' and 'hamon', not {r!r}", field="regions")
@@ -336,9 +362,12 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
                              field="params")
         if isinstance(ps, dict):  # (a model object is the caller's, already built)
             region_params(r, ps)
-    ti, tr = true_angles(pairs, tilt_deg=tilt_deg, angle_jitter_deg=angle_jitter_deg,
-                         rng=np.random.default_rng([seed, 2 ** 31]))
-    kw = dict(optical_constants=optical_constants, light=light, grid=grid)
+    return params
+
+
+def _true_values(pairs, ti, tr, regions: tuple, params: dict, camera, stray_floor: float, kw: dict):
+    """Each region's green value at the true angles (plus the stray-light floor), checked finite, and the
+    red/green and blue/green ratios its red and blue photosites see (1 for a camera given as an array)."""
     truth = {r: green_values(ti, tr, r, params.get(r), camera=camera, **kw) + stray_floor for r in regions}
     for r in regions:
         bad = ~np.isfinite(truth[r])
@@ -352,16 +381,18 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
         from jkatana.measure.camera import green_sensitivity
 
         for r in regions:
-            rgb = [green_values(ti, tr, r, params.get(r), camera=green_sensitivity(grid, camera, ch), **kw)
+            rgb = [green_values(ti, tr, r, params.get(r), camera=green_sensitivity(kw["grid"], camera, ch), **kw)
                    + stray_floor for ch in ("red", "blue")]
             safe = np.where(truth[r] > 0, truth[r], 1.0)
             ratios[r] = tuple(np.where(truth[r] > 0, v / safe, 1.0) for v in rgb)
+    return truth, ratios
+
+
+def _start_raw(out: Path, inputs: dict, resume: bool) -> dict:
+    """The capture folder ready to write: on a resume the inputs checked against the record and the writers'
+    leftover temporaries removed; the inputs' record and the checksums kept so far written. Returns the
+    recorded checksums (name → SHA-256; empty without resume)."""
     raw_dir = out / "raw"
-    inputs = _fingerprint(pairs=[[float(a), float(b)] for a, b in pairs], regions=list(regions),
-                          params={r: params.get(r) for r in regions}, optical_constants=optical_constants,
-                          light=light, camera=camera, sensor=dataclasses.asdict(sensor), exposure_s=exposure_s,
-                          fill=fill, tilt_deg=tilt_deg, stray_floor=stray_floor,
-                          angle_jitter_deg=angle_jitter_deg, grid=grid.as_dict(), seed=seed)
     stamp = out / FINGERPRINT
     sums_path = raw_dir / CHECKSUMS
     recorded = {}
@@ -372,10 +403,18 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
             tmp.unlink(missing_ok=True)
     raw_dir.mkdir(parents=True, exist_ok=True)
     write_text(stamp, json.dumps(inputs, indent=2, sort_keys=True))
-    digests: dict[str, str] = {}
     write_text(sums_path, "".join(f"{d}  {n}\n" for n, d in recorded.items()))
+    return recorded
+
+
+def _write_captures(raw_dir: Path, pairs, regions: tuple, truth: dict, ratios: dict, sensor: Sensor,
+                    exposure_s, fill: float, seed: int, recorded: dict, progress) -> tuple[list, list]:
+    """Each capture's DNG (kept where a resume verifies its recorded digest), its checksum appended as it is
+    written, then ``SHA256SUMS`` rewritten in capture order. Returns the manifest's and the truth table's rows."""
+    sums_path = raw_dir / CHECKSUMS
     rois = sensor.rois()
     n_green = {r: rois[r][2] * rois[r][3] // 2 for r in regions}
+    digests: dict[str, str] = {}
     manifest_rows, truth_rows = [], []
     with open(sums_path, "a", encoding="utf-8") as sums:
         for i, (a, b) in enumerate(pairs):
@@ -383,7 +422,7 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
             t = exposure_s if exposure_s is not None else auto_exposure(max(values.values()), sensor.gain, fill)
             cid = capture_id(a, b)
             path = raw_dir / f"{cid}.dng"
-            if resume and path.name in recorded and path.is_file() and _sha256(path) == recorded[path.name]:
+            if path.name in recorded and path.is_file() and _sha256(path) == recorded[path.name]:
                 digests[path.name] = recorded[path.name]  # verified: the bytes written then
             else:
                 rb = {r: (float(ratios[r][0][i]), float(ratios[r][1][i])) for r in regions}
@@ -402,20 +441,21 @@ def simulate_campaign(out_dir: str | Path, protocol=None, *, regions=("hiraji", 
                 progress(1)
     write_text(sums_path, "".join(f"{digests[n]}  {n}\n" for n in dict.fromkeys(
         f"{capture_id(a, b)}.dng" for a, b in pairs)))
-    cols = {k: [row[k] for row in truth_rows] for k in truth_rows[0]}
-    truth_table = MeasurementTable.from_columns(**cols)
-    write_table(truth_table, out / "truth.csv")
-    write_text(out / "simulation.json", json.dumps(dict(
-        protocol_captures=len(pairs), regions=list(regions), params={r: params.get(r) for r in regions},
-        optical_constants=str(optical_constants), light=light if isinstance(light, (str, int, float)) else "array",
-        camera=camera if isinstance(camera, str) else "array", sensor=dataclasses.asdict(sensor),
-        exposure_s=exposure_s, fill=fill, tilt_deg=tilt_deg, stray_floor=stray_floor,
-        angle_jitter_deg=angle_jitter_deg, grid=grid.as_dict(), seed=seed,
+    return manifest_rows, truth_rows
+
+
+def _simulation_record(captures: int, settings: dict) -> dict:
+    """``simulation.json``: the campaign's settings (a light or camera given as an array named so)."""
+    light, camera = settings["light"], settings["camera"]
+    return dict(
+        protocol_captures=captures, regions=settings["regions"], params=settings["params"],
+        optical_constants=str(settings["optical_constants"]),
+        light=light if isinstance(light, (str, int, float)) else "array",
+        camera=camera if isinstance(camera, str) else "array", sensor=settings["sensor"],
+        **{k: settings[k] for k in ("exposure_s", "fill", "tilt_deg", "stray_floor", "angle_jitter_deg", "grid",
+                                    "seed")},
         note="truth.csv: expected (noiseless) values at the true geometry, with the sensor's predicted "
-             "standard errors; manifest.csv: nominal angles"), indent=2))
-    write_text(out / "manifest.csv", manifest_csv(manifest_rows, folder=out))
-    return dict(manifest=out / "manifest.csv", truth=out / "truth.csv", captures=len(pairs),
-                rows=len(manifest_rows))
+             "standard errors; manifest.csv: nominal angles")
 
 
 __all__ = ["Sensor", "EOS40D_SIZE", "simulate_campaign", "write_dng", "render_frame", "auto_exposure",
