@@ -262,28 +262,54 @@ def build_blade(spec: KatanaSpec = KatanaSpec(), *, segments_along: int = 320,
     u = _stations(spec, line, segments_along)
     haba, kas, shin = _widths(spec, line, u)
     P, T, N = line.frame(u)
-    tip_xy = line.frame(np.array([1.0]))[0][0]
+    parts = _Parts(P, T, N, tip_xy=line.frame(np.array([1.0]))[0][0])
     panels = _panels(spec, haba, kas, shin, segments_across)
-    if spec.mune == "mitsu":
-        h0 = panels["mune"][1][:, :1]
-        t = np.linspace(0, 1, 3)[None, :]
-        top = (np.zeros_like(h0 * t), h0 * (1 - 2 * t), np.zeros_like(h0 * t))
-    else:
-        top = None
+    top = _mitsu_top(panels) if spec.mune == "mitsu" else None
+    for sign in (+1.0, -1.0):
+        for d, z, v in panels.values():
+            parts.add_panel(parts.place(d, sign * z), _uv(u, v), flip=(sign > 0))
+    if top is not None:
+        d, z, v = top
+        parts.add_panel(parts.place(d, z), _uv(u, v), flip=False)
+    _add_machi_cap(parts, panels, top, u[0], haba[0])
+    mesh = parts.mesh()
+    mesh.metadata["katana"] = dataclasses.asdict(spec)
+    mesh.metadata["units"] = "m"
+    _ = mesh.vertex_normals  # computed per panel: smooth on flats, split at ridges
+    return mesh
 
-    verts, uvs, faces = [], [], []
-    count = 0
 
-    def place(d, z):
-        xy = P[:, None, :] + d[..., None] * N[:, None, :]
+def _mitsu_top(panels: dict):
+    """The flat top of a mitsu-mune, (d, z, v) grids (rings, 3): across from the omote roof's top to the ura's."""
+    h0 = panels["mune"][1][:, :1]
+    t = np.linspace(0, 1, 3)[None, :]
+    return np.zeros_like(h0 * t), h0 * (1 - 2 * t), np.zeros_like(h0 * t)
+
+
+def _uv(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A panel's texture coordinates: u along (one per ring), v across."""
+    return np.stack([np.broadcast_to(u[:, None], v.shape), v], -1)
+
+
+class _Parts:
+    """The blade mesh's vertices, UVs and faces as they are added, each panel placed in the mune line's frame
+    (``P`` points, ``T`` tangents, ``N`` normals, one per ring) and closed by a fan to the tip."""
+
+    def __init__(self, P, T, N, tip_xy):
+        self.P, self.T, self.N, self.tip_xy = P, T, N, tip_xy
+        self.verts, self.uvs, self.faces = [], [], []
+        self.count = 0
+
+    def place(self, d, z):
+        """Points at distance ``d`` from the mune line along its normal, at height ``z`` off the blade's plane."""
+        xy = self.P[:, None, :] + d[..., None] * self.N[:, None, :]
         return np.concatenate([xy, z[..., None]], -1)
 
-    def add_panel(xyz, uv, flip):
+    def add_panel(self, xyz, uv, flip):
         """Grid (rings, cols) + a fan to the tip; ``flip`` chooses the outward winding."""
-        nonlocal count
         r, c = xyz.shape[:2]
-        idx = count + np.arange(r * c).reshape(r, c)
-        tip = count + r * c
+        idx = self.count + np.arange(r * c).reshape(r, c)
+        tip = self.count + r * c
         p00, p10, p11, p01 = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
         tri = np.concatenate([np.stack([p00, p10, p11], -1).reshape(-1, 3),
                               np.stack([p00, p11, p01], -1).reshape(-1, 3)])
@@ -292,30 +318,38 @@ def build_blade(spec: KatanaSpec = KatanaSpec(), *, segments_along: int = 320,
         tri = np.concatenate([tri, fan])
         if flip:
             tri = tri[:, ::-1]
-        verts.append(xyz.reshape(-1, 3))
-        verts.append(np.array([[tip_xy[0], tip_xy[1], 0.0]]))
-        uvs.append(uv.reshape(-1, 2))
-        uvs.append(np.array([[1.0, float(np.mean(uv[-1, :, 1]))]]))
-        faces.append(tri)
-        count += r * c + 1
+        self.verts.append(xyz.reshape(-1, 3))
+        self.verts.append(np.array([[self.tip_xy[0], self.tip_xy[1], 0.0]]))
+        self.uvs.append(uv.reshape(-1, 2))
+        self.uvs.append(np.array([[1.0, float(np.mean(uv[-1, :, 1]))]]))
+        self.faces.append(tri)
+        self.count += r * c + 1
 
-    for sign in (+1.0, -1.0):
-        for d, z, v in panels.values():
-            xyz = place(d, sign * z)
-            uv = np.stack([np.broadcast_to(u[:, None], v.shape), v], -1)
-            add_panel(xyz, uv, flip=(sign > 0))
-    if top is not None:
-        d, z, v = top
-        add_panel(place(d, z), np.stack([np.broadcast_to(u[:, None], v.shape), v], -1), flip=False)
+    def mesh(self) -> trimesh.Trimesh:
+        """The parts as one mesh (v clipped to [0, 1]), without the zero-area fan triangles at the tip (where
+        two columns meet it)."""
+        V = np.concatenate(self.verts)
+        F = np.concatenate(self.faces).astype(np.int64)
+        UV = np.concatenate(self.uvs)
+        UV[:, 1] = np.clip(UV[:, 1], 0.0, 1.0)
+        mesh = trimesh.Trimesh(vertices=V, faces=F, process=False,
+                               visual=trimesh.visual.TextureVisuals(uv=UV))
+        area = mesh.area_faces
+        if np.any(area <= 0):
+            mesh.update_faces(area > 0)
+        return mesh
 
-    # machi (or tang-end) cap: the first ring's cross-section, fanned from its centre
+
+def _add_machi_cap(parts: _Parts, panels: dict, top, u0: float, haba0: float) -> None:
+    """The machi (or tang-end) cap: the first ring's cross-section, fanned from its centre, facing backward."""
+    P, T, N = parts.P, parts.T, parts.N
     loop = []
     for sign in (+1.0, -1.0):
-        seq = [place(d, sign * z)[0] for d, z, _ in panels.values()]
+        seq = [parts.place(d, sign * z)[0] for d, z, _ in panels.values()]
         pts = np.concatenate(seq)
         loop.append(pts if sign > 0 else pts[::-1])
     if top is not None:  # ura → omote across the flat top of a mitsu-mune
-        loop.append(place(top[0], top[1])[0][::-1])
+        loop.append(parts.place(top[0], top[1])[0][::-1])
     loop = np.concatenate(loop)
     keep = np.ones(len(loop), bool)
     keep[1:] = np.linalg.norm(np.diff(loop, axis=0), axis=1) > 1e-12
@@ -323,30 +357,16 @@ def build_blade(spec: KatanaSpec = KatanaSpec(), *, segments_along: int = 320,
     if np.linalg.norm(loop[0] - loop[-1]) < 1e-12:
         loop = loop[:-1]
     centre = loop.mean(0)
-    k = len(loop)
+    k, count = len(loop), parts.count
     cap = np.stack([np.full(k, count + k), count + np.arange(k), count + (np.arange(k) + 1) % k], -1)
     normal = np.cross(loop[cap[0, 1] - count] - centre, loop[cap[0, 2] - count] - centre)
     if np.dot(normal, np.r_[T[0], 0.0]) > 0:  # must face backward (−tangent)
         cap = cap[:, ::-1]
-    verts += [loop, centre[None]]
+    parts.verts += [loop, centre[None]]
     d_loop = (loop[:, :2] - P[0]) @ N[0]
-    uvs += [np.stack([np.full(k, u[0]), d_loop / haba[0]], -1), np.array([[u[0], float((centre[:2] - P[0]) @ N[0] / haba[0])]])]
-    faces.append(cap)
-
-    V = np.concatenate(verts)
-    F = np.concatenate(faces).astype(np.int64)
-    UV = np.concatenate(uvs)
-    UV[:, 1] = np.clip(UV[:, 1], 0.0, 1.0)
-    mesh = trimesh.Trimesh(vertices=V, faces=F, process=False,
-                           visual=trimesh.visual.TextureVisuals(uv=UV))
-    # drop the zero-area fan triangles at the tip (where two columns meet the tip)
-    area = mesh.area_faces
-    if np.any(area <= 0):
-        mesh.update_faces(area > 0)
-    mesh.metadata["katana"] = dataclasses.asdict(spec)
-    mesh.metadata["units"] = "m"
-    _ = mesh.vertex_normals  # computed per panel: smooth on flats, split at ridges
-    return mesh
+    parts.uvs += [np.stack([np.full(k, u0), d_loop / haba0], -1),
+                  np.array([[u0, float((centre[:2] - P[0]) @ N[0] / haba0)]])]
+    parts.faces.append(cap)
 
 
 def welded(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
