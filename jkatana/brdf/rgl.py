@@ -383,22 +383,49 @@ def rgl_from_function(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray], ndf:
     th_nodes = np.deg2rad(np.arange(0.0, 86.0, 5.0) if theta_i_deg is None
                           else np.sort(np.asarray(theta_i_deg, np.float64)))
     phi_nodes = np.array([0.0, 2 * np.pi]) - np.pi  # isotropic: two equal slices over φ ∈ [−π, π]
-
-    def grid(res):
-        u = np.linspace(0.0, 1.0, res)
-        ux, uy = np.meshgrid(u, u, indexing="xy")  # (H=y, W=x)
-        return ux, uy
-
-    def dirs(ux, uy, phi0=0.0):
-        th, ph = _u2theta(ux), _u2phi(uy) + phi0
-        return np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1), th
-
-    ux, uy = grid(ndf_res)
-    m, th = dirs(ux, uy)
+    ux, uy = _u_grid(ndf_res)
+    m, th = _u_dirs(ux, uy)
     D = np.asarray(ndf(np.cos(th)), np.float64)
-    # projected area σ(ωi) on the ndf grid, by quadrature over the same u grid
-    qx, qy = grid(257)
-    qm, qth = dirs(qx, qy)
+    proj_area = _projected_area(ndf)
+    # isotropic: σ depends on θ only, i.e. on the grid column
+    sig_col = np.array([proj_area(v) for v in m[0]])
+    sig = np.broadcast_to(sig_col[None, :], D.shape)
+
+    vx, vy = _u_grid(vndf_res)
+    vm, vth = _u_dirs(vx, vy, -np.pi)  # isotropic tables: φm relative to φi = −π
+    vD = np.asarray(ndf(np.cos(vth)), np.float64) * 2 * np.pi**2 * vx * np.sin(vth)
+    rx, ry = _u_grid(refl_res)
+    s_grid = np.stack([rx.ravel(), ry.ravel()], -1)
+    nth = th_nodes.size
+    vndf = np.zeros((2, nth, vndf_res, vndf_res))
+    refl = np.zeros((2, nth, len(channels), refl_res, refl_res))
+    for j, t in enumerate(th_nodes):
+        wi = np.array([np.sin(t) * np.cos(-np.pi), np.sin(t) * np.sin(-np.pi), np.cos(t)])
+        v = vD * np.maximum(vm @ wi, 0.0)
+        vndf[:, j] = v
+        r = _reflectance(brdf, ndf, wi, _sample(*_cdfs(v), s_grid), proj_area(wi), refl_res)
+        refl[:, j] = np.moveaxis(r, -1, 0)
+    return RGLBRDF(_tabulated_fields(th_nodes, phi_nodes, D, sig, vndf, refl, channels, description))
+
+
+def _u_grid(res: int):
+    """The unit square's ``res``² nodes as (x, y) arrays of shape (H = y, W = x)."""
+    u = np.linspace(0.0, 1.0, res)
+    ux, uy = np.meshgrid(u, u, indexing="xy")  # (H=y, W=x)
+    return ux, uy
+
+
+def _u_dirs(ux, uy, phi0=0.0):
+    """Directions at unit-square coordinates (the layout's θ and φ warps, φ offset by ``phi0``), and θ."""
+    th, ph = _u2theta(ux), _u2phi(uy) + phi0
+    return np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1), th
+
+
+def _projected_area(ndf: Callable[[np.ndarray], np.ndarray]) -> Callable[[np.ndarray], float]:
+    """σ(ωi) = ∫ D(ωm) ⟨ωm·ωi⟩ dωm, the microfacets' projected area, by trapezoidal quadrature over a 257² grid
+    of the unit square (the θ warp's Jacobian 2π²·x·sin θ included)."""
+    qx, qy = _u_grid(257)
+    qm, qth = _u_dirs(qx, qy)
     qD = np.asarray(ndf(np.cos(qth)), np.float64) * 2 * np.pi**2 * qx * np.sin(qth)
     du = 1.0 / 256
     wq = np.full(qx.shape, du * du)
@@ -410,43 +437,35 @@ def rgl_from_function(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray], ndf:
     def proj_area(wi):
         return np.sum(qD * np.maximum(qm @ wi, 0.0) * wq)
 
-    # isotropic: σ depends on θ only, i.e. on the grid column
-    sig_col = np.array([proj_area(v) for v in m[0]])
-    sig = np.broadcast_to(sig_col[None, :], D.shape)
+    return proj_area
 
-    vx, vy = grid(vndf_res)
-    vm, vth = dirs(vx, vy, -np.pi)  # isotropic tables: φm relative to φi = −π
-    vD = np.asarray(ndf(np.cos(vth)), np.float64) * 2 * np.pi**2 * vx * np.sin(vth)
-    rx, ry = grid(refl_res)
-    s_grid = np.stack([rx.ravel(), ry.ravel()], -1)
-    nth = th_nodes.size
-    vndf = np.zeros((2, nth, vndf_res, vndf_res))
-    refl = np.zeros((2, nth, len(channels), refl_res, refl_res))
-    for j, t in enumerate(th_nodes):
-        wi = np.array([np.sin(t) * np.cos(-np.pi), np.sin(t) * np.sin(-np.pi), np.cos(t)])
-        v = vD * np.maximum(vm @ wi, 0.0)
-        vndf[:, j] = v
-        dens, cc, mc = _cdfs(v)
-        u = _sample(dens, cc, mc, s_grid)
-        thm, phm = _u2theta(u[:, 0]), _u2phi(u[:, 1]) - np.pi  # isotropic: φm relative to φi = −π
-        wm = np.stack([np.sin(thm) * np.cos(phm), np.sin(thm) * np.sin(phm), np.cos(thm)], -1)
-        wo = 2 * (wm @ wi)[:, None] * wm - wi
-        f = np.asarray(brdf(np.broadcast_to(wi, wo.shape), wo), np.float64)
-        Dm = np.asarray(ndf(np.cos(thm)), np.float64)
-        sig_i = proj_area(wi)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r = (f * np.maximum(wo[:, 2], 0.0)[:, None] * 4 * sig_i / Dm[:, None]).reshape(refl_res, refl_res, -1)
-        # Cells whose ωo lies below the horizon border visible ones in the warped domain: give them the value
-        # of the nearest visible cell, so bilinear interpolation next to them is not dragged towards 0
-        # (evaluation returns 0 below the horizon regardless).
-        valid = ((wo[:, 2] > 0) & (Dm > 0) & np.all(np.isfinite(r.reshape(-1, r.shape[-1])), -1)).reshape(
-            refl_res, refl_res)
-        if valid.any() and not valid.all():
-            from scipy.ndimage import distance_transform_edt
 
-            _, (iy, ix) = distance_transform_edt(~valid, return_indices=True)
-            r = r[iy, ix]
-        refl[:, j] = np.moveaxis(np.where(valid.any(), r, 0.0), -1, 0)
+def _reflectance(brdf, ndf, wi, u, sig_i: float, refl_res: int) -> np.ndarray:
+    """The reflectance table f·cos θo·4σ/D (refl_res, refl_res, C) at one incidence ``wi``, at the microfacet
+    normals that the vndf's warp puts at unit-square points ``u``.
+
+    Cells whose ωo lies below the horizon border visible ones in the warped domain: they take the value of the
+    nearest visible cell, so bilinear interpolation next to them is not dragged towards 0 (evaluation returns 0
+    below the horizon regardless); a table with no visible cell is 0."""
+    thm, phm = _u2theta(u[:, 0]), _u2phi(u[:, 1]) - np.pi  # isotropic: φm relative to φi = −π
+    wm = np.stack([np.sin(thm) * np.cos(phm), np.sin(thm) * np.sin(phm), np.cos(thm)], -1)
+    wo = 2 * (wm @ wi)[:, None] * wm - wi
+    f = np.asarray(brdf(np.broadcast_to(wi, wo.shape), wo), np.float64)
+    Dm = np.asarray(ndf(np.cos(thm)), np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = (f * np.maximum(wo[:, 2], 0.0)[:, None] * 4 * sig_i / Dm[:, None]).reshape(refl_res, refl_res, -1)
+    valid = ((wo[:, 2] > 0) & (Dm > 0) & np.all(np.isfinite(r.reshape(-1, r.shape[-1])), -1)).reshape(
+        refl_res, refl_res)
+    if valid.any() and not valid.all():
+        from scipy.ndimage import distance_transform_edt
+
+        _, (iy, ix) = distance_transform_edt(~valid, return_indices=True)
+        r = r[iy, ix]
+    return np.where(valid.any(), r, 0.0)
+
+
+def _tabulated_fields(th_nodes, phi_nodes, D, sig, vndf, refl, channels, description: str) -> dict:
+    """The tensor file's fields (float32 little-endian), RGB or spectral by the channels' names."""
     fields = dict(theta_i=th_nodes.astype("<f4"), phi_i=phi_nodes.astype("<f4"), ndf=D.astype("<f4"),
                   sigma=sig.astype("<f4"), vndf=vndf.astype("<f4"),
                   luminance=np.mean(refl, axis=2).astype("<f4"),
@@ -457,7 +476,7 @@ def rgl_from_function(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray], ndf:
     else:
         fields["spectra"] = refl.astype("<f4")
         fields["wavelengths"] = np.array([float(str(c).lower().removesuffix("nm")) for c in channels], "<f4")
-    return RGLBRDF(fields)
+    return fields
 
 
 __all__ = ["RGLBRDF", "read_rgl", "write_rgl", "rgl_from_function", "read_tensor_file", "write_tensor_file"]
