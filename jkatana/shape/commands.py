@@ -126,15 +126,30 @@ def shape_run(args: argparse.Namespace) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    import numpy as np
-    from tqdm import tqdm
+    from jkatana.shape.katana import export_blade
+    from jkatana.shape.reconstruct import point_error, surface_error
 
+    _check_katana_options(args)
+    if args.blade:
+        return _shape_builtin(args)
+    scans, truth = _scans(args)
+    pts = _merged_points(scans, args.max_points, args.seed)
+    mesh = _fit_surface(pts, args)
+    if truth is not None:
+        raw = point_error(pts[:: max(1, len(pts) // 20000)], truth)
+        sm = surface_error(mesh, truth)
+        print(f"vs true surface: raw merged scan RMS {raw['rms'] * 1e3:.4f} mm, max "
+              f"{raw['max'] * 1e3:.3f} mm; smoothed RMS {sm['rms'] * 1e3:.4f} mm, Hausdorff "
+              f"{sm['hausdorff'] * 1e3:.3f} mm", file=sys.stderr)
+    export_blade(mesh, args.output)
+    print(f"wrote {args.output}: {len(mesh.faces)} triangles", file=sys.stderr)
+    return 0
+
+
+def _check_katana_options(args: argparse.Namespace) -> None:
+    """The built-in katana's options, the memory its scans and fit need, and the output, checked before any
+    work."""
     from jkatana.errors import InputError
-    from jkatana.shape.katana import default_blade, export_blade
-    from jkatana.shape.reconstruct import (point_error, reconstruct_blade, smooth_height_field,
-                                           surface_error)
-    from jkatana.shape.scans import merge, read_scan, register_sections, simulate_scans
-
     from jkatana.io.limits import number, numbers, require_memory
     from jkatana.io.outputs import Output, check_outputs
 
@@ -155,7 +170,13 @@ def shape_run(args: argparse.Namespace) -> int:
     check_outputs([Output(args.output, "--output", (".ply", ".glb", ".obj"))], inputs=args.scans)
     if (args.nagasa is not None or args.sori is not None) and not args.blade:
         raise InputError("--nagasa and --sori shape the built-in blade: give them with --blade", field="--nagasa")
-    if args.blade and (args.nagasa is not None or args.sori is not None):
+
+
+def _shape_builtin(args: argparse.Namespace) -> int:
+    """``--blade``: the parametric built-in blade itself, shaped by ``--nagasa``/``--sori`` when given."""
+    from jkatana.shape.katana import default_blade, export_blade
+
+    if args.nagasa is not None or args.sori is not None:
         import dataclasses
 
         from jkatana.shape.katana import KatanaSpec, build_blade
@@ -166,31 +187,57 @@ def shape_run(args: argparse.Namespace) -> int:
         export_blade(build_blade(spec), args.output)  # validate() names a bad --nagasa or --sori
         print(f"wrote {args.output}: nagasa {spec.nagasa:g} m, sori {spec.sori:g} m", file=sys.stderr)
         return 0
-    if args.blade:
-        export_blade(default_blade(), args.output)
-        print(f"wrote {args.output}", file=sys.stderr)
-        return 0
-    truth = None
+    export_blade(default_blade(), args.output)
+    print(f"wrote {args.output}", file=sys.stderr)
+    return 0
+
+
+def _scans(args: argparse.Namespace):
+    """The range sections (read in order, or ``--simulate``'s scans of the built-in blade) and the true blade
+    (None unless simulated)."""
+    from tqdm import tqdm
+
+    from jkatana.errors import InputError
+    from jkatana.shape.katana import default_blade
+    from jkatana.shape.scans import read_scan, simulate_scans
+
     if args.simulate:
         truth = default_blade()
-        scans = simulate_scans(truth, resolution=tuple(args.scan_resolution), seed=args.seed)
-    else:
-        if not args.scans:
-            raise InputError("give scan files or --simulate", field="scans")
-        scans = []
-        for i, path in enumerate(tqdm(args.scans, desc="reading scans", file=sys.stderr)):
-            s = read_scan(path)
-            s.section = i
-            scans.append(s)
+        return simulate_scans(truth, resolution=tuple(args.scan_resolution), seed=args.seed), truth
+    if not args.scans:
+        raise InputError("give scan files or --simulate", field="scans")
+    scans = []
+    for i, path in enumerate(tqdm(args.scans, desc="reading scans", file=sys.stderr)):
+        s = read_scan(path)
+        s.section = i
+        scans.append(s)
+    return scans, None
+
+
+def _merged_points(scans, max_points: int, seed: int):
+    """The sections registered to each other (ICP; a warning where it stopped short), merged, and a random
+    subset of at most ``max_points``."""
+    import numpy as np
+
+    from jkatana.shape.scans import merge, register_sections
+
     regs = register_sections(scans) if len(scans) > 1 else None
     for s, r in zip(scans, regs or []):
         if not r.converged:
             print(f"warning: {s.name or s.section}: ICP stopped after {r.iterations} iterations "
                   f"(overlap RMS {r.rms * 1e3:.3f} mm)", file=sys.stderr)
     pts = merge(scans, regs)
-    rng = np.random.default_rng(args.seed)
-    if len(pts) > args.max_points:
-        pts = pts[rng.choice(len(pts), args.max_points, replace=False)]
+    rng = np.random.default_rng(seed)
+    if len(pts) > max_points:
+        pts = pts[rng.choice(len(pts), max_points, replace=False)]
+    return pts
+
+
+def _fit_surface(pts, args: argparse.Namespace):
+    """The Bezier surface fitted to the points (``--height-field``: one height field; else the katana's
+    reconstruction), each fit's summary printed."""
+    from jkatana.shape.reconstruct import reconstruct_blade, smooth_height_field
+
     if args.height_field:
         mesh, _, info = smooth_height_field(pts, degree=args.degree, patches=tuple(args.patches),
                                             smoothness=args.smoothness)
@@ -203,12 +250,4 @@ def shape_run(args: argparse.Namespace) -> int:
         state = "converged" if info.converged else "NOT converged"
         print(f"{name}: {info.n_points} points, {info.n_control} control points, CG {state} in "
               f"{info.iterations} iterations, fit RMS {info.rms * 1e3:.4f} mm", file=sys.stderr)
-    if truth is not None:
-        raw = point_error(pts[:: max(1, len(pts) // 20000)], truth)
-        sm = surface_error(mesh, truth)
-        print(f"vs true surface: raw merged scan RMS {raw['rms'] * 1e3:.4f} mm, max "
-              f"{raw['max'] * 1e3:.3f} mm; smoothed RMS {sm['rms'] * 1e3:.4f} mm, Hausdorff "
-              f"{sm['hausdorff'] * 1e3:.3f} mm", file=sys.stderr)
-    export_blade(mesh, args.output)
-    print(f"wrote {args.output}: {len(mesh.faces)} triangles", file=sys.stderr)
-    return 0
+    return mesh

@@ -50,6 +50,26 @@ def reconstruct_blade(points: np.ndarray, spec: KatanaSpec = KatanaSpec(), *, de
     - `resolution`: tessellation rings along u and columns across v per face.
     """
     pts = np.asarray(points, float)
+    uv, inside = _blade_uv_of_scan(pts, spec)
+    roof = spec.mune_height / (0.5 * (spec.motohaba + spec.sakihaba))
+    vb = [0.0, roof, spec.shinogi_position]
+    vb += list(np.linspace(spec.shinogi_position, 1.0, max(2, patches[1]) + 1)[1:])
+    ub = np.linspace(0.0, 1.0, patches[0] + 1)
+    surfaces, info = {}, {}
+    for name, sel in (("omote", pts[:, 2] >= 0), ("ura", pts[:, 2] < 0)):
+        m = inside & sel
+        if m.sum() < 100:
+            raise InputError(f"only {int(m.sum())} scan points on the {name} face", field="points")
+        surf, fi = fit_bezier(uv[m, 0], np.clip(uv[m, 1], 0, 1), pts[m, 2], degree=degree,
+                              breaks_s=ub, breaks_t=vb, smoothness=smoothness)
+        surfaces[name], info[name] = surf, fi
+    mesh = _closed_blade_mesh(spec, surfaces, vb, resolution)
+    return Reconstruction(mesh, surfaces, info)
+
+
+def _blade_uv_of_scan(pts: np.ndarray, spec: KatanaSpec):
+    """The scan points' blade UVs and which lie within the outline; :class:`InputError` unless they are finite
+    (N, 3) points, 90 % of them within the outline and the thickness of ``spec``."""
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise InputError(f"need (N, 3) points, got {pts.shape}", field="points")
     if not np.all(np.isfinite(pts)):
@@ -64,18 +84,12 @@ def reconstruct_blade(points: np.ndarray, spec: KatanaSpec = KatanaSpec(), *, de
                          f"outline (scan extents {ext} m; the katana is {spec.nagasa:g} m along +X, edge "
                          f"toward −Y, flats ±Z): not a fit. For any mesh run `jkatana shape MESH` "
                          f"without --katana-fit", field="points")
-    roof = spec.mune_height / (0.5 * (spec.motohaba + spec.sakihaba))
-    vb = [0.0, roof, spec.shinogi_position]
-    vb += list(np.linspace(spec.shinogi_position, 1.0, max(2, patches[1]) + 1)[1:])
-    ub = np.linspace(0.0, 1.0, patches[0] + 1)
-    surfaces, info = {}, {}
-    for name, sel in (("omote", pts[:, 2] >= 0), ("ura", pts[:, 2] < 0)):
-        m = inside & sel
-        if m.sum() < 100:
-            raise InputError(f"only {int(m.sum())} scan points on the {name} face", field="points")
-        surf, fi = fit_bezier(uv[m, 0], np.clip(uv[m, 1], 0, 1), pts[m, 2], degree=degree,
-                              breaks_s=ub, breaks_t=vb, smoothness=smoothness)
-        surfaces[name], info[name] = surf, fi
+    return uv, inside
+
+
+def _closed_blade_mesh(spec: KatanaSpec, surfaces: dict, vb, resolution: tuple[int, int]) -> trimesh.Trimesh:
+    """Both faces' height fields tessellated over the blade's UVs (columns on the v breaks, so the creases stay
+    sharp), joined at the mune and the edge, closed by a cap at the machi and a fan at the tip."""
     n_u, n_v = resolution
     u = np.linspace(0, 1, n_u)
     u[-1] = 1 - 1e-4  # the tip ring collapses; keep it a hair short and close with a point
@@ -121,7 +135,7 @@ def reconstruct_blade(points: np.ndarray, spec: KatanaSpec = KatanaSpec(), *, de
     if mesh.volume < 0:
         mesh.invert()
     mesh.metadata["units"] = "m"
-    return Reconstruction(mesh, surfaces, info)
+    return mesh
 
 
 def principal_frame(points: np.ndarray) -> np.ndarray:
