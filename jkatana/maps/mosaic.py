@@ -222,43 +222,10 @@ def build_map(photos: list[tuple[str, np.ndarray]], surface: BladeSurface, *, fl
     n = len(photos)
     views: list[PhotoView] = []
     for k, (path, y) in enumerate(tqdm(photos, desc="registering photos", file=sys.stderr, disable=not progress)):
-        flat = flats[k] if flats else None
-        if flat is not None and flat.shape != y.shape:
-            raise InputError(f"flat field is {flat.shape[1]}×{flat.shape[0]}, the photo "
-                             f"{y.shape[1]}×{y.shape[0]}", path=path, field="--flat")
-        out = find_blade(y, flat=flat, path=path)
-        pts = None
-        if points and Path(path).name in points:
-            pts = points[Path(path).name]
-        reg = register_photo(surface, out, y.shape, focal_px=focal_px[k] if focal_px else None,
-                             side=(sides[k] if sides else None) or (pts["side"] if pts else None),
-                             points=_point_pairs(surface, pts, path) if pts else None, path=path)
-        rel = _prefilter(y / out.light)
-        value, weight, cos = sample_texels(surface, reg.camera, reg.side, rel, out.mask)
-        if not (weight > 0).any():
-            raise InputError("the registered blade covers no texel of the map", path=path)
-        view = PhotoView(str(path), y.shape, out, reg, value, weight, cos)
-        _drop_glints(view)
-        views.append(view)
-    # sections without an end: slide along u to match the others
-    anchored = [v for v in views if v.reg.ends_seen > 0]
-    for v in views:
-        if v.reg.ends_seen > 0 or not anchored:
-            continue
-        ref_v, ref_w = _blend([a for a in anchored if a is not v])
-        s = _slide(v, ref_v, ref_w)
-        if s:
-            cam = _camera_slid(surface, v, s)
-            H, W = v.shape
-            cam = _icp(surface, cam, v.outline.edge, v.outline.normal, W, H, iterations=20, gate=10.0, focal_prior=cam.f,
-                       fix_focal=True)
-            v.reg.camera = cam
-            v.reg.residual_px = outline_residual(surface, cam, v.outline.edge, W, H)
-            rel = _prefilter(photos[views.index(v)][1] / v.outline.light)
-            v.value, v.weight, v.cos = sample_texels(surface, cam, v.reg.side, rel, v.outline.mask)
-            _drop_glints(v)
-            v.slide_texels = s
-        anchored.append(v)
+        pts = points[Path(path).name] if points and Path(path).name in points else None
+        views.append(_register_view(surface, path, y, flats[k] if flats else None,
+                                    focal_px[k] if focal_px else None, (sides[k] if sides else None), pts))
+    _slide_unanchored(surface, views, [y for _, y in photos])
     _gains(views)
     _check_same_blade(views)
     value, wsum = _blend(views)
@@ -286,14 +253,69 @@ def build_map(photos: list[tuple[str, np.ndarray]], surface: BladeSurface, *, fl
                        meta={"source": ", ".join(Path(v.path).name for v in views), "dark": float(dark),
                              "bright": float(bright), "registration_rms_px": float(max(residuals)),
                              "unseen_percent": float(unseen)})
+    report = _report(views, dark, bright, unseen)
+    return MosaicResult(m, conf.astype(np.float32), seen, views, _summary(views, n, unseen), report)
+
+
+def _register_view(surface: BladeSurface, path, y: np.ndarray, flat, focal_px, side, pts) -> PhotoView:
+    """One photo found (outline, light), registered on the blade (its side from ``side``, else from the
+    clicked points ``pts``), and sampled into the map's texels, its glints left out."""
+    if flat is not None and flat.shape != y.shape:
+        raise InputError(f"flat field is {flat.shape[1]}×{flat.shape[0]}, the photo "
+                         f"{y.shape[1]}×{y.shape[0]}", path=path, field="--flat")
+    out = find_blade(y, flat=flat, path=path)
+    reg = register_photo(surface, out, y.shape, focal_px=focal_px,
+                         side=side or (pts["side"] if pts else None),
+                         points=_point_pairs(surface, pts, path) if pts else None, path=path)
+    rel = _prefilter(y / out.light)
+    value, weight, cos = sample_texels(surface, reg.camera, reg.side, rel, out.mask)
+    if not (weight > 0).any():
+        raise InputError("the registered blade covers no texel of the map", path=path)
+    view = PhotoView(str(path), y.shape, out, reg, value, weight, cos)
+    _drop_glints(view)
+    return view
+
+
+def _slide_unanchored(surface: BladeSurface, views: list[PhotoView], lums: list[np.ndarray]) -> None:
+    """Sections that see neither end of the blade slide along u to match the blend of the others seen so far
+    (:func:`_slide`); each slid camera is refined on its outline (focal length fixed) and its photo (luminance
+    ``lums[k]``) sampled again."""
+    anchored = [v for v in views if v.reg.ends_seen > 0]
+    for v in views:
+        if v.reg.ends_seen > 0 or not anchored:
+            continue
+        ref_v, ref_w = _blend([a for a in anchored if a is not v])
+        s = _slide(v, ref_v, ref_w)
+        if s:
+            cam = _camera_slid(surface, v, s)
+            H, W = v.shape
+            cam = _icp(surface, cam, v.outline.edge, v.outline.normal, W, H, iterations=20, gate=10.0, focal_prior=cam.f,
+                       fix_focal=True)
+            v.reg.camera = cam
+            v.reg.residual_px = outline_residual(surface, cam, v.outline.edge, W, H)
+            rel = _prefilter(lums[views.index(v)] / v.outline.light)
+            v.value, v.weight, v.cos = sample_texels(surface, cam, v.reg.side, rel, v.outline.mask)
+            _drop_glints(v)
+            v.slide_texels = s
+        anchored.append(v)
+
+
+def _summary(views: list[PhotoView], n: int, unseen: float) -> str:
+    """One line: the registration residuals, the share of texels seen, glints left out."""
+    residuals = [v.reg.residual_px for v in views]
     sides_seen = sorted({v.reg.side for v in views})
-    summary = (f"registration residual {max(residuals):.2f} px RMS (worst of {n} photo{'s' if n > 1 else ''}: "
-               + ", ".join(f"{Path(v.path).name} {v.reg.residual_px:.2f} px {v.reg.side}" for v in views)
-               + f"); {100 - unseen:.1f} % of texels seen"
-               + (f", {unseen:.1f} % from the built-in map" if unseen > 0 else "")
-               + (" (omote and ura share UVs: blended)" if len(sides_seen) == 2 else "")
-               + (f"; {sum(v.glints for v in views)} texels showing a glint of the light left out"
-                  if any(v.glints for v in views) else ""))
+    return (f"registration residual {max(residuals):.2f} px RMS (worst of {n} photo{'s' if n > 1 else ''}: "
+            + ", ".join(f"{Path(v.path).name} {v.reg.residual_px:.2f} px {v.reg.side}" for v in views)
+            + f"); {100 - unseen:.1f} % of texels seen"
+            + (f", {unseen:.1f} % from the built-in map" if unseen > 0 else "")
+            + (" (omote and ura share UVs: blended)" if len(sides_seen) == 2 else "")
+            + (f"; {sum(v.glints for v in views)} texels showing a glint of the light left out"
+               if any(v.glints for v in views) else ""))
+
+
+def _report(views: list[PhotoView], dark: float, bright: float, unseen: float) -> dict:
+    """The map's report: each photo's registration, gain, slide and coverage; the levels; where omote and ura
+    both are seen, how far they disagree."""
     report = {
         "photos": [{"path": v.path, "side": v.reg.side, "residual_px": v.reg.residual_px,
                     "outline_points": v.reg.outline_points, "ends_seen": v.reg.ends_seen,
@@ -305,9 +327,9 @@ def build_map(photos: list[tuple[str, np.ndarray]], surface: BladeSurface, *, fl
         "dark": float(dark), "bright": float(bright), "unseen_percent": float(unseen),
         "filled_from": "the built-in map (jkatana.maps.default_map)" if unseen > 0 else None,
     }
-    if len(sides_seen) == 2:
+    if len({v.reg.side for v in views}) == 2:
         report["omote_ura_disagreement"] = _side_disagreement(views, dark, bright)
-    return MosaicResult(m, conf.astype(np.float32), seen, views, summary, report)
+    return report
 
 
 def _point_pairs(surface: BladeSurface, pts: dict, path):
