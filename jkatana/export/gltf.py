@@ -322,20 +322,11 @@ def export_gltf(scene, out_dir: Path, *, texture_size: int | None = None, blend:
     missing asset (from the renderer's loaders) and what glTF cannot express
     (module docstring).
     """
-    import trimesh
-    from PIL import Image
-
     from jkatana.render.renderer import load_geometry, load_material
     from jkatana.spectral.optical_constants import load as load_oc
 
     out_dir = Path(out_dir)
-    if out_dir.exists() or out_dir.is_symlink():
-        raise InputError("output folder exists: nothing was overwritten (choose a new folder)", path=out_dir,
-                         field="output")
-    if texture_size is not None and (isinstance(texture_size, bool) or not isinstance(texture_size, int)
-                                     or not 1 <= texture_size <= 8192):
-        raise InputError(f"texture size must be an integer in [1, 8192], got {texture_size!r}",
-                         field="texture_size")
+    _check_request(out_dir, texture_size)
     name = scene.output.name
     geometry = load_geometry(scene)
     maps, _, _, lobes = load_material(scene, geometry)
@@ -350,12 +341,43 @@ def export_gltf(scene, out_dir: Path, *, texture_size: int | None = None, blend:
     alpha, _ = texel_alpha(tex_maps, lobes, blend)
     tex, r_max = roughness_texture(alpha)
     base = np.clip(base_colour(n, k, grid), 0.0, 1.0)
-
     if isinstance(geometry, tuple):
         _, center, radius = geometry
         mesh = sphere_mesh(center, radius)
     else:
         mesh = geometry
+    glb, out_mesh = _glb(mesh, name, base, tex, r_max)
+    summary = {"format": NOTES_FORMAT, "name": name, "base_color": base.tolist(),
+               "base_color_space": "linear sRGB (Rec. 709 primaries, D65), glTF baseColorFactor",
+               "roughness_factor": r_max, "metallic_factor": 1.0,
+               "alpha": _alpha_stats(maps, lobes, per_region, alpha_full),
+               "texture": [int(tex.shape[0]), int(tex.shape[1])], "vertices": int(len(out_mesh.vertices)),
+               "faces": int(len(out_mesh.faces)), "blend": blend,
+               "optical_constants": str(scene.material.optical_constants),
+               "approximations": list(APPROXIMATIONS)}
+
+    _write_folder(out_dir, {f"{name}.glb": glb,
+                            f"{name}.gltf.json": (json.dumps(summary, indent=2) + "\n").encode("utf-8")})
+    summary = {k: v for k, v in summary.items() if k not in ("format", "approximations")}
+    return {"glb": out_dir / f"{name}.glb", "notes": out_dir / f"{name}.gltf.json", **summary}
+
+
+def _check_request(out_dir: Path, texture_size) -> None:
+    """An export refused before any work: an existing ``out_dir``, a texture size outside [1, 8192]."""
+    if out_dir.exists() or out_dir.is_symlink():
+        raise InputError("output folder exists: nothing was overwritten (choose a new folder)", path=out_dir,
+                         field="output")
+    if texture_size is not None and (isinstance(texture_size, bool) or not isinstance(texture_size, int)
+                                     or not 1 <= texture_size <= 8192):
+        raise InputError(f"texture size must be an integer in [1, 8192], got {texture_size!r}",
+                         field="texture_size")
+
+
+def _glb(mesh, name: str, base: np.ndarray, tex: np.ndarray, r_max: float):
+    """The binary glTF of the mesh (normals, UVs) with its metallic-roughness material, and the mesh written."""
+    import trimesh
+    from PIL import Image
+
     normals = np.asarray(mesh.vertex_normals, np.float64)
     uv = np.asarray(mesh.visual.uv, np.float64)
     material = trimesh.visual.material.PBRMaterial(
@@ -367,7 +389,11 @@ def export_gltf(scene, out_dir: Path, *, texture_size: int | None = None, blend:
                                visual=trimesh.visual.TextureVisuals(uv=uv, material=material))
     glb = trimesh.exchange.gltf.export_glb(trimesh.Scene(out_mesh), include_normals=True,
                                            tree_postprocessor=_tree_fix(base, name))
+    return glb, out_mesh
 
+
+def _alpha_stats(maps, lobes: dict, per_region: dict, alpha_full: np.ndarray) -> dict:
+    """Each region's α (min, median, max) over the texels it covers, with its lobe, and the blend's over all."""
     w = np.asarray(maps[..., 0])
     stats = {}
     for region, used in (("hiraji", w > 0), ("hamon", w < 1)):
@@ -377,18 +403,7 @@ def export_gltf(scene, out_dir: Path, *, texture_size: int | None = None, blend:
                              "lobe": "paper" if lobes[region] is None else lobes[region][0]}
     stats["blend"] = {"min": float(alpha_full.min()), "median": float(np.median(alpha_full)),
                       "max": float(alpha_full.max())}
-    summary = {"format": NOTES_FORMAT, "name": name, "base_color": base.tolist(),
-               "base_color_space": "linear sRGB (Rec. 709 primaries, D65), glTF baseColorFactor",
-               "roughness_factor": r_max, "metallic_factor": 1.0, "alpha": stats,
-               "texture": [int(tex.shape[0]), int(tex.shape[1])], "vertices": int(len(out_mesh.vertices)),
-               "faces": int(len(out_mesh.faces)), "blend": blend,
-               "optical_constants": str(scene.material.optical_constants),
-               "approximations": list(APPROXIMATIONS)}
-
-    _write_folder(out_dir, {f"{name}.glb": glb,
-                            f"{name}.gltf.json": (json.dumps(summary, indent=2) + "\n").encode("utf-8")})
-    summary = {k: v for k, v in summary.items() if k not in ("format", "approximations")}
-    return {"glb": out_dir / f"{name}.glb", "notes": out_dir / f"{name}.gltf.json", **summary}
+    return stats
 
 
 def _glb_or_gltf_json(path: Path) -> dict:

@@ -96,23 +96,40 @@ def _material(res: Resolved, region, out_dir: Path, written: dict) -> str:
 
 def scene_text(res: Resolved, out_dir: Path, *, spp: int | None = None) -> tuple[str, dict]:
     """``(pbrt-v4 scene text, {asset: what it is})``, writing the assets into ``out_dir``."""
-    from jkatana.export.mitsuba import write_ply
-    from jkatana.io.exr import write_exr
-
-    scene, cam = res.scene, res.camera
     written: dict[str, str] = {}
-    f3 = lambda t: " ".join(f"{float(x):.9g}" for x in t)  # noqa: E731
+    lines = (_camera_lines(res, spp) + _light_lines(res, out_dir, written) + _material_lines(res, out_dir, written)
+             + _shape_lines(res, out_dir, written))
+    return "\n".join(lines) + "\n", written
+
+
+def _f3(t) -> str:
+    return " ".join(f"{float(x):.9g}" for x in t)
+
+
+def _camera_lines(res: Resolved, spp: int | None) -> list[str]:
+    """The scene's options before ``WorldBegin``: camera (``fov`` the shorter image axis's angle, mirrored by
+    ``Scale -1 1 1``), film, sampler, the direct-lighting integrator."""
+    scene, cam = res.scene, res.camera
     fov_y = float(cam.fov_deg)
     fov = fov_y if cam.height <= cam.width else math.degrees(
         2 * math.atan(math.tan(math.radians(fov_y) / 2) * cam.width / cam.height))
     spp = int(scene.render.samples if spp is None else spp)
-    lines = ["# written by jkatana export (jkatana.export.pbrt): pbrt-v4 scene format", "Scale -1 1 1",
-             f"LookAt {f3(cam.position)}  {f3(cam.look_at)}  {f3(cam.up)}",
-             f'Camera "perspective" "float fov" [ {fov:.9g} ]',
-             f'Film "rgb" "integer xresolution" [ {cam.width} ] "integer yresolution" [ {cam.height} ] '
-             f'"string filename" [ "{scene.output.name}.exr" ] "string sensor" "cie1931"',
-             'PixelFilter "box"', f'Sampler "zsobol" "integer pixelsamples" [ {spp} ]',
-             'Integrator "path" "integer maxdepth" [ 1 ]', "", "WorldBegin", ""]
+    return ["# written by jkatana export (jkatana.export.pbrt): pbrt-v4 scene format", "Scale -1 1 1",
+            f"LookAt {_f3(cam.position)}  {_f3(cam.look_at)}  {_f3(cam.up)}",
+            f'Camera "perspective" "float fov" [ {fov:.9g} ]',
+            f'Film "rgb" "integer xresolution" [ {cam.width} ] "integer yresolution" [ {cam.height} ] '
+            f'"string filename" [ "{scene.output.name}.exr" ] "string sensor" "cie1931"',
+            'PixelFilter "box"', f'Sampler "zsobol" "integer pixelsamples" [ {spp} ]',
+            'Integrator "path" "integer maxdepth" [ 1 ]', "", "WorldBegin", ""]
+
+
+def _light_lines(res: Resolved, out_dir: Path, written: dict) -> list[str]:
+    """The environment (an equal-area image, or a constant), its compact sources as far spherical area lights,
+    and the point and distant lights."""
+    from jkatana.io.exr import write_exr
+
+    scene = res.scene
+    lines = []
     rgb, caps = environment_rgb(scene)
     if rgb is not None:
         side = int(min(2048, 2 ** math.ceil(math.log2(max(rgb.shape[0], 16)))))
@@ -126,20 +143,28 @@ def scene_text(res: Resolved, out_dir: Path, *, spp: int | None = None) -> tuple
 
         g = constant_radiance_rgb(scene)
         lines += [f'LightSource "infinite" "rgb L" [ {g:.7g} {g:.7g} {g:.7g} ]']
-    geom = res.geometry
     reach = res.reach
     for cap in caps:
         dist = reach * 1e3
-        lines += ["AttributeBegin", f"    Translate {f3(np.asarray(cap.direction) * dist)}",
+        lines += ["AttributeBegin", f"    Translate {_f3(np.asarray(cap.direction) * dist)}",
                   f'    AreaLightSource "diffuse" "spectrum L" {_spectrum(cap.radiance, cap.wavelengths)}',
                   f'    Shape "sphere" "float radius" [ {dist * math.sin(cap.radius):.9g} ]', "AttributeEnd"]
     for light in scene.lights:
         spec = _spectrum(light_spectrum(light))
         if light.type == "point":
-            lines += [f'LightSource "point" "point3 from" [ {f3(light.vector)} ] "spectrum I" {spec}']
+            lines += [f'LightSource "point" "point3 from" [ {_f3(light.vector)} ] "spectrum I" {spec}']
         else:
-            lines += [f'LightSource "distant" "point3 from" [ {f3(light.vector)} ] "point3 to" [ 0 0 0 ] '
+            lines += [f'LightSource "distant" "point3 from" [ {_f3(light.vector)} ] "point3 to" [ 0 0 0 ] '
                       f'"spectrum L" {spec}']
+    return lines
+
+
+def _material_lines(res: Resolved, out_dir: Path, written: dict) -> list[str]:
+    """Each region's named material, the two mixed by w (a uniform weight or ``w_pbrt.exr``) where both are
+    present, and the material the object takes."""
+    from jkatana.io.exr import write_exr
+
+    lines = []
     hi, ha = res.regions["hiraji"], res.regions["hamon"]
     names = []
     for reg in (ha, hi):
@@ -158,21 +183,30 @@ def scene_text(res: Resolved, out_dir: Path, *, spp: int | None = None) -> tuple
         lines.append(f'MakeNamedMaterial "blade" "string type" "mix" "string materials" [ "hamon" "hiraji" ] {amount}')
         names = ["blade"]
     lines.append(f'NamedMaterial "{names[0]}"')
+    return lines
+
+
+def _shape_lines(res: Resolved, out_dir: Path, written: dict) -> list[str]:
+    """The object (a sphere, or ``mesh.ply``) and the black occluders (sphere, box, or their own mesh)."""
+    from jkatana.export.mitsuba import write_ply
+
+    lines = []
+    geom = res.geometry
     if isinstance(geom, tuple):
         _, center, radius = geom
-        lines += ["AttributeBegin", f"    Translate {f3(center)}", f'    Shape "sphere" "float radius" [ {radius:.9g} ]',
+        lines += ["AttributeBegin", f"    Translate {_f3(center)}", f'    Shape "sphere" "float radius" [ {radius:.9g} ]',
                   "AttributeEnd"]
     else:
         write_ply(geom, out_dir / "mesh.ply")
         written["mesh.ply"] = "the object: vertices, normals, UVs (m)"
         lines.append('Shape "plymesh" "string filename" "mesh.ply"')
-    for i, occ in enumerate(scene.occluders):
-        lines += ["AttributeBegin", 'Material "diffuse" "rgb reflectance" [ 0 0 0 ]', f"    Translate {f3(occ.center)}"]
+    for i, occ in enumerate(res.scene.occluders):
+        lines += ["AttributeBegin", 'Material "diffuse" "rgb reflectance" [ 0 0 0 ]', f"    Translate {_f3(occ.center)}"]
         if occ.kind == "sphere":
             lines.append(f'    Shape "sphere" "float radius" [ {occ.radius:.9g} ]')
         elif occ.kind == "box":
             e = np.asarray(occ.extents, np.float64) / 2
-            lines += [f"    Scale {f3(e)}", _unit_cube()]
+            lines += [f"    Scale {_f3(e)}", _unit_cube()]
         else:
             import trimesh
 
@@ -180,9 +214,9 @@ def scene_text(res: Resolved, out_dir: Path, *, spp: int | None = None) -> tuple
             mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((len(mesh.vertices), 2)))
             write_ply(mesh, out_dir / f"occluder_{i}.ply")
             written[f"occluder_{i}.ply"] = "occluder mesh"
-            lines += [f"    Scale {f3([occ.scale or 1.0] * 3)}", f'    Shape "plymesh" "string filename" "occluder_{i}.ply"']
+            lines += [f"    Scale {_f3([occ.scale or 1.0] * 3)}", f'    Shape "plymesh" "string filename" "occluder_{i}.ply"']
         lines.append("AttributeEnd")
-    return "\n".join(lines) + "\n", written
+    return lines
 
 
 def _unit_cube() -> str:
