@@ -93,7 +93,22 @@ def cap_nodes(R: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, sigma, *
     R, C = normalize(R.astype(dt)), normalize(C.astype(dt))
     r = jnp.asarray(radius, dt)[..., None]
     sigma = jnp.asarray(sigma, dt)[..., None]
-    # frame at R: e1 towards C (any ⟂ when C = R)
+    e1, e2, sin_d, delta = _frame_towards_cap(R, C, dt)
+    inside = (delta < r[..., 0])[..., None]
+    c_an, phi_p = _anisotropy(R, normal, e1, e2, delta, dt)
+    phi, w_phi = _azimuths(inside, c_an, phi_p, r, sigma, sin_d, n_azimuth, dt)
+    lo, hi = _chord(phi, sin_d, delta, r)
+    # lobe width along each azimuth: σ / √(cos²(φ − φ_p) + sin²(φ − φ_p)/c²)
+    tdir = jnp.cos(phi)[..., None] * e1[..., None, :] + jnp.sin(phi)[..., None] * e2[..., None, :]
+    cp, sp = jnp.cos(phi - phi_p), jnp.sin(phi - phi_p)
+    sig = sigma * jax.lax.rsqrt(cp * cp + sp * sp / (c_an * c_an))
+    psi, w = _radial(lo, hi, sig, w_phi, n_radial, dt)
+    L = jnp.cos(psi)[..., None] * R[..., None, None, :] + jnp.sin(psi)[..., None] * tdir[..., None, :]
+    return L, w
+
+
+def _frame_towards_cap(R, C, dt):
+    """A frame at R with e1 towards C (any ⟂ when C = R), e2 = R × e1; sin δ and δ = ∠(R, C)."""
     cos_d = jnp.sum(R * C, axis=-1)
     perp = C - cos_d[..., None] * R
     sin_d = norm(perp)
@@ -101,19 +116,25 @@ def cap_nodes(R: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, sigma, *
     perp = perp - jnp.sum(perp * R, -1, keepdims=True) * R  # C ≈ R: perp is rounding noise, not ⟂ R
     e1 = jnp.where((norm(perp) > 16 * float(jnp.finfo(dt).eps))[..., None], normalize(perp), tangent_frame(R)[0])
     e2 = jnp.cross(R, e1)
-    inside = (delta < r[..., 0])[..., None]
-    # anisotropy of a reflection lobe: in-plane axis p (azimuth φ_p about R) and c = cos θ
+    return e1, e2, sin_d, delta
+
+
+def _anisotropy(R, normal, e1, e2, delta, dt):
+    """A reflection lobe's anisotropy: c = cos θ = R·N (clipped to [0.05, 1]) and the azimuth φ_p of the plane
+    of incidence about R; an isotropic lobe (no normal) has c = 1, φ_p = 0."""
     if normal is None:
-        c_an = jnp.ones_like(delta)[..., None]
-        phi_p = jnp.zeros_like(delta)[..., None]
-    else:
-        N = jnp.asarray(normal, dt)
-        c_an = jnp.clip(jnp.sum(R * N, axis=-1), 0.05, 1.0)[..., None]
-        p = normalize(N - jnp.sum(R * N, -1, keepdims=True) * R)
-        phi_p = safe_atan2(jnp.sum(p * e2, -1), jnp.sum(p * e1, -1))[..., None]
-    # azimuths. Inside: the whole circle, midpoint rule in the elliptic angle η
-    # (tan(φ − φ_p) = c tan η), which spreads an anisotropic lobe's mass evenly over the
-    # nodes. Outside: the arc |φ| ≤ β, GL in τ for φ = β sin τ.
+        return jnp.ones_like(delta)[..., None], jnp.zeros_like(delta)[..., None]
+    N = jnp.asarray(normal, dt)
+    c_an = jnp.clip(jnp.sum(R * N, axis=-1), 0.05, 1.0)[..., None]
+    p = normalize(N - jnp.sum(R * N, -1, keepdims=True) * R)
+    phi_p = safe_atan2(jnp.sum(p * e2, -1), jnp.sum(p * e1, -1))[..., None]
+    return c_an, phi_p
+
+
+def _azimuths(inside, c_an, phi_p, r, sigma, sin_d, n_azimuth: int, dt):
+    """The azimuths φ about R and their weights. Inside the cap: the whole circle, midpoint rule in the
+    elliptic angle η (tan(φ − φ_p) = c tan η), which spreads an anisotropic lobe's mass evenly over the nodes.
+    Outside: the arc |φ| ≤ β that meets the cap, GL in τ for φ = β sin τ."""
     eta = jnp.asarray(2 * np.pi * (np.arange(n_azimuth) + 0.5) / n_azimuth - np.pi, dt)
     ce, se = jnp.cos(eta), jnp.sin(eta)
     c_map = c_an ** (r * r / (r * r + sigma * sigma))  # c for a lobe narrower than the cap, 1 wider
@@ -127,7 +148,12 @@ def cap_nodes(R: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, sigma, *
     w_a = jnp.asarray(w_a, dt)
     phi = jnp.where(inside, phi_in, beta * jnp.sin(tau))
     w_phi = jnp.where(inside, w_in, 0.5 * np.pi * w_a * beta * jnp.cos(tau))
-    # chord of the cap along each azimuth: ψ ∈ [ψ0 − w, ψ0 + w] (half-angle forms)
+    return phi, w_phi
+
+
+def _chord(phi, sin_d, delta, r):
+    """The cap's chord along each azimuth, ψ ∈ [ψ0 − w, ψ0 + w] clipped to [0, π] (Napier's rules in half-angle
+    form, module docstring)."""
     sd = sin_d[..., None]
     sin_dp = sd * jnp.sin(phi)
     cos_dp = safe_sqrt(1.0 - sin_dp * sin_dp)
@@ -137,11 +163,13 @@ def cap_nodes(R: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, sigma, *
     psi0 = jnp.arctan2(sd * jnp.cos(phi), jnp.cos(delta)[..., None])
     lo = jnp.maximum(psi0 - half, 0.0)
     hi = jnp.clip(psi0 + half, lo, np.pi)
-    # lobe width along each azimuth: σ / √(cos²(φ − φ_p) + sin²(φ − φ_p)/c²)
-    tdir = jnp.cos(phi)[..., None] * e1[..., None, :] + jnp.sin(phi)[..., None] * e2[..., None, :]
-    cp, sp = jnp.cos(phi - phi_p), jnp.sin(phi - phi_p)
-    sig = sigma * jax.lax.rsqrt(cp * cp + sp * sp / (c_an * c_an))
-    # radial: u = ψ²/(2σ²), GL in the inverse-CDF variable t of e^{−u}
+    return lo, hi
+
+
+def _radial(lo, hi, sig, w_phi, n_radial: int, dt):
+    """Radial nodes ψ on [lo, hi] along each azimuth and the rule's weights (the azimuth's ``w_phi`` times the
+    radial weight and the solid angle's sin ψ): u = ψ²/(2σ²), GL in the inverse-CDF variable t of e^{−u} (module
+    docstring)."""
     x_r, w_r = np.polynomial.legendre.leggauss(n_radial)
     t = jnp.asarray(0.5 * (x_r + 1.0), dt)
     wt = jnp.asarray(0.5 * w_r, dt)
@@ -152,8 +180,7 @@ def cap_nodes(R: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, sigma, *
     u = u_lo - jnp.log1p(-t * c)
     psi = sig[..., None] * safe_sqrt(2.0 * u)
     w = (w_phi[..., None] * wt * (sig * sig)[..., None] * jnp.sinc(psi / np.pi) * c / (1.0 - t * c))
-    L = jnp.cos(psi)[..., None] * R[..., None, None, :] + jnp.sin(psi)[..., None] * tdir[..., None, :]
-    return L, w
+    return psi, w
 
 
 def cap_integral(brdf_cos: Callable, V: Float[Array, "*b 3"], C: Float[Array, "*b 3"], radius, sigma, *,
