@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from jkatana.interactive import bake as B
+from jkatana.interactive import glchunks as C
 from jkatana.interactive import scene as S
 
 
@@ -52,17 +53,17 @@ def test_culled_gbuffer_pass_changes_no_pixel(glr, monkeypatch):
     beside = S.View(S.look_at(np.array([0.35, -0.02, 0.01]), np.array([0.7, -0.02, 0.0])), np.deg2rad(60.0), 200, 150)
     views = {"demo": sc.view, "closeup": S.closeup_view(sc.mesh, 200, 150),
              "orbit": S.orbit_views(sc.mesh, 3, 200, 150, distance=0.45)[1], "beside": beside}
-    whole = glr._visible_range
+    whole = C.visible_range
 
     def draw(view, full: bool):
         with monkeypatch.context() as m:
             if full:
-                m.setattr(glr, "_visible_range", lambda p, mvp: (0, len(p.indices), whole(p, mvp)[2]))
-                m.setattr(glr, "_screen_box", lambda c, w, h: None)
+                m.setattr(glr, "visible_range", lambda p, mvp: (0, len(p.indices), whole(p, mvp)[2]))
+                m.setattr(glr, "screen_box", lambda c, w, h: None)
             r = glr.BakedOffscreenRenderer(st, view.width, view.height)
             scene = glr.build_scene(sc.mesh, view)
             frame = r.render(scene, mask=True)
-            box = glr._screen_box(r._r._renderer._drawn_corners, view.width, view.height)
+            box = C.screen_box(r._r._renderer._drawn_corners, view.width, view.height)
             mask = r.last_mask.copy()
             r.delete()
         return frame, mask, box, scene
@@ -76,7 +77,7 @@ def test_culled_gbuffer_pass_changes_no_pixel(glr, monkeypatch):
             prim = next(iter(scene.mesh_nodes)).mesh.primitives[0]
             V = np.linalg.inv(scene.get_pose(scene.main_camera_node))
             P = scene.main_camera_node.camera.get_projection_matrix(view.width, view.height)
-            assert glr._visible_range(prim, P @ V)[1] < 0.2 * len(prim.indices)
+            assert C.visible_range(prim, P @ V)[1] < 0.2 * len(prim.indices)
         assert (box is None) == (name == "beside"), (name, box)
 
 
@@ -89,7 +90,7 @@ def test_screen_box_holds_every_projected_corner(glr):
     c[..., :2] = rng.normal(0.0, 0.3, (5, 8, 2))
     c[..., 3] = rng.uniform(0.5, 2.0, (5, 8))
     c[..., :2] *= c[..., 3:]
-    x, y, bw, bh = glr._screen_box([c], w, h)
+    x, y, bw, bh = C.screen_box([c], w, h)
     px = (c[..., :2].reshape(-1, 2) / c[..., 3].reshape(-1, 1) * 0.5 + 0.5) * (w, h)
     inside = px[(px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)]
     assert len(inside) > 20
@@ -97,8 +98,8 @@ def test_screen_box_holds_every_projected_corner(glr):
     assert np.all(inside[:, 1] >= y) and np.all(inside[:, 1] <= y + bh)
     assert bw < w and bh < h                      # and is not the whole screen
     c[0, 0, 3] = -0.1
-    assert glr._screen_box([c], w, h) is None
-    assert glr._screen_box([], w, h) == (0, 0, 0, 0)
+    assert C.screen_box([c], w, h) is None
+    assert C.screen_box([], w, h) == (0, 0, 0, 0)
 
 
 @pytest.mark.gl

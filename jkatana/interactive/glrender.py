@@ -13,7 +13,7 @@ Two ways to draw a frame, the same shading (``shaders/shade.glsl``, programs fro
   (51k triangles, most a few pixels) a forward shader runs 2–4× per covered pixel;
   deferred, the expensive shader runs once per pixel and the G-buffer pass costs a
   few stores per block. The G-buffer pass draws, per primitive, only the run of
-  triangles between the first and the last of its chunks (:func:`mesh_chunks`;
+  triangles between the first and the last of its chunks (:mod:`jkatana.interactive.glchunks`;
   :func:`build_scene` orders the triangles along the blade) that the view frustum
   touches: llvmpipe's vertex stage is single-threaded, and a close-up sees a tenth
   of the blade.
@@ -52,6 +52,7 @@ pyrender = import_pyrender()
 from OpenGL import GL  # noqa: E402
 from pyrender.renderer import Renderer  # noqa: E402
 
+from jkatana.interactive.glchunks import order_along_mesh, screen_box, visible_range  # noqa: E402
 from jkatana.interactive.glprograms import SHADER_DIR, BakedProgramCache  # noqa: E402
 from jkatana.interactive.glstate import ShadingState  # noqa: E402
 
@@ -196,10 +197,10 @@ class SampleCountRenderer(Renderer):
         pass reads the G-buffer only where this frame's depth is < 1, i.e. where this pass wrote it.
 
         Each primitive is drawn as one range of its triangles: from its first to its last chunk
-        (:func:`mesh_chunks`) that the view frustum touches, so a close-up does not run the vertex stage
-        (single-threaded in llvmpipe) on the part of the blade out of the picture. No blending (pyrender
+        (:func:`~jkatana.interactive.glchunks.mesh_chunks`) that the view frustum touches, so a close-up does not
+        run the vertex stage (single-threaded in llvmpipe) on the part of the blade out of the picture. No blending (pyrender
         enables GL_BLEND with factors ONE, ZERO). The clip-space corners of the drawn chunks' boxes are kept
-        for the shading pass's scissor box (:func:`_screen_box`)."""
+        for the shading pass's scissor box (:func:`~jkatana.interactive.glchunks.screen_box`)."""
         from pyrender.constants import ProgramFlags
 
         GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb_ms)
@@ -227,7 +228,7 @@ class SampleCountRenderer(Renderer):
                 program.set_uniform("V", V)
                 program.set_uniform("P", P)
                 program.set_uniform("M", pose)
-                first, count, corners = _visible_range(primitive, PV @ np.asarray(pose, np.float64))
+                first, count, corners = visible_range(primitive, PV @ np.asarray(pose, np.float64))
                 self._drawn_corners.append(corners)
                 if count == 0:
                     continue
@@ -266,7 +267,7 @@ class SampleCountRenderer(Renderer):
         GL.glDepthFunc(GL.GL_GREATER)          # only where the G-buffer pass drew (its depth < 1)
         GL.glDisable(GL.GL_BLEND)
         GL.glDisable(GL.GL_CULL_FACE)
-        box = _screen_box(getattr(self, "_drawn_corners", None) or [], w, h)   # and only inside the drawn box
+        box = screen_box(getattr(self, "_drawn_corners", None) or [], w, h)   # and only inside the drawn box
         if box is not None:
             GL.glEnable(GL.GL_SCISSOR_TEST)
             GL.glScissor(*box)
@@ -342,90 +343,17 @@ class SampleCountRenderer(Renderer):
         return color, None
 
 
-#: Chunks a mesh primitive's triangles are cut into for the G-buffer pass's frustum test and the shading
-#: pass's scissor box (:func:`mesh_chunks`).
-N_CHUNKS = 32
-#: Slabs along the mesh's longest axis that :func:`build_scene` orders the triangles by; within a slab the
-#: mesh's own order (its strips) is kept, so that the vertex stage's cache still finds shared vertices.
-SORT_SLABS = 4 * N_CHUNKS
-
-
-def _box_corners(lo, hi) -> np.ndarray:
-    """The 8 homogeneous corners ``(8, 4)`` of the axis-aligned box ``[lo, hi]``."""
-    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    return np.array([[(lo, hi)[i >> 2][0], (lo, hi)[(i >> 1) & 1][1], (lo, hi)[i & 1][2], 1.0] for i in range(8)])
-
-
-def mesh_chunks(primitive, n: int = N_CHUNKS) -> tuple[np.ndarray, np.ndarray]:
-    """``(starts, corners)``: the primitive's triangles (in index-buffer order) cut into ``n`` consecutive
-    runs, ``starts`` ``(n + 1,)`` the first triangle of each run (and the count), ``corners`` ``(n, 8, 4)`` the
-    homogeneous corners of each run's axis-aligned bounding box in model space. Cached on the primitive.
-    The runs are compact when the triangles are ordered along the mesh (:func:`build_scene` sorts them)."""
-    cached = getattr(primitive, "_jk_chunks", None)
-    if cached is not None:
-        return cached
-    tri = np.asarray(primitive.indices, np.int64).reshape(-1, 3)
-    pos = np.asarray(primitive.positions, np.float64)
-    n = max(1, min(n, len(tri)))
-    starts = np.linspace(0, len(tri), n + 1).round().astype(np.int64)
-    corners = np.stack([_box_corners(p.min(0), p.max(0))
-                        for p in (pos[tri[starts[k]:starts[k + 1]].ravel()] for k in range(n))])
-    primitive._jk_chunks = (starts, corners)
-    return primitive._jk_chunks
-
-
-def _visible_range(primitive, mvp: np.ndarray) -> tuple[int, int, np.ndarray]:
-    """``(first, count, corners)``: the run of triangles from the first to the last chunk of the primitive
-    whose box is not wholly outside one clip plane of ``mvp`` (model → clip), and those chunks' clip-space
-    box corners ``(k, 8, 4)``. Primitives that are not single-instance indexed triangles are drawn whole:
-    count -1, and the corners of their bounds (pyrender's, which hold the instances)."""
-    from pyrender.constants import GLTF
-
-    if primitive.indices is None or primitive.mode != GLTF.TRIANGLES or primitive.poses is not None:
-        return 0, -1, (_box_corners(*primitive.bounds) @ mvp.T)[None]
-    starts, corners = mesh_chunks(primitive)
-    clip = corners @ mvp.T                                        # (n, 8, 4)
-    xyz, w = clip[..., :3], clip[..., 3:]
-    outside = np.any(np.all(xyz < -w, axis=1) | np.all(xyz > w, axis=1), axis=-1)
-    seen = np.flatnonzero(~outside)
-    if len(seen) == 0:
-        return 0, 0, clip[:0]
-    first, last = int(seen[0]), int(seen[-1])
-    return int(starts[first]), int(starts[last + 1] - starts[first]), clip[seen]
-
-
-def _screen_box(corners: list, w: int, h: int) -> tuple[int, int, int, int] | None:
-    """``(x, y, width, height)`` pixel rectangle holding the projected clip-space box corners of the drawn
-    chunks (:func:`_visible_range`), one pixel wider on each side; ``(0, 0, 0, 0)`` where nothing was drawn;
-    None (the whole viewport) where a corner lies behind the camera's plane."""
-    c = np.concatenate([np.reshape(x, (-1, 4)) for x in corners]) if corners else np.zeros((0, 4))
-    if len(c) == 0:
-        return (0, 0, 0, 0)
-    if np.any(c[:, 3] <= 1e-9):
-        return None
-    ndc = np.clip(c[:, :2] / c[:, 3:], -2.0, 2.0)
-    x0, y0 = np.floor((ndc.min(0) * 0.5 + 0.5) * (w, h)).astype(int) - 1
-    x1, y1 = np.ceil((ndc.max(0) * 0.5 + 0.5) * (w, h)).astype(int) + 1
-    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
-    return (int(x0), int(y0), int(max(x1 - x0, 0)), int(max(y1 - y0, 0)))
-
-
 def build_scene(mesh, view, bg=(0.08, 0.08, 0.09)):
     """A pyrender Scene with the blade (smooth vertex normals and UVs) and a perspective camera.
 
-    The triangles are reordered by slab along the mesh's longest axis (:data:`SORT_SLABS`; vertices, normals
-    and UVs unchanged), so that :func:`mesh_chunks`' runs are compact slices of the blade for the G-buffer
-    pass's frustum test."""
+    The triangles are reordered by slab along the mesh's longest axis
+    (:func:`~jkatana.interactive.glchunks.order_along_mesh`), so that the chunks' runs are compact slices of the
+    blade for the G-buffer pass's frustum test."""
     material = pyrender.MetallicRoughnessMaterial(doubleSided=False)
     prim = pyrender.Mesh.from_trimesh(mesh, material=material, smooth=True)
     for p in prim.primitives:
         if p.indices is not None:
-            tri = np.asarray(p.indices).reshape(-1, 3)
-            pos = np.asarray(p.positions, np.float64)
-            axis = int(np.argmax(np.ptp(pos, axis=0)))
-            x = pos[tri.astype(np.int64), axis].mean(1)
-            slab = np.floor((x - x.min()) / max(np.ptp(x), 1e-30) * SORT_SLABS).clip(0, SORT_SLABS - 1)
-            p.indices = tri[np.argsort(slab, kind="stable")]
+            order_along_mesh(p)
     scene = pyrender.Scene(bg_color=np.array([*bg, 1.0]), ambient_light=np.zeros(3))
     scene.add(prim, name="blade")
     cam = pyrender.PerspectiveCamera(yfov=view.yfov, aspectRatio=view.width / view.height,
