@@ -17,7 +17,7 @@ from jkatana.fit import FitData, Setup, fit_region  # noqa: E402
 from jkatana.fit._model import FIT_MODELS, ModelSpec, from_natural, green, prepare, to_natural  # noqa: E402
 from jkatana.fit.laplace import natural_intervals  # noqa: E402
 from jkatana.fit.solve import solve, verdict  # noqa: E402
-from jkatana.fit.starts import moment_start, start_vector, two_level_start  # noqa: E402
+from jkatana.fit.starts import STARTS, moment_start, start_vector, two_level_start  # noqa: E402
 from jkatana.fit.compare import choose_aic, choose_loio, select_batch  # noqa: E402
 from jkatana.fit.uncertainty import _refits, sandwich_batch  # noqa: E402
 from jkatana.measure.protocol import Protocol, as_pairs  # noqa: E402
@@ -355,6 +355,23 @@ def test_moment_start_without_a_peak_is_the_wide_grid_start(geometry):
     w = jnp.full_like(y, 1.0)  # every point below 3σ
     np.testing.assert_array_equal(np.asarray(moment_start(terms, y, w, spec)),
                                   np.asarray(two_level_start(terms, y, w, spec)))
+
+
+def test_start_strategy_by_name(geometry):
+    """A fit's `start` names a strategy of STARTS: the fit begins from that strategy's vector (the two-level
+    grid's here, not the default moment start), and an unknown name is refused naming the strategies."""
+    from jkatana.errors import InputError
+
+    _, sig, Y = campaigns(geometry, "ggx", TRUTH["ggx"], 1, seed=5)
+    data = FitData(geometry["ti"], geometry["tr"], Y[0], sig)
+    fit = fit_region(data, model="ggx", start="two-level", irls=False, per_incidence=False, robust=False)
+    y = jnp.asarray(np.where(data.usable, data.value, 0.0))
+    p0 = STARTS["two-level"](fit.terms, y, jnp.asarray(fit.weight), fit.spec)
+    assert fit.diagnostics["start"] == to_natural(np.asarray(p0), fit.spec)
+    assert fit.diagnostics["start"] != to_natural(np.asarray(start_vector(fit.terms, y, jnp.asarray(fit.weight),
+                                                                          fit.spec)), fit.spec)
+    with pytest.raises(InputError, match="grid, log-quadratic, moment, two-level"):
+        fit_region(data, model="ggx", start="nope")
 
 
 def _green_direct(p, terms, spec):
