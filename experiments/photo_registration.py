@@ -35,7 +35,7 @@ def run_case(case, work, **kw):
     from jkatana.errors import InputError
     from jkatana.maps.mosaic import build_map
     from jkatana.maps.photo import read_photo
-    from jkatana.maps.register import blade_surface
+    from jkatana.maps.surface import blade_surface
 
     mesh, truth, paths = vp.render_case(case, work, **kw)
     surface = blade_surface(mesh, truth.shape)

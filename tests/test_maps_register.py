@@ -145,7 +145,7 @@ def test_clicked_points(tmp_path, capsys, blade_ply):
 
     from jkatana.cli import main
     from jkatana.maps import default_map
-    from jkatana.maps.register import blade_surface
+    from jkatana.maps.surface import blade_surface
     from jkatana.shape.katana import default_blade
 
     mesh = default_blade()

@@ -51,7 +51,7 @@ def _run(tmp_path, capsys, paths, mesh_args, extra=()):
 
 
 def _surface(mesh_args, tmp_path):
-    from jkatana.maps.register import blade_surface
+    from jkatana.maps.surface import blade_surface
     from jkatana.shape.mesh import read_mesh
 
     return blade_surface(read_mesh(tmp_path / "blade.ply"))

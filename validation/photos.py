@@ -352,7 +352,7 @@ def crop_comparison(photo: str | Path, truth: np.ndarray, surface) -> dict:
     bounding box of the blade found in the photo (what a user would draw around it), the figures those of
     :func:`map_errors` over the whole map."""
     from jkatana.maps.photo import map_from_photo, read_photo
-    from jkatana.maps.register import find_blade
+    from jkatana.maps.outline import find_blade
 
     y = read_photo(photo)
     ys, xs = np.nonzero(find_blade(y).mask)

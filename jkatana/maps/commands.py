@@ -109,7 +109,7 @@ def _map_on_mesh(args: argparse.Namespace) -> int:
     from jkatana.io.outputs import Output, check_outputs
     from jkatana.maps.mosaic import build_map, preview_png, write_confidence
     from jkatana.maps.photo import load_region_parameters, read_photo
-    from jkatana.maps.register import blade_surface
+    from jkatana.maps.surface import blade_surface
     from jkatana.shape.mesh import read_mesh
 
     if args.default or args.crop or args.flip_v or args.aspect:

@@ -3,7 +3,7 @@
 The steps and their reasons are in :mod:`jkatana.maps.register`'s docstring
 (registration, light, blending); this module runs them over a set of photos:
 
-1. each photo: the blade's outline (:func:`~jkatana.maps.register.find_blade`),
+1. each photo: the blade's outline (:func:`~jkatana.maps.outline.find_blade`),
    its light (flat field or background fit), its camera
    (:func:`~jkatana.maps.register.register_photo`);
 2. each photo's relative brightness sampled at every texel it sees, with its
@@ -34,8 +34,10 @@ import numpy as np
 
 from jkatana.errors import InputError
 from jkatana.maps.reflectance_map import PAPER_PARAMETERS, ReflectanceMap, default_map
-from jkatana.maps.register import (FEATHER_PX, MIN_COS, BladeSurface, Camera, PhotoOutline, Registration,
-                                   _icp, find_blade, outline_residual, register_photo)
+from jkatana.maps.outline import PhotoOutline, find_blade
+from jkatana.maps.register import (FEATHER_PX, MIN_COS, Camera, Registration, _icp, outline_residual,
+                                   register_photo)
+from jkatana.maps.surface import BladeSurface
 
 #: Same-face photos are refused as photos of different blades (:func:`_check_same_blade`) where the course
 #: of their hamon lines correlates less than this along the blade, or the hamon's share of the width differs
