@@ -54,6 +54,7 @@ def _strategy(name: str):
 
     return wrap
 
+
 @_strategy("default")
 @functools.partial(jax.jit, static_argnames=("spec",))
 def start_vector(terms: Terms, y, w, spec: ModelSpec, fallback=None):
