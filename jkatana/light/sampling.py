@@ -104,10 +104,23 @@ class EnvSampler(eqx.Module):
           where bilinear lookups leak into zero texels).
         """
         L = np.asarray(env.radiance, np.float64)
-        H, W, n = L.shape
-        w = (1 - floor) * equal_energy_xyz_weights(env.grid)[:, 1] + floor / n  # luminance weights sum to 1
+        y = np.maximum(L, 0.0) @ cls.weights(env.grid, floor)
+        return cls.from_luminance(y, env.radiance.dtype, uniform=uniform, bilinear=bilinear, compensate=compensate)
+
+    @staticmethod
+    def weights(grid, floor: float = 0.01) -> np.ndarray:
+        """``(wl,)`` spectral weights of the texel luminance :meth:`build` samples by: CIE ȳ (equal-energy
+        normalised) with a ``floor`` fraction of the flat mean; they sum to 1."""
+        return (1 - floor) * equal_energy_xyz_weights(grid)[:, 1] + floor / grid.size
+
+    @classmethod
+    def from_luminance(cls, y: np.ndarray, dtype, *, uniform: float = 1e-6, bilinear: bool | str = True,
+                       compensate: bool = False) -> "EnvSampler":
+        """:meth:`build`'s tables from the texel luminances ``y (H, W)`` (``max(L, 0) @`` :meth:`weights`):
+        one float per texel is all a map read in row blocks keeps for sampling."""
+        y = np.asarray(y, np.float64)
+        H, W = y.shape
         omega = texel_solid_angles_np(H, W)[:, 0]
-        y = np.maximum(L, 0.0) @ w
         if bilinear not in (True, False, "max"):
             raise ValueError(f"bilinear must be True, False or 'max', got {bilinear!r}")
         if bilinear == "max":
@@ -130,7 +143,7 @@ class EnvSampler(eqx.Module):
         conditional[:, -1] = 1.0
         pdf = f / f.sum() / omega[:, None]
         cos_edges = row_edges_cos(H)
-        dt = env.radiance.dtype
+        dt = dtype
         # the windowed strategy's weights: the same texel weights as integers summing to ≤ WINDOW_TOTAL, so
         # that every partial sum below (≤ 2·WINDOW_TOTAL = 2^24) and every difference of two is exact in float32
         q = np.floor(f / f.sum() * WINDOW_TOTAL)

@@ -144,3 +144,62 @@ def write_spectral_exr(path: str | Path, radiance, grid: WavelengthGrid | np.nda
         if tmp_exr != Path(tmp):
             tmp_exr.replace(tmp)
     return path
+
+
+_UNIT_NM = {"nm": 1.0, None: 1.0, "um": 1000.0, "pm": 1e-3}
+
+
+class SpectralRows:
+    """A Fichet 2021 spectral EXR read in row blocks through OpenImageIO's ``read_scanlines``, so that a map
+    larger than memory as float64 (61 bands × 6000 × 3000 is 4.4 GB as float32) is never held whole.
+
+    The ``S0`` (else ``T``) channels are found from the header's channel names (the layout's
+    ``<component>.<λ><unit>`` with a decimal comma), sorted by wavelength, and each block is resampled
+    linearly onto ``grid`` as :func:`read_spectral_exr` resamples the whole image (the same
+    :func:`jkatana.spectral.grid.resample`), so the blocks stacked equal the whole read.
+    """
+
+    def __init__(self, path: str | Path, grid: WavelengthGrid):
+        import OpenImageIO as oiio
+
+        self.path, self.grid = Path(path), grid
+        inp = oiio.ImageInput.open(str(self.path))
+        if inp is None:
+            raise InputError(f"not a readable OpenEXR file ({oiio.geterror()})", path=path)
+        spec = inp.spec()
+        inp.close()
+        self.height, self.width = int(spec.height), int(spec.width)
+        names = list(spec.channelnames)
+        found = {}
+        for pattern in (_CHANNEL, _T_CHANNEL):
+            found = {i: m for i, n in enumerate(names) if (m := pattern.match(n))}
+            if found:
+                break
+        if not found:
+            raise InputError(f"no S0 (emissive) or T (reflective) spectral channels; found {names[:8]}", path=path)
+        wl = {i: float(m.group(1).replace(",", ".")) * _UNIT_NM.get(m.group(2), float("nan"))
+              for i, m in found.items()}
+        order = sorted(wl, key=wl.get)
+        self.channels = np.asarray(order)
+        self.wavelengths = np.asarray([wl[i] for i in order], np.float64)
+        self.nchannels = len(names)
+        self._identity = self.wavelengths.size == grid.size and np.allclose(self.wavelengths, grid.wavelengths,
+                                                                              atol=1e-6)
+
+    def rows(self, r0: int, r1: int) -> np.ndarray:
+        """Radiance of rows ``[r0, r1)`` on the grid, ``(r1 − r0, W, len(grid))`` float32."""
+        import OpenImageIO as oiio
+
+        inp = oiio.ImageInput.open(str(self.path))
+        if inp is None:
+            raise InputError(f"not a readable OpenEXR file ({oiio.geterror()})", path=self.path)
+        try:
+            px = inp.read_scanlines(0, 0, int(r0), int(r1), 0, 0, self.nchannels, oiio.FLOAT)
+        finally:
+            inp.close()
+        if px is None:
+            raise InputError(f"rows {r0}–{r1} unreadable ({oiio.geterror()})", path=self.path)
+        values = np.asarray(px, np.float32).reshape(r1 - r0, self.width, self.nchannels)[..., self.channels]
+        if self._identity:
+            return values
+        return resample(self.wavelengths, values, self.grid, name=str(self.path)).astype(np.float32)

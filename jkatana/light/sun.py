@@ -207,9 +207,16 @@ def find_compact_sources(env: EnvMap, *, contrast: float = 1000.0, max_solid_ang
         raise InputError(f"compact-source criterion needs contrast > 1, max_solid_angle > 0 and "
                          f"0 ≤ min_power_fraction ≤ 1; got {contrast}, {max_solid_angle}, {min_power_fraction}",
                          field="sun")
-    L = np.asarray(env.radiance, np.float64)
-    H, W, _ = L.shape
-    y = _luminance(L, env.grid)
+    return compact_regions(_luminance(np.asarray(env.radiance, np.float64), env.grid), contrast=contrast,
+                           max_solid_angle=max_solid_angle, min_power_fraction=min_power_fraction,
+                           max_sources=max_sources)
+
+
+def compact_regions(y: np.ndarray, *, contrast: float = 1000.0, max_solid_angle: float = 5e-3,
+                    min_power_fraction: float = 0.01, max_sources: int = 4) -> list[CompactRegion]:
+    """:func:`find_compact_sources` on a map's CIE-Y luminance ``y (H, W)`` alone (what a map read in row
+    blocks keeps, :mod:`jkatana.light.streaming`)."""
+    H, W = y.shape
     omega = texel_solid_angles_np(H, W)
     power = y * omega
     total = power.sum()
@@ -291,6 +298,34 @@ def split_compact_sources(env: EnvMap, *, contrast: float = 1000.0, max_solid_an
         caps.append(_cap_from_powers(direction, radius, removed, env.grid, dtype))
     return SunSplit(tuple(caps), remainder, tuple(r.mask for r in regions),
                     tuple(r.power_fraction for r in regions), tuple(r.solid_angle for r in regions))
+
+
+def split_texels(y: np.ndarray, spectra_of, grid: WavelengthGrid, *, ring: int = 2, dtype=jnp.float32,
+                 **criterion) -> tuple[tuple[SunCap, ...], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """:func:`split_compact_sources` for a map held as its luminance ``y (H, W)`` and a function
+    ``spectra_of(rows, cols) → (N, wl)`` giving the exact spectra of chosen texels (a map read in row blocks,
+    :mod:`jkatana.light.streaming`): the same regions, ring fill and caps, reading the spectra of each
+    region and its ring only.
+
+    **Returns:** ``(caps, changes)``; each change ``(texels, before, after)`` is a region's texels as flat
+    indices ``row · W + column``, their spectra and the remainder's (rounded to ``dtype``), float64 ``(N, wl)``.
+    """
+    regions = compact_regions(y, **criterion)
+    W = y.shape[1]
+    caps, changes = [], []
+    for reg in regions:
+        ring_mask = _dilate(reg.mask, int(ring)) & ~reg.mask
+        rr, rc = np.nonzero(ring_mask)
+        mr, mc = np.nonzero(reg.mask)
+        before = np.asarray(spectra_of(mr, mc), np.float64)
+        fill = np.median(spectra_of(rr, rc), axis=0) if rr.size else np.zeros(grid.size)
+        after = np.minimum(fill, before).astype(np.dtype(dtype)).astype(np.float64)
+        omega = texel_solid_angles_np(*y.shape)[mr, mc]
+        removed = (omega[:, None] * (before - after)).sum(axis=0)
+        direction, radius = _cap_geometry(y, reg.mask)
+        caps.append(_cap_from_powers(direction, radius, removed, grid, dtype))
+        changes.append((mr * W + mc, before, after))
+    return tuple(caps), changes
 
 
 def split_sky_sun(elevation_deg: float = 30.0, azimuth_deg: float = 180.0, turbidity: float = 3.0,

@@ -274,3 +274,54 @@ def round_trip_error(rgb, method: str = "Jakob 2019", grid: WavelengthGrid = DEF
     back = spectrum_to_rgb(rgb_to_spectrum(rgb, method, grid, colourspace=colourspace), grid, colourspace)
     err = np.max(np.abs(back - rgb), axis=1) / rgb.max(axis=1)
     return {"max": float(err.max()), "mean": float(err.mean()), "p99": float(np.quantile(err, 0.99))}
+
+
+#: Nodes per side of :func:`chromaticity_table`: its bilinear interpolation of Jakob 2019 spectra is within
+#: ~6e-5 (relative, Frobenius) of the per-texel upsampling on a natural HDR, ~1e-3 at worst per texel.
+TABLE_NODES = 65
+
+
+def chromaticity_table(project, method: str = "Jakob 2019", grid: WavelengthGrid = DEFAULT_GRID, *,
+                       colourspace: str = "sRGB", nodes: int = TABLE_NODES) -> np.ndarray:
+    """``project`` of the upsampled spectra of the RGB values of unit maximum, on a ``nodes × nodes`` grid per
+    face of the RGB cube: ``(3, nodes, nodes, C)`` for a ``project: (N, wl) → (N, C)``.
+
+    Every method here is homogeneous of degree one, ``S(c·rgb) = c·S(rgb)`` (Jakob 2019 through pbrt-v4's
+    ``2m`` scaling, Mallett 2019 and the flat method by linearity, Smits 1999 by construction), so a spectrum
+    is ``m = max(r, g, b)`` times the spectrum of ``rgb / m``, a point of one of the three faces ``{c_k = 1}``
+    of the unit cube: a function of two coordinates in [0, 1]. Face ``k``'s table is indexed by the other two
+    channels in increasing order (:func:`table_lookup`). A linear ``project`` (onto a spectral basis, a
+    luminance) commutes with the scaling, so projected values interpolate as the spectra do.
+    """
+    a = np.linspace(0.0, 1.0, nodes)
+    A, B = np.meshgrid(a, a, indexing="ij")
+    faces = []
+    for k in range(3):
+        o1, o2 = (c for c in range(3) if c != k)
+        rgb = np.zeros((nodes, nodes, 3))
+        rgb[..., k], rgb[..., o1], rgb[..., o2] = 1.0, A, B
+        faces.append(rgb)
+    spectra = rgb_to_spectrum(np.stack(faces).reshape(-1, 3), method, grid, colourspace=colourspace)
+    return np.asarray(project(spectra.astype(np.float64)), np.float64).reshape(3, nodes, nodes, -1)
+
+
+def table_lookup(table: np.ndarray, rgb: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
+    """``project(S(rgb))`` for RGB ``(N, 3)`` (non-negative) from a :func:`chromaticity_table` ``(3, n, n, C)``:
+    bilinear on the face of the largest channel, times that channel. ``(N, C)`` float32, in chunks of
+    ``chunk`` texels (each cell's four corners stored together: one gather per texel)."""
+    n, C = table.shape[1], table.shape[-1]
+    T = np.asarray(table, np.float32)
+    cells = np.stack([T[:, :-1, :-1], T[:, :-1, 1:], T[:, 1:, :-1], T[:, 1:, 1:]], axis=3).reshape(-1, 4, C)
+    rgb = np.asarray(rgb, np.float32).reshape(-1, 3)
+    out = np.empty((rgb.shape[0], C), np.float32)
+    for s in range(0, rgb.shape[0], chunk):
+        r, g, b = rgb[s:s + chunk, 0], rgb[s:s + chunk, 1], rgb[s:s + chunk, 2]
+        m = np.maximum(np.maximum(r, g), b)
+        k = np.where(r >= np.maximum(g, b), 0, np.where(g >= b, 1, 2))
+        inv = np.float32(n - 1) / np.where(m > 0, m, np.float32(1))
+        x, y = np.where(k == 0, g, r) * inv, np.where(k == 2, g, b) * inv
+        i0, j0 = np.minimum(x.astype(np.int32), n - 2), np.minimum(y.astype(np.int32), n - 2)
+        fx, fy = x - i0, y - j0
+        w = np.stack([(1 - fx) * (1 - fy), (1 - fx) * fy, fx * (1 - fy), fx * fy], axis=1) * m[:, None]
+        out[s:s + chunk] = np.einsum("nk,nkc->nc", w, cells[(k * (n - 1) + i0) * (n - 1) + j0])
+    return out

@@ -153,9 +153,9 @@ def _render_job(prep, job: Job, inputs: dict | None = None) -> dict:
 
 
 def run_batch_serial(scene: Scene, jobs: list[Job], *, mode=None, samples=None, force=False,
-                     progress: bool = True) -> list[dict]:
+                     progress: bool = True, max_memory=None) -> list[dict]:
     """Render ``jobs`` in this process with a tqdm progress bar; finished frames are skipped
-    (:func:`plan_resume`)."""
+    (:func:`plan_resume`); ``max_memory`` as :func:`~jkatana.render.renderer.prepare`'s."""
     from tqdm import tqdm
 
     from jkatana.render.renderer import prepare
@@ -165,7 +165,7 @@ def run_batch_serial(scene: Scene, jobs: list[Job], *, mode=None, samples=None, 
     if not todo:
         return results
     t0 = time.perf_counter()
-    prep = prepare(scene, mode=mode, samples=samples)
+    prep = prepare(scene, mode=mode, samples=samples, max_memory=max_memory)
     results.append({"frame": "(load scene)", "status": "", "seconds": time.perf_counter() - t0})
     for job in tqdm(todo, desc="frames", unit="frame", disable=not progress):
         results.append(_render_job(prep, job, inputs))

@@ -47,7 +47,7 @@ def _check_common(args) -> None:
     number(args.devices, "--devices", lo=1, hi=max(8, 4 * cores), integer=True)
 
 
-def render_memory(scene, *, samples=None, devices=None) -> tuple[float, str, str]:
+def render_memory(scene, *, samples=None, devices=None, max_memory=None) -> tuple[float, str, str]:
     """Estimated peak bytes of a frame of ``scene``, the field whose part dominates and what that part is.
 
     The estimate counts the arrays a frame allocates: the G-buffer and film (per pixel ~40 float64
@@ -66,7 +66,7 @@ def render_memory(scene, *, samples=None, devices=None) -> tuple[float, str, str
     parts = {
         "camera.resolution": (w * h * (40 * 8 + 3 * 8 + (4 * bands if scene.output.spectral else 0)),
                               f"a {w}×{h} frame"),
-        environment_field(scene.environment): (environment_bytes(scene.environment, bands),
+        environment_field(scene.environment): (environment_bytes(scene.environment, bands, max_memory=max_memory),
                                                describe(scene.environment, bands)),
         "render.chunk": (devices * min(scene.render.chunk, w * h) * bands * 4 * 16,
                          f"{devices} × {scene.render.chunk} pixels per shading call"),
@@ -81,7 +81,7 @@ def check_render_memory(scene, *, samples=None, devices=None, max_memory=None) -
     exceeds the budget; returns the estimate in bytes."""
     from jkatana.io.limits import require_memory
 
-    total, field, what = render_memory(scene, samples=samples, devices=devices)
+    total, field, what = render_memory(scene, samples=samples, devices=devices, max_memory=max_memory)
     require_memory(total, field, f"{what} (the whole frame)", max_memory)
     return total
 
@@ -121,7 +121,7 @@ def light_run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     check_environment_memory(scene, max_memory=getattr(args, "max_memory", None))
     t0 = time.perf_counter()
-    prepare(scene, mode=args.mode)
+    prepare(scene, mode=args.mode, max_memory=getattr(args, "max_memory", None))
     print(f"{args.scene}: environment for mode {args.mode} built in {time.perf_counter() - t0:.1f} s and cached "
           f"in {cache_root()}; renders of this scene load it from there")
     return 0
@@ -154,7 +154,7 @@ def demo_run(args: argparse.Namespace) -> int:
     from jkatana.render.renderer import prepare, render_view, write_outputs
 
     t0 = time.perf_counter()
-    prep = prepare(scene, mode=args.mode, samples=args.samples)
+    prep = prepare(scene, mode=args.mode, samples=args.samples, max_memory=args.max_memory)
     t1 = time.perf_counter()
     frame = render_view(prep)
     t2 = time.perf_counter()
@@ -215,6 +215,7 @@ def render_run(args: argparse.Namespace) -> int:
         results = run_batch_dask(args.scene, scene, jobs, mode=args.mode, samples=args.samples,
                                  force=args.force, scheduler=args.scheduler, workers=args.workers)
     else:
-        results = run_batch_serial(scene, jobs, mode=args.mode, samples=args.samples, force=args.force)
+        results = run_batch_serial(scene, jobs, mode=args.mode, samples=args.samples, force=args.force,
+                                   max_memory=args.max_memory)
     print(summary_table(results))
     return 0

@@ -83,12 +83,17 @@ class Caps(eqx.Module):
 def caps_from_split(split: SunSplit, basis: np.ndarray, dtype=jnp.float32) -> Caps | None:
     """The :class:`Caps` of a :class:`~jkatana.light.sun.SunSplit` projected on a ``(J, wl)`` spectral basis
     (rows orthonormal, as :func:`env_basis` returns), or None when nothing was split."""
-    if not split.caps:
+    return caps_on_basis(split.caps, basis, dtype)
+
+
+def caps_on_basis(caps: tuple, basis: np.ndarray, dtype=jnp.float32) -> Caps | None:
+    """:func:`caps_from_split` of the split's :class:`~jkatana.light.sun.SunCap` lights alone."""
+    if not caps:
         return None
     b = np.asarray(basis, np.float64)
-    direction = np.stack([np.asarray(c.direction, np.float64) for c in split.caps])
-    radius = np.asarray([float(c.radius) for c in split.caps])
-    radiance = np.stack([np.asarray(c.radiance, np.float64) for c in split.caps])
+    direction = np.stack([np.asarray(c.direction, np.float64) for c in caps])
+    radius = np.asarray([float(c.radius) for c in caps])
+    radiance = np.stack([np.asarray(c.radiance, np.float64) for c in caps])
     return Caps(jnp.asarray(direction, dtype), jnp.asarray(radius, dtype), jnp.asarray(radiance @ b.T, dtype))
 
 
@@ -229,25 +234,33 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     if mus:
         # the light stage's exact convolution with the lobe kernel, on the source box-downsampled to
         # at most `prefilter_resolution` columns, then projected on the environment's spectral basis
-        from jkatana.light.prefilter import prefilter as light_prefilter
-
         src = EnvMap(jnp.asarray(radiance, jnp.float32), grid)
         while src.width > prefilter_resolution and src.height % 2 == 0 and src.width % 2 == 0:
             src = src.downsample(2)
-
-        def project(levels, scales=None):
-            scales = scales or [1.0] * len(levels)
-            return tuple(jnp.asarray(k * (np.asarray(lvl.radiance, np.float64) @ basis.T.astype(np.float64)), dtype)
-                         for lvl, k in zip(levels, scales))
-
-        pre = project(light_prefilter(src, mus).levels)
-        if any(key is not None for key in prefilter_lobes):
-            lobe_pre = tuple(() if key is None else project(light_prefilter(src, mus, lobe=WidthFamily(key)).levels,
-                                                            [lobe_albedo(key, m) for m in mus])
-                             for key in prefilter_lobes)
+        pre, lobe_pre = prefiltered_levels(src, mus, basis, prefilter_lobes, dtype)
     env = Environment(jnp.asarray(coeffs, dtype), jnp.asarray(basis, dtype), jnp.asarray(rot, dtype), sampler,
                       pre, jnp.asarray(np.asarray(mus, np.float64), dtype), caps, lobe_pre)
     return env, factored, resid
+
+
+def prefiltered_levels(src: EnvMap, mus: tuple, basis: np.ndarray, prefilter_lobes, dtype) -> tuple[tuple, tuple]:
+    """`Environment.prefiltered` and `Environment.lobe_prefiltered` of a map ``src`` already at the levels'
+    source resolution: :func:`jkatana.light.prefilter.prefilter` with the paper's lobe and with each region's
+    lobe (times its albedo, :func:`lobe_albedo`), projected on the environment's ``basis``."""
+    from jkatana.light.prefilter import prefilter as light_prefilter
+
+    def project(levels, scales=None):
+        scales = scales or [1.0] * len(levels)
+        return tuple(jnp.asarray(k * (np.asarray(lvl.radiance, np.float64) @ basis.T.astype(np.float64)), dtype)
+                     for lvl, k in zip(levels, scales))
+
+    pre = project(light_prefilter(src, mus).levels)
+    lobe_pre = ()
+    if any(key is not None for key in prefilter_lobes):
+        lobe_pre = tuple(() if key is None else project(light_prefilter(src, mus, lobe=WidthFamily(key)).levels,
+                                                        [lobe_albedo(key, m) for m in mus])
+                         for key in prefilter_lobes)
+    return pre, lobe_pre
 
 
 def lobe_albedo(key, mu: float) -> float:

@@ -18,6 +18,14 @@ any work: a map that cannot fit is refused in one line naming its size and the
 estimate, instead of the kernel's out-of-memory killer ending the process
 minutes later.
 
+A map read from a file whose whole spectra would not fit the budget is
+instead *streamed* (:mod:`jkatana.render.streamed`): read in row blocks and
+kept as a few hundred bytes a texel whatever its bands
+(:data:`STREAM_BYTES_PER_TEXEL`). :func:`environment_route` chooses the path
+(the whole spectra wherever they fit, so that such maps are prepared as
+before) and :func:`environment_bytes` estimates the one chosen; a map is
+refused only when even the streamed path cannot fit.
+
 The per-value costs and the base are the slope and intercept of the peak RSS of a
 first use on an empty cache against map size (the shared 1k HDR and its 2k resize,
 ``benchmarks/bench_first_use.py``), rounded up; ``tests/test_memory_estimate.py``
@@ -42,6 +50,12 @@ VIEW_BYTES_PER_TEXEL = 11 * 3 * 3 * 4
 TAP_FIT_BYTES = 0.7 * 2 ** 30
 #: The process before the environment: Python, NumPy, JAX and XLA's compiled programs, the mesh, the map.
 BASE_BYTES = 0.6 * 2 ** 30
+#: Bytes per texel at the peak of the streamed preparation (:mod:`jkatana.render.streamed`), whatever the
+#: bands: the float32 RGB, the basis coefficients (up to 12 channels) and their device copy, the luminances,
+#: and the sampler's float64 work arrays and float32 tables (a 6000×3000 map peaked at 3.7 GB, base included).
+STREAM_BYTES_PER_TEXEL = 200.0
+#: Bytes of the row blocks a streamed pass holds at once (about a million texels of spectra and projections).
+STREAM_BLOCK_BYTES = 0.5 * 2 ** 30
 
 
 def image_resolution(path: str | Path) -> tuple[int, int] | None:
@@ -72,9 +86,9 @@ def environment_resolution(environment) -> tuple[int, int] | None:
     return None
 
 
-def environment_bytes(environment, bands: int, *, interactive: bool = False) -> float:
-    """Estimated peak bytes of preparing ``environment`` on ``bands`` wavelengths (``interactive``: for ``view``),
-    not counting :data:`BASE_BYTES` nor the frame."""
+def full_bytes(environment, bands: int, *, interactive: bool = False) -> float:
+    """Estimated peak bytes of preparing ``environment`` on ``bands`` wavelengths from its whole spectra
+    (``interactive``: for ``view``), not counting :data:`BASE_BYTES` nor the frame."""
     size = environment_resolution(environment)
     if size is None:
         return 0.0
@@ -82,6 +96,38 @@ def environment_bytes(environment, bands: int, *, interactive: bool = False) -> 
     if interactive:
         return texels * (bands * VIEW_BYTES_PER_VALUE + VIEW_BYTES_PER_TEXEL)
     return texels * bands * RENDER_BYTES_PER_VALUE
+
+
+def streamed_bytes(environment) -> float | None:
+    """Estimated peak bytes of the streamed preparation (:mod:`jkatana.render.streamed`) of a map read from a
+    file, not counting :data:`BASE_BYTES`; None for an environment that is not read from a file."""
+    size = environment_resolution(environment)
+    if size is None or environment.type not in ("exr", "hdr"):
+        return None
+    return size[0] * size[1] * STREAM_BYTES_PER_TEXEL + STREAM_BLOCK_BYTES
+
+
+def environment_route(environment, bands: int, *, interactive: bool = False, max_memory=None,
+                      extra: float = 0.0) -> str:
+    """``"full"`` where the whole spectra fit the memory budget (:func:`jkatana.io.limits.memory_budget`) with
+    ``extra`` bytes beside them, or where the map cannot be streamed; ``"streamed"`` otherwise."""
+    from jkatana.io.limits import memory_budget
+
+    stream = streamed_bytes(environment)
+    if stream is None or interactive:
+        return "full"
+    full = BASE_BYTES + extra + full_bytes(environment, bands, interactive=interactive)
+    return "full" if full <= memory_budget(max_memory) or full <= BASE_BYTES + extra + stream else "streamed"
+
+
+def environment_bytes(environment, bands: int, *, interactive: bool = False, max_memory=None,
+                      extra: float = 0.0) -> float:
+    """Estimated peak bytes of preparing ``environment`` on ``bands`` wavelengths the way it will be prepared
+    (:func:`environment_route`), not counting :data:`BASE_BYTES` nor the frame."""
+    if environment_route(environment, bands, interactive=interactive, max_memory=max_memory,
+                         extra=extra) == "streamed":
+        return streamed_bytes(environment)
+    return full_bytes(environment, bands, interactive=interactive)
 
 
 def describe(environment, bands: int) -> str:
@@ -92,13 +138,14 @@ def describe(environment, bands: int) -> str:
     return f"{shape} environment{name}, {bands} bands"
 
 
-def environment_estimate(scene, *, interactive: bool = False, extra: float = 0.0) -> float:
+def environment_estimate(scene, *, interactive: bool = False, extra: float = 0.0, max_memory=None) -> float:
     """Estimated peak bytes of preparing ``scene``'s environment, plus ``extra`` bytes of frame, the process
     itself (:data:`BASE_BYTES`) and, for ``view`` of a scene whose regions name parameter files, a lobe
     family's tap fit (:data:`TAP_FIT_BYTES`)."""
     fit = interactive and (scene.material.hiraji is not None or scene.material.hamon is not None)
-    return BASE_BYTES + environment_bytes(scene.environment, scene.spectral.grid.size, interactive=interactive) \
-        + extra + (TAP_FIT_BYTES if fit else 0.0)
+    extra = extra + (TAP_FIT_BYTES if fit else 0.0)
+    return BASE_BYTES + environment_bytes(scene.environment, scene.spectral.grid.size, interactive=interactive,
+                                          max_memory=max_memory, extra=extra) + extra
 
 
 def check_environment_memory(scene, *, interactive: bool = False, max_memory=None, extra: float = 0.0) -> float:
@@ -106,7 +153,7 @@ def check_environment_memory(scene, *, interactive: bool = False, max_memory=Non
     environment cannot fit the memory budget; returns the estimate in bytes."""
     from jkatana.io.limits import require_memory
 
-    total = environment_estimate(scene, interactive=interactive, extra=extra)
+    total = environment_estimate(scene, interactive=interactive, extra=extra, max_memory=max_memory)
     what = describe(scene.environment, scene.spectral.grid.size) + (" in view" if interactive else "")
     require_memory(total, environment_field(scene.environment), f"{what} (the whole request)", max_memory)
     return total
@@ -118,5 +165,6 @@ def environment_field(environment) -> str:
 
 
 __all__ = ["image_resolution", "environment_resolution", "environment_bytes", "environment_estimate",
+           "full_bytes", "streamed_bytes", "environment_route", "STREAM_BYTES_PER_TEXEL",
            "check_environment_memory", "environment_field", "RENDER_BYTES_PER_VALUE", "VIEW_BYTES_PER_VALUE",
            "TAP_FIT_BYTES", "BASE_BYTES"]

@@ -246,7 +246,7 @@ def rotation_y(deg: float) -> np.ndarray:
 
 def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None,
             rank: int | None = None, env_radiance: np.ndarray | None = None,
-            split_sun: bool | None = None) -> Prepared:
+            split_sun: bool | None = None, max_memory: int | None = None) -> Prepared:
     """Load the scene's assets and decide the shading plan (effects on demand).
 
     ``mode``, ``samples`` and ``rank`` override the scene's (``None``: the scene's); an override is
@@ -255,7 +255,8 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     (:func:`~jkatana.render.environment.build_environment`); ``None``: the scene's ``render.split_sun``,
     and where that is unset the mode's default (:data:`~jkatana.render.environment.SPLIT_MODES`; never in
     ``paper-published``). The scene's ``render.env_window`` goes to :attr:`Plan.env_window
-    <jkatana.render.plan.Plan.env_window>`.
+    <jkatana.render.plan.Plan.env_window>`. ``max_memory``: the budget (bytes) a map file's whole spectra
+    must fit, else it is streamed (:func:`jkatana.render.streamed.streams`).
     """
     mode = scene.render.mode if mode is None else mode
     samples = scene.render.samples if samples is None else samples
@@ -303,7 +304,15 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     if env_key is not None and pre_lobes != (None, None):
         env_key += "-" + hashlib.sha256(repr(pre_lobes).encode()).hexdigest()[:16]
 
+    from jkatana.render.streamed import build_scene_streamed, streamed_key, streams
+
+    streamed = env_radiance is None and streams(scene, max_memory)
+    env_key = streamed_key(env_key) if streamed else env_key
+
     def build():
+        if streamed:
+            return build_scene_streamed(scene, grid, rank=env_rank, prefilter_mus=mus, prefilter_resolution=128,
+                                        dtype=dtype, split_sun=split, prefilter_lobes=pre_lobes)
         radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
         return build_environment(radiance, rank=env_rank, prefilter_mus=mus, prefilter_resolution=128,
                                  dtype=dtype, grid=grid, split_sun=split, prefilter_lobes=pre_lobes)
