@@ -33,7 +33,7 @@ def test_tree_round_trip_keeps_every_leaf(tmp_path):
     import jax
     import jax.numpy as jnp
 
-    from jkatana.render.shading import build_environment
+    from jkatana.render.environment import build_environment
 
     from jkatana.spectral.grid import WavelengthGrid
 
@@ -66,7 +66,7 @@ def test_only_jkatana_classes_are_rebuilt(tmp_path):
 
 
 def test_second_prepare_reads_the_cache_and_renders_the_same(tmp_path, monkeypatch):
-    from jkatana.render import renderer, shading
+    from jkatana.render import environment, renderer
 
     monkeypatch.setenv("JKATANA_CACHE", str(tmp_path / "cache"))
     path = _env_file(tmp_path)
@@ -76,7 +76,7 @@ def test_second_prepare_reads_the_cache_and_renders_the_same(tmp_path, monkeypat
     def refuse(*a, **k):
         raise AssertionError("rebuilt although cached")
 
-    monkeypatch.setattr(shading, "build_environment", refuse)
+    monkeypatch.setattr(environment, "build_environment", refuse)
     monkeypatch.setattr(renderer, "build_environment", refuse)
     monkeypatch.setattr(renderer, "_build_radiance", refuse)
     monkeypatch.setattr(renderer, "fresnel_table", refuse)

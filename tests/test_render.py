@@ -18,7 +18,9 @@ from jkatana.render.film import film_weights
 from jkatana.render.frame import render_frame
 from jkatana.render.gbuffer import gbuffer_sphere
 from jkatana.render.scenefile import load_scene, scene_from_dict, scene_to_toml
-from jkatana.render.shading import Material, Plan, build_environment, fresnel_table
+from jkatana.render.environment import build_environment
+from jkatana.render.fresnel_fold import Material, fresnel_table
+from jkatana.render.plan import Plan
 from jkatana.spectral import DEFAULT_GRID
 
 GRID = DEFAULT_GRID
@@ -96,7 +98,7 @@ def test_factored_grey_equals_full_spectral():
     env_f, fac, _ = build_environment(grey)
     env_full, _, _ = build_environment(grey, rank=None)
     assert fac
-    from jkatana.render.shading import Environment
+    from jkatana.render.environment import Environment
 
     env_full = Environment(jnp.asarray(grey), jnp.eye(GRID.size, dtype=jnp.float32), env_f.rotation,
                            env_f.sampler, env_f.prefiltered, env_f.prefilter_mus)
@@ -135,7 +137,7 @@ def test_reference_converges_and_modes_agree_with_it():
 def test_point_light_matches_analytic_brdf():
     """A point light on a black environment: pixel = f cos θi · I / r² from the models' brdf_cos."""
     from jkatana.models import Hiraji
-    from jkatana.render.shading import Light
+    from jkatana.render.plan import Light
 
     mat, _ = _mat(jnp.float32)
     env, fac, _ = build_environment(np.zeros((4, 8, GRID.size), np.float32) + 1e-20)
@@ -198,7 +200,8 @@ def test_prepare_overrides_are_checked_like_the_scene():
 def test_gradient_matches_finite_differences():
     """d(frame)/d(μ map, χ, environment) against central differences, float64, common random numbers."""
     from jkatana.render.frame import sample_map
-    from jkatana.render.shading import Pixels, shade
+    from jkatana.render.plan import Pixels
+    from jkatana.render.shading import shade
 
     mat, _ = _mat(jnp.float64)
     sky = _sky((16, 32)).astype(np.float64)

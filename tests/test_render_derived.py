@@ -16,7 +16,9 @@ from jkatana.render import frame as F
 from jkatana.render.camera import Camera
 from jkatana.render.environment import bilinear_equirect, lookup_prefiltered, lookup_prefiltered_many
 from jkatana.render.film import film_weights
-from jkatana.render.shading import Material, Plan, background, build_environment, fresnel_rank_for, fresnel_table
+from jkatana.render.environment import background, build_environment
+from jkatana.render.fresnel_fold import Material, fresnel_rank_for, fresnel_table
+from jkatana.render.plan import Plan
 from jkatana.spectral.grid import WavelengthGrid
 from tests._scenes import paste_disc
 

@@ -16,8 +16,10 @@ from jkatana.render.fresnel_fold import FRESNEL_RANK_TOL_SAMPLED
 from jkatana.render.frame import render_frame, resolve_plan
 from jkatana.render.plan import MODES, SAMPLED_MODES
 from jkatana.render.points import sobol_table
-from jkatana.render.shading import (FRESNEL_RANK_TOL, Material, Pixels, Plan, build_environment,
-                                    fold_fresnel, fresnel_rank_for, fresnel_table, shade)
+from jkatana.render.environment import build_environment
+from jkatana.render.fresnel_fold import FRESNEL_RANK_TOL, Material, fold_fresnel, fresnel_rank_for, fresnel_table
+from jkatana.render.plan import Pixels, Plan
+from jkatana.render.shading import shade
 from jkatana.spectral import DEFAULT_GRID
 
 GRID = DEFAULT_GRID

@@ -16,7 +16,9 @@ from jkatana.render import frame as F
 from jkatana.render.camera import Camera
 from jkatana.render.film import film_weights
 from jkatana.render.gbuffer import gbuffer_sphere
-from jkatana.render.shading import Material, Plan, build_environment, fresnel_table
+from jkatana.render.environment import build_environment
+from jkatana.render.fresnel_fold import Material, fresnel_table
+from jkatana.render.plan import Plan
 from jkatana.spectral import DEFAULT_GRID
 
 GRID = DEFAULT_GRID

@@ -92,7 +92,7 @@ def test_jkatana_copy_of_mitsuba_envmap_is_exact_at_its_nodes(tmp_path):
     from jkatana.io.exr import write_exr
     from jkatana.light.envmap import uv_to_direction
     from jkatana.render.renderer import rotation_y
-    from jkatana.render.shading import bilinear_equirect
+    from jkatana.render.environment import bilinear_equirect
     from jkatana.spectral.grid import WavelengthGrid
 
     rng = np.random.default_rng(0)
@@ -143,7 +143,7 @@ def test_mitsuba_latlong_is_ours_turned_half_a_turn_with_corner_aligned_rows():
 
     from jkatana.light.envmap import direction_to_uv
     from jkatana.render.renderer import rotation_y
-    from jkatana.render.shading import bilinear_equirect
+    from jkatana.render.environment import bilinear_equirect
 
     mi.set_variant("scalar_rgb")
     rng = np.random.default_rng(0)

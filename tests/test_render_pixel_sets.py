@@ -11,8 +11,11 @@ from jkatana.models import Conductor
 from jkatana.render.camera import Camera
 from jkatana.render.film import film_weights
 from jkatana.render.frame import render_frame
-from jkatana.render.shading import (Material, PixelIds, Pixels, Plan, build_environment, fresnel_table,
-                                    sample_points, shade)
+from jkatana.render.environment import build_environment
+from jkatana.render.fresnel_fold import Material, fresnel_table
+from jkatana.render.plan import Pixels, Plan
+from jkatana.render.points import PixelIds, sample_points
+from jkatana.render.shading import shade
 from jkatana.spectral import DEFAULT_GRID
 
 GRID = DEFAULT_GRID

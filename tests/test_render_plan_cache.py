@@ -10,7 +10,10 @@ import numpy as np
 import pytest
 
 from jkatana.render import frame, shading
-from jkatana.render.shading import Material, Pixels, Plan, build_environment, fresnel_table, shade
+from jkatana.render.environment import build_environment
+from jkatana.render.fresnel_fold import Material, fresnel_table
+from jkatana.render.plan import Pixels, Plan
+from jkatana.render.shading import shade
 from jkatana.spectral import DEFAULT_GRID
 
 GGX_KEY = ("ggx", (("alpha", 1.0),))

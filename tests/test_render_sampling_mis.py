@@ -16,7 +16,10 @@ import pytest
 from jkatana.models import Conductor
 from jkatana.models.lobes import lobe_key
 from jkatana.render.film import film_weights
-from jkatana.render.shading import Material, Pixels, Plan, build_environment, fresnel_table, shade
+from jkatana.render.environment import build_environment
+from jkatana.render.fresnel_fold import Material, fresnel_table
+from jkatana.render.plan import Pixels, Plan
+from jkatana.render.shading import shade
 from jkatana.spectral import DEFAULT_GRID
 
 GRID = DEFAULT_GRID
@@ -72,7 +75,7 @@ def test_beckmann_visible_normals_estimate_is_unbiased(alpha):
 def test_sample_passes_accumulates_each_sample_once(n, with_x):
     """The two-pass sample loop (draw a block, then load and accumulate) visits k = 0 … n − 1 once each, in
     blocks that do not divide n as well (the padding's samples are dropped, even where they are not finite)."""
-    from jkatana.render.shading import _sample_passes
+    from jkatana.render.integrators.mis import sample_passes as _sample_passes
 
     P = 3
     xs = jnp.asarray(np.random.default_rng(n).uniform(size=(n, P))) if with_x else None

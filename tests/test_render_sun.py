@@ -24,7 +24,10 @@ from jkatana.render.environment import Caps
 from jkatana.render.film import film_weights
 from jkatana.render.frame import render_frame
 from jkatana.render.gbuffer import gbuffer_sphere
-from jkatana.render.shading import Material, Pixels, Plan, build_environment, fresnel_table, shade
+from jkatana.render.environment import build_environment
+from jkatana.render.fresnel_fold import Material, fresnel_table
+from jkatana.render.plan import Pixels, Plan
+from jkatana.render.shading import shade
 from jkatana.spectral.grid import WavelengthGrid
 from tests._scenes import paste_disc, sphere_scene
 
@@ -259,7 +262,8 @@ def test_the_cap_centre_ray_carries_the_caps_visibility(mode, sun_map):
     """``ray_directions`` adds one ray per cap toward its centre after the lights; all visible: the frame
     is the one without visibility; the cap's ray blocked (everything else visible): the prefiltered mode
     loses exactly the cap rule's term and the reference mode the cap's own samples."""
-    from jkatana.render.shading import Visibility, ray_directions
+    from jkatana.render.plan import Visibility
+    from jkatana.render.shading import ray_directions
 
     mus = (0.03, 0.2) if mode == "prefiltered" else ()
     env, fac, _ = build_environment(sun_map, grid=GRID, prefilter_mus=mus, split_sun=True)

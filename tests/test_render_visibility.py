@@ -20,7 +20,9 @@ from jkatana.render.frame import render_frame
 from jkatana.render.gbuffer import Occluders, gbuffer_sphere, occluder_mesh
 from jkatana.render.scene import OccluderSpec
 from jkatana.render.scenefile import load_scene, scene_from_dict
-from jkatana.render.shading import Light, Material, Plan, build_environment, fresnel_table
+from jkatana.render.environment import build_environment
+from jkatana.render.fresnel_fold import Material, fresnel_table
+from jkatana.render.plan import Light, Plan
 from jkatana.spectral import DEFAULT_GRID
 
 GRID = DEFAULT_GRID

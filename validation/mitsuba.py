@@ -200,7 +200,9 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
     from jkatana.render.camera import Camera
     from jkatana.render.film import film_weights
     from jkatana.render.frame import pixel_blocks, render_frame
-    from jkatana.render.shading import Material, Plan, build_environment, fresnel_table
+    from jkatana.render.environment import build_environment
+    from jkatana.render.fresnel_fold import Material, fresnel_table
+    from jkatana.render.plan import Plan
     from jkatana.spectral.colorimetry import xyz_to_linear_rgb, xyz_weights
     from jkatana.spectral.grid import WavelengthGrid
 

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from jkatana.light.commands import LIGHT_HELP  # noqa: F401 (``jkatana light`` runs from here: light_run)
+from jkatana.render.integrators import INTEGRATORS, mode_help
 
 DEMO_HELP = "Render the built-in blade under the built-in sky (reference mode, PNG + EXR)."
 RENDER_HELP = "Render a scene TOML: one frame, or a batch of views × lightings (resumable, optional Dask)."
@@ -87,12 +88,7 @@ def check_render_memory(scene, *, samples=None, devices=None, max_memory=None) -
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--mode", choices=("reference", "paper", "prefiltered", "lowrank", "paper-published"),
-                   default=None,
-                   help="shading mode (default: the scene's). prefiltered, paper and lowrank split a compact sun "
-                        "off the environment as a cap light (integrated exactly-ish, no noise); paper-published: "
-                        "the paper's 30 jittered lobe rays on the whole map, as published, which miss compact "
-                        "bright sources (a sun's glint can vanish)")
+    p.add_argument("--mode", choices=tuple(INTEGRATORS), default=None, help=mode_help())
     p.add_argument("--samples", type=int, default=None, help="samples per pixel (default: the scene's)")
     p.add_argument("--devices", type=int, default=None, help="host devices to split pixels over (default: cores)")
 

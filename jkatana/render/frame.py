@@ -30,13 +30,14 @@ import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec as PS
 
 from jkatana.render.camera import Camera
-from jkatana.render.caps import _caps, cap_pixels
-from jkatana.render.environment import xyz_environment
-from jkatana.render.fresnel_fold import FRESNEL_RANK_TOL, FRESNEL_RANK_TOL_SAMPLED
+from jkatana.render.caps import _caps, cap_pixels, cap_rule_for
+from jkatana.render.environment import Environment, background, xyz_environment
+from jkatana.render.fresnel_fold import FRESNEL_RANK_TOL, FRESNEL_RANK_TOL_SAMPLED, Material, fold_fresnel, fresnel_rank_for
 from jkatana.render.gbuffer import GBuffer, gbuffer_mesh, gbuffer_sphere
-from jkatana.render.plan import SAMPLED_MODES
-from jkatana.render.shading import (Environment, Light, Material, PixelIds, Pixels, Plan, Visibility, background,
-                                    cap_rule_for, fold_fresnel, fresnel_rank_for, ray_directions, shade, shade_caps)
+from jkatana.render.integrators import integrator_for
+from jkatana.render.plan import Light, Pixels, Plan, Visibility
+from jkatana.render.points import PixelIds
+from jkatana.render.shading import ray_directions, shade, shade_caps
 
 DEFAULT_CHUNK = 16384
 
@@ -265,7 +266,7 @@ def resolve_plan(plan: Plan, mat: Material) -> Plan:
     if plan.fresnel_rank is not None:
         return plan
     ok = not (plan.spectral or plan.lights or plan.factored)
-    tol = FRESNEL_RANK_TOL_SAMPLED if plan.mode in SAMPLED_MODES else FRESNEL_RANK_TOL
+    tol = FRESNEL_RANK_TOL_SAMPLED if integrator_for(plan.mode).sampled else FRESNEL_RANK_TOL
     return dataclasses.replace(plan, fresnel_rank=fresnel_rank_for(mat.ftable, tol) if ok else 0)
 
 
@@ -367,10 +368,10 @@ def shade_pixels(plan: Plan, mat: Material, env: Environment, lights: Light | No
     if plan.visibility and occluders is None:
         raise ValueError("plan.visibility needs occluders")
     plan = resolve_plan(plan, mat)
-    split_caps = plan.mode == "prefiltered" and _caps(env) is not None and not plan.visibility
+    split_caps = integrator_for(plan.mode).deterministic and _caps(env) is not None and not plan.visibility
     # the pixels the caps can reach (cap_pixels), dispatched first: computed while the host picks the rule
     near = _compiled_cap_pixels(dataclasses.replace(plan, cap_rule=None))(env, px) if split_caps else None
-    if plan.cap_rule is None and env.caps is not None and plan.mode in ("prefiltered", "paper"):
+    if plan.cap_rule is None and env.caps is not None and integrator_for(plan.mode).cap_rule:
         plan = dataclasses.replace(plan, cap_rule=cap_rule_for(plan, env, px))
     if plan.fresnel_rank and not plan.factored:  # once per frame: F·E·CMF folded into a 3R-channel map
         _, vt = fresnel_rank_for(mat.ftable, _basis_too=True)  # cached host SVD
@@ -419,7 +420,7 @@ def _call_sizes(plan: Plan, P: int, n_dev: int, chunk: int, fine_tail: bool | No
 
     A frame may take the fine tail when its pixels' values do not depend on the call layout
     (:func:`_layout_free`); else the calls stay whole, as the streams follow them."""
-    fine_tail = plan.mode == "prefiltered" if fine_tail is None else fine_tail
+    fine_tail = integrator_for(plan.mode).deterministic if fine_tail is None else fine_tail
     need = -(-P // n_dev)
     size = 1024
     while size < need and size < chunk:
@@ -440,8 +441,8 @@ def _layout_free(plan: Plan, ids: PixelIds | None) -> bool:
     ``plan.subpixels > 1`` (their points come from the pixel index and the frame key:
     :func:`~jkatana.render.points.mis_offset`). The paper's jittered rays and the MIS modes without pixel ids
     draw per call."""
-    return plan.mode == "prefiltered" or (plan.mode in ("reference", "lowrank") and ids is not None
-                                          and plan.subpixels > 1)
+    integrator = integrator_for(plan.mode)
+    return integrator.deterministic or (integrator.sampled and ids is not None and plan.subpixels > 1)
 
 
 def _bucket(plan: Plan, n: int, n_dev: int, chunk: int) -> int:

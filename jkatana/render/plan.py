@@ -14,16 +14,22 @@ from typing import NamedTuple
 
 from jaxtyping import Array, Float
 
+from jkatana.render.integrators import INTEGRATORS
+
 #: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
 MIRROR_MU = 1e-4
-MODES = ("reference", "paper", "prefiltered", "lowrank", "paper-published")
-#: The modes that render a lobe other than the paper's: the sampling modes (through the lobe's own
-#: ``sample``/``pdf``) and the prefiltered mode (levels convolved with the region's own lobe).
-LOBE_MODES = ("reference", "lowrank", "prefiltered")
-#: The Monte Carlo modes (lobe and environment samples combined by MIS): their default Fresnel rank is
+#: The render modes: the integrators' names (:data:`~jkatana.render.integrators.INTEGRATORS`).
+MODES = tuple(INTEGRATORS)
+#: The modes that render a lobe other than the paper's (:attr:`Integrator.any_lobe
+#: <jkatana.render.integrators.Integrator.any_lobe>`): the sampling modes (through the lobe's own
+#: ``sample``/``pdf``) and the prefiltered mode (levels convolved with the region's own lobe), in that order.
+LOBE_MODES = tuple(sorted((name for name, i in INTEGRATORS.items() if i.any_lobe),
+                          key=lambda name: not INTEGRATORS[name].sampled))
+#: The Monte Carlo modes (:attr:`Integrator.sampled <jkatana.render.integrators.Integrator.sampled>`: lobe and
+#: environment samples combined by MIS): their default Fresnel rank is
 #: chosen to :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL_SAMPLED`, the other modes' to
 #: :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL`.
-SAMPLED_MODES = frozenset({"reference", "lowrank"})
+SAMPLED_MODES = frozenset(name for name, i in INTEGRATORS.items() if i.sampled)
 
 #: A good ``Plan.env_window`` k (the window's half-angle is 2 atan(k μ)): the lowest-noise k at low sample counts
 #: on the Mitsuba comparison's rough sphere (its benchmark report has the study).
@@ -53,7 +59,7 @@ class Plan:
     - `env_window`: the MIS modes draw their environment samples inside a texel
       window about each pixel's mirror direction, a cone of half-angle
       ``2 atan(k μ)`` with ``k = env_window`` and μ the pixel's lobe width
-      (:func:`~jkatana.render.shading.env_window`); ``None`` or 0 (default): from
+      (:func:`~jkatana.render.integrators.mis.env_window`); ``None`` or 0 (default): from
       the whole map. Unbiased for any ``k`` (the lobe strategy covers what the
       window leaves out), and a large gain where the map's power is spread and
       much of it lies below the horizon or far from the lobe (:data:`ENV_WINDOW`).

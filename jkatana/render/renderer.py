@@ -29,9 +29,11 @@ from jkatana.render.film import display, scene_exposure, film_weights, write_png
 from jkatana.render.frame import Frame, pixel_blocks, render_frame
 from jkatana.render.scene import LIMITS, RENDER_MODES, Scene
 from jkatana.render.scenefile import scene_to_toml
-from jkatana.render.environment import SPLIT_MODES
 from jkatana.render.regions import region_lobe_keys
-from jkatana.render.shading import MIRROR_MU, Environment, Light, Material, Plan, build_environment, fresnel_table
+from jkatana.render.environment import Environment, build_environment
+from jkatana.render.fresnel_fold import Material, fresnel_table
+from jkatana.render.integrators import integrator_for
+from jkatana.render.plan import LOBE_MODES, MIRROR_MU, Light, Plan
 from jkatana.spectral.grid import WavelengthGrid
 
 
@@ -168,8 +170,6 @@ def check_lobe_mode(lobes: dict, scene: Scene, mode: str) -> None:
     (Gaussian-weighted rays within 2.5 μ of the mirror direction), which would cut off a microfacet lobe's
     tails.
     """
-    from jkatana.render.plan import LOBE_MODES
-
     if mode in LOBE_MODES:
         return
     why = "is the paper's estimator: Gaussian-weighted rays within 2.5 μ of the mirror direction, which would " \
@@ -253,7 +253,8 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     checked as the scene's own field is (``samples = 0`` is an error, not "the scene's count").
     ``split_sun``: split the environment's compact bright sources off as cap lights
     (:func:`~jkatana.render.environment.build_environment`); ``None``: the scene's ``render.split_sun``,
-    and where that is unset the mode's default (:data:`~jkatana.render.environment.SPLIT_MODES`; never in
+    and where that is unset the mode's default (:attr:`Integrator.splits_sun
+    <jkatana.render.integrators.Integrator.splits_sun>`; never in
     ``paper-published``). The scene's ``render.env_window`` goes to :attr:`Plan.env_window
     <jkatana.render.plan.Plan.env_window>`. ``max_memory``: the budget (bytes) a map file's whole spectra
     must fit, else it is streamed (:func:`jkatana.render.streamed.streams`).
@@ -283,9 +284,10 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     table = cached_tree(fresnel_key(n, k, dtype), lambda: fresnel_table(jnp.asarray(n, dtype), jnp.asarray(k, dtype)),
                         kind="fresnel")
     mat = Material(jnp.asarray(table, dtype), jnp.asarray(chi, dtype), jnp.asarray(beta, dtype))
-    env_rank = (scene.render.rank if rank is None else rank) if mode == "lowrank" else None
+    integrator = integrator_for(mode)
+    env_rank = (scene.render.rank if rank is None else rank) if integrator.low_rank else None
     mus = ()
-    if mode == "prefiltered":
+    if integrator.prefiltered:
         lo = max(float(np.min(maps[..., 1:])), 1e-3)
         hi = max(float(np.max(maps[..., 1:])), lo * 1.01)
         mus = tuple(np.geomspace(lo, hi, 4))
@@ -294,9 +296,9 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
 
     pre_lobes = region_lobe_keys(lobes, scene.material.calibration) if mus else (None, None)
     split_sun = scene.render.split_sun if split_sun is None else split_sun
-    split = (mode in SPLIT_MODES) if split_sun is None else bool(split_sun)
-    if mode == "paper-published" and split:
-        raise InputError("the paper-published mode shades the whole map: no sun split (render.split_sun)",
+    split = integrator.splits_sun if split_sun is None else bool(split_sun)
+    if integrator.whole_map and split:
+        raise InputError(f"the {mode} mode shades the whole map: no sun split (render.split_sun)",
                          field="mode")
     rad_key = radiance_key(scene.environment, grid) if env_radiance is None else None
     env_key = None if rad_key is None else environment_key(rad_key, rank=env_rank, prefilter_mus=mus,

@@ -23,10 +23,11 @@ from pathlib import Path
 from typing import Any
 
 from jkatana.io.limits import ENV_VALUES
+from jkatana.render.integrators import INTEGRATORS
 from jkatana.spectral.grid import MAX_BANDS, WAVELENGTH_RANGE, WavelengthGrid
 
 ENV_TYPES = ("sky", "exr", "hdr", "constant")
-RENDER_MODES = ("reference", "paper", "prefiltered", "lowrank", "paper-published")
+RENDER_MODES = tuple(INTEGRATORS)
 
 #: Upper bounds on what a scene may ask for. The camera and environment sides keep one frame's
 #: buffers (G-buffer, XYZ, optional spectra) and the environment's float64 spectral radiance and
