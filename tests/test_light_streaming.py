@@ -138,3 +138,29 @@ def test_tiny_budget_streams_the_map_and_the_frame_stays_within_the_error(tmp_pa
     assert 0 < resid < 2e-3
     fa, fb = np.asarray(render_view(a, seed=3).xyz), np.asarray(render_view(b, seed=3).xyz)
     assert np.linalg.norm(fb - fa) / np.linalg.norm(fa) < 3 * resid
+
+
+def test_streamed_bake_levels_equal_the_full_bake(tmp_path):
+    """``view``'s bake of a map read in row blocks: the same levels (to the chromaticity table's error), caps
+    and tables as the bake of its whole spectra; the texture the shaders read is at the finest level's size."""
+    from jkatana.interactive.bake import _bake, _bake_rows
+    from jkatana.interactive.levels import MU_LEVELS
+    from jkatana.interactive.lobe_tables import PAPER_LOBES
+    from jkatana.light.envmap import load_envmap
+    from jkatana.light.streaming import row_source
+    from jkatana.models import Conductor
+
+    path = _write_hdr(tmp_path / "m.hdr", _rgb_map())
+    conductor = Conductor.from_table("Fe-Johnson", DEFAULT_GRID)
+    kw = dict(conductor=conductor, rank=3, mus=MU_LEVELS, colourspace="sRGB", transfer=None,
+              cache_dir=None, split_sun=True, lobes=PAPER_LOBES)
+    full, lv_full = _bake(np.asarray(load_envmap(path, DEFAULT_GRID).radiance, np.float64), DEFAULT_GRID, **kw)
+    rows, lv_rows = _bake_rows(row_source(path, DEFAULT_GRID), **kw)
+    assert full.n_caps == rows.n_caps == 1
+    np.testing.assert_allclose(rows.cap_dir, full.cap_dir, atol=1e-6)
+    np.testing.assert_allclose(rows.cap_q, full.cap_q, rtol=1e-5)
+    for a, b in zip(lv_full, lv_rows):
+        assert a.shape == b.shape
+        assert np.linalg.norm(b - a) / np.linalg.norm(a) < 1e-3
+    np.testing.assert_array_equal(rows.taps, full.taps)
+    assert rows.env.shape[2:4] == lv_rows[0].shape[:2] and rows.env.shape[:2] == full.env.shape[:2]

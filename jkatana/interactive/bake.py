@@ -140,6 +140,11 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
     import importlib
     import inspect
 
+    from jkatana.light.streaming import RowSource
+
+    if isinstance(radiance, RowSource):
+        return _cached_bake_rows(radiance, rank=rank, mus=mus, colourspace=colourspace, transfer=transfer,
+                                 source=source, cache_dir=cache_dir, split_sun=split_sun, lobes=lobes)
     h = hashlib.sha256()
     for part in (np.ascontiguousarray(radiance, np.float64).tobytes(), repr((grid.start, grid.stop, grid.step,
                  rank, list(np.round(mus, 12)), colourspace, transfer, source, radiance.shape,
@@ -169,6 +174,98 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
     save_entry(path, cache_dir, level_scale=scale, **small,
                **{k: np.asarray(v) for k, v in dataclasses.asdict(baked).items() if k != "env"})
     return baked
+
+
+def _cached_bake_rows(rows, *, rank, mus, colourspace, transfer, source, cache_dir, split_sun, lobes) -> Baked:
+    """:func:`cached_bake` of a map read in row blocks (:class:`~jkatana.light.streaming.RowSource`, a map whose
+    spectra do not fit in memory whole): :func:`_bake_rows`, keyed by the file's content and the same inputs."""
+    import hashlib
+    import importlib
+    import inspect
+
+    from jkatana.light.cache import file_digest
+
+    h = hashlib.sha256()
+    ident = (getattr(rows, "method", None), rows.scale, getattr(rows, "colourspace", None))
+    for part in (file_digest(rows.path).encode(), repr((rows.grid.start, rows.grid.stop, rows.grid.step, rank,
+                 list(np.round(mus, 12)), colourspace, transfer, source, ident, bool(split_sun),
+                 family_names(lobes))).encode(),
+                 *(inspect.getsource(importlib.import_module(m)).encode()
+                   for m in (*BAKE_MODULES, "jkatana.light.streaming", "jkatana.render.streamed"))):
+        h.update(part)
+    path = cache_folder(cache_dir) / f"baked-rows-{h.hexdigest()[:24]}.npz"
+    found = load_entry(path, lambda z: {k: z[k] for k in z.files})
+    if found is not None:
+        levels = [found[f"level{k}"].astype(np.float32) * np.float32(found["level_scale"][k]) for k in range(len(mus))]
+        fields = {f.name: found[f.name] for f in dataclasses.fields(Baked) if f.name != "env"}
+        return Baked(**{**fields, "env": _level_stack(levels, *found["env_shape"], rank),
+                        "fresnel_err": float(fields["fresnel_err"]), "colourspace": str(fields["colourspace"])})
+    dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+    baked, levels = _bake_rows(rows, conductor=Conductor.from_table(source, rows.grid, dtype=dt), rank=rank,
+                               mus=mus, colourspace=colourspace, transfer=transfer, cache_dir=cache_dir,
+                               split_sun=split_sun, lobes=lobes)
+    scale = np.array([max(float(np.abs(lv).max()), 1e-30) / 60000.0 for lv in levels])
+    small = {f"level{k}": (lv / scale[k]).astype(np.float16) for k, lv in enumerate(levels)}
+    save_entry(path, cache_dir, level_scale=scale, env_shape=np.asarray(baked.env.shape[2:4]), **small,
+               **{k: np.asarray(v) for k, v in dataclasses.asdict(baked).items() if k != "env"})
+    return baked
+
+
+def _level_stack(levels, height: int, width: int, rank: int) -> np.ndarray:
+    """``(n_mu, rank, height, width, 3)``: the levels resampled to one size (:func:`upsample`), as `Baked.env`."""
+    env = np.stack([upsample(lv.astype(np.float32), int(height), int(width)) for lv in levels])
+    return env.reshape(len(levels), int(height), int(width), rank, 3).transpose(0, 3, 1, 2, 4)
+
+
+def _bake_rows(rows, *, conductor, rank, mus, colourspace, transfer, cache_dir, split_sun, lobes):
+    """:func:`_bake` of a :class:`~jkatana.light.streaming.RowSource`: the map projected on the Fresnel basis
+    × CIE weights as it streams (a linear projection per texel, :func:`~jkatana.light.fresnel_basis.projection_matrix`),
+    its sun split from the exact spectra of its texels (:func:`jkatana.light.sun.split_texels`), box-filtered to
+    the finest level's resolution (:func:`jkatana.light.prefilter.level_shape`), which is also the size of the
+    texture the shaders read (not the map's: the finest level holds no more detail)."""
+    from jkatana.interactive.levels import TEXELS_PER_MU
+    from jkatana.light.fresnel_basis import projection_matrix
+    from jkatana.light.prefilter import level_shape
+    from jkatana.light.sun import split_texels
+    from jkatana.render.streamed import box_rows
+    from jkatana.spectral.colorimetry import xyz_weights
+
+    grid, H, Wd = rows.grid, rows.height, rows.width
+    b, err, lut, spread = cached_material_tables(conductor, rank, mus, cache_dir, lobes)
+    M = projection_matrix(b, film_weights(grid), None, np).reshape(grid.size, rank * 3)
+    proj, y = np.empty((H, Wd, rank * 3), np.float32), np.empty((H, Wd), np.float32)
+    step = rows.block_rows()
+    for r0 in range(0, H, step):
+        ch = rows.project(r0, min(H, r0 + step), np.concatenate([M, xyz_weights(grid)[:, 1:2]], axis=1))
+        proj[r0:r0 + step], y[r0:r0 + step] = ch[..., :-1], ch[..., -1]
+    cap_dir, cap_radius, cap_q = np.zeros((0, 3)), np.zeros((0,)), np.zeros((0, rank, 3))
+    if split_sun:
+        caps, changes = split_texels(y.astype(np.float64), rows.texels, grid, max_sources=MAX_CAPS)
+        for texels, _, after in changes:
+            proj.reshape(-1, rank * 3)[texels] = after @ M
+        if caps:
+            cap_dir = np.stack([np.asarray(c.direction, np.float64) for c in caps])
+            cap_radius = np.array([float(c.radius) for c in caps])
+            cap_q = np.stack([float(c.solid_angle) * project_on_basis(np.asarray(c.radiance, np.float64), b,
+                                                                      film_weights(grid), xp=np) for c in caps])
+    del y
+    h, w = level_shape(float(np.min(mus)), (H, Wd), TEXELS_PER_MU)
+    small = box_rows(proj, H // h, rows.block_rows(H // h))
+    del proj
+    levels = [prefilter_level(small, float(mu)) for mu in mus]
+    taps, tap_l1, tap_ok = cached_tap_fit(conductor, mus, lut.shape[2], cache_dir, lobes)
+    tail = np.zeros(taps.shape[:3] + (3,))
+    if any(family not in PAPER_LOBES for family in lobes):
+        taps, tail, _ = cached_tail_fit(conductor, mus, lut.shape[2], cache_dir, lobes)
+    taps, tail = resolved_taps(taps, spread, mus, h, tail)
+    cap_kernel = np.zeros((0,))
+    if len(cap_radius) and needs_table(lobes):
+        cap_kernel = cap_kernel_table(tuple(lobes), mus, float(np.max(cap_radius)), conductor)
+    return Baked(env=_level_stack(levels, h, w, rank), lut=lut, spread=spread, taps=taps, tap_l1=tap_l1,
+                 tap_ok=tap_ok, mus=np.asarray(mus, np.float64), b=b, fresnel_err=err,
+                 xyz_to_rgb=xyz_to_rgb_matrix(colourspace),
+                 transfer=transfer_table(colourspace if transfer is None else transfer), colourspace=colourspace,
+                 cap_dir=cap_dir, cap_radius=cap_radius, cap_q=cap_q, cap_kernel=cap_kernel, tail=tail), levels
 
 
 def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor: Conductor | None = None,

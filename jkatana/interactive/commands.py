@@ -72,7 +72,7 @@ def _load(args):
         sc.exposure = args.exposure
     sc.auto_exposure = sc.exposure != sc.exposure  # NaN: "auto"
     if sc.auto_exposure:  # a first guess; the first frames then set it by the rule `render` uses (exposure.calibrate_exposure)
-        sc.exposure = auto_exposure(sc.radiance, sc.grid)
+        sc.exposure = auto_exposure(sc.exposure_radiance(), sc.grid)
     return sc
 
 
@@ -80,7 +80,8 @@ def _state(sc, args, glrender):
     from jkatana.interactive.bake import cached_bake
 
     t = time.perf_counter()
-    baked = cached_bake(sc.radiance, sc.grid, rank=max(args.rank, 3), colourspace=sc.colourspace,
+    baked = cached_bake(sc.radiance if sc.env_rows is None else sc.env_rows, sc.grid, rank=max(args.rank, 3),
+                        colourspace=sc.colourspace,
                         transfer=sc.transfer, source=sc.source, progress=True, lobes=sc.lobes)
     print(f"[view] tables baked/loaded in {time.perf_counter() - t:.1f} s (rank {baked.rank}, "
           f"{len(baked.mus)} μ levels, Fresnel rank-{baked.rank} max rel. error {baked.fresnel_err:.1e})",

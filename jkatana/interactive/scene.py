@@ -195,11 +195,13 @@ class InteractiveScene:
     - `env_rotation` (radians about +Y); `source`: optical constants; `name`;
     - `lobes`: the regions' lobe families (hiraji, hamon) the bake's tables are computed for
       (:func:`jkatana.interactive.lobe_tables.region_lobes`; default the paper's).
+    - `env_rows`: a map too large for its whole spectra (:func:`jkatana.render.memory.environment_route`) as a
+      :class:`~jkatana.light.streaming.RowSource` the bake streams (`radiance` is then None), else None.
     """
 
     mesh: trimesh.Trimesh
     refl_map: np.ndarray
-    radiance: np.ndarray
+    radiance: np.ndarray | None
     grid: WavelengthGrid
     view: View
     target: np.ndarray
@@ -210,6 +212,16 @@ class InteractiveScene:
     source: str = "Fe-Johnson"
     name: str = "default"
     lobes: tuple = PAPER_LOBES
+    env_rows: object = None
+
+    def exposure_radiance(self) -> np.ndarray:
+        """Spectra to guess the exposure from (:func:`jkatana.interactive.exposure.auto_exposure`): `radiance`,
+        or for a map read in row blocks the exact spectra of a regular subsample of its texels."""
+        if self.radiance is not None:
+            return self.radiance
+        from jkatana.render.streamed import subsample
+
+        return self.env_rows.texels(*subsample(self.env_rows.height, self.env_rows.width))
 
     def orbit(self, n: int) -> list[View]:
         """``n`` views turning about the vertical axis through `target` (full turn split evenly)."""
@@ -257,9 +269,17 @@ def from_render_scene(path) -> InteractiveScene:
     cam = camera_for(sc)
     view = View(look_at(cam.position, cam.look_at, cam.up), np.deg2rad(cam.fov_deg), cam.width, cam.height)
     film = sc.film
+    from jkatana.render.memory import environment_route
+
+    rows = None
+    if environment_route(sc.environment, grid.size, interactive=True) == "streamed":
+        from jkatana.light.streaming import row_source
+
+        e = sc.environment
+        rows = row_source(e.path, grid, e.upsampling, e.scale, e.colourspace)
     return InteractiveScene(
-        mesh=geometry, refl_map=np.asarray(maps, np.float64),
-        radiance=np.asarray(load_environment(sc, grid), np.float64), grid=grid, view=view,
+        mesh=geometry, refl_map=np.asarray(maps, np.float64), env_rows=rows,
+        radiance=None if rows is not None else np.asarray(load_environment(sc, grid), np.float64), grid=grid, view=view,
         target=np.asarray(cam.look_at, np.float64),
         exposure=float("nan") if film.exposure == "auto" else float(film.exposure),
         colourspace=film.colourspace, transfer=film.transfer,

@@ -203,3 +203,31 @@ class SpectralRows:
         if self._identity:
             return values
         return resample(self.wavelengths, values, self.grid, name=str(self.path)).astype(np.float32)
+
+
+def write_spectral_exr_rows(path: str | Path, height: int, width: int, grid: WavelengthGrid, rows, *,
+                            block: int = 64) -> Path:
+    """Write a Fichet 2021 emissive spectral EXR (``S0.<λ>nm`` channels, no sRGB preview) of ``height × width``
+    texels from ``rows(r0, r1) → (r1 − r0, width, len(grid))`` float32, ``block`` rows at a time through
+    OpenImageIO's ``write_scanlines``: a map larger than memory is never held whole (:class:`SpectralRows`
+    reads it back the same way)."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    spec = oiio.ImageSpec(int(width), int(height), grid.size, oiio.FLOAT)
+    spec.channelnames = tuple(f"S0.{str(float(w)).replace('.', ',')}nm" for w in grid.wavelengths)
+    spec.attribute("compression", "zip")
+    spec.attribute("spectralLayoutVersion", "1.0")
+    spec.attribute("emissiveUnits", "W.m^-2.sr^-1")
+    with atomic_path(path) as tmp:
+        tmp_exr = Path(str(tmp) + ".exr")
+        out = oiio.ImageOutput.create(str(tmp_exr))
+        if out is None or not out.open(str(tmp_exr), spec):
+            raise InputError(f"cannot write the spectral EXR ({oiio.geterror()})", path=path)
+        for r0 in range(0, int(height), block):
+            r1 = min(int(height), r0 + block)
+            if not out.write_scanlines(r0, r1, 0, np.ascontiguousarray(rows(r0, r1), np.float32)):
+                raise InputError(f"cannot write rows {r0}–{r1} ({out.geterror()})", path=path)
+        out.close()
+        tmp_exr.replace(tmp)
+    return path

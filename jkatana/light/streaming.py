@@ -33,7 +33,8 @@ BLOCK_TEXELS = 1 << 20
 
 
 class RowSource:
-    """A map's spectra in row blocks (module docstring). ``height``, ``width`` and ``grid`` describe it."""
+    """A map's spectra in row blocks (module docstring). ``path`` (the file), ``height``, ``width`` and ``grid``
+    describe it."""
 
     height: int
     width: int
@@ -66,6 +67,7 @@ class RGBRows(RowSource):
                  colourspace: str = "sRGB"):
         from jkatana.light.envmap import read_rgb_image
 
+        self.path = Path(path)
         self.rgb = read_rgb_image(path)
         self.height, self.width = self.rgb.shape[:2]
         self.grid, self.method, self.scale, self.colourspace = grid, method, float(scale), colourspace
@@ -108,6 +110,7 @@ class SpectralEXRRows(RowSource):
         from jkatana.light.spectral_exr import SpectralRows
 
         self.reader = SpectralRows(path, grid)
+        self.path = self.reader.path
         self.height, self.width, self.grid, self.scale = self.reader.height, self.reader.width, grid, float(scale)
 
     def _rows(self, r0, r1) -> np.ndarray:

@@ -23,7 +23,9 @@ instead *streamed* (:mod:`jkatana.render.streamed`): read in row blocks and
 kept as a few hundred bytes a texel whatever its bands
 (:data:`STREAM_BYTES_PER_TEXEL`). :func:`environment_route` chooses the path
 (the whole spectra wherever they fit, so that such maps are prepared as
-before) and :func:`environment_bytes` estimates the one chosen; a map is
+before) and :func:`environment_bytes` estimates the one chosen; ``view``
+streams such a map through its bake (:func:`jkatana.interactive.bake.cached_bake`
+of a :class:`~jkatana.light.streaming.RowSource`, :data:`VIEW_STREAM_BYTES_PER_TEXEL`); a map is
 refused only when even the streamed path cannot fit.
 
 The per-value costs and the base are the slope and intercept of the peak RSS of a
@@ -54,6 +56,10 @@ BASE_BYTES = 0.6 * 2 ** 30
 #: bands: the float32 RGB, the basis coefficients (up to 12 channels) and their device copy, the luminances,
 #: and the sampler's float64 work arrays and float32 tables (a 6000×3000 map peaked at 3.7 GB, base included).
 STREAM_BYTES_PER_TEXEL = 200.0
+#: Bytes per texel at the peak of ``view``'s streamed bake (:func:`jkatana.interactive.bake.cached_bake` of a
+#: :class:`~jkatana.light.streaming.RowSource`): the float32 RGB, the 9-channel projection on the Fresnel basis,
+#: the luminance and the sun detection's work arrays.
+VIEW_STREAM_BYTES_PER_TEXEL = 160.0
 #: Bytes of the row blocks a streamed pass holds at once (about a million texels of spectra and projections).
 STREAM_BLOCK_BYTES = 0.5 * 2 ** 30
 
@@ -98,13 +104,15 @@ def full_bytes(environment, bands: int, *, interactive: bool = False) -> float:
     return texels * bands * RENDER_BYTES_PER_VALUE
 
 
-def streamed_bytes(environment) -> float | None:
-    """Estimated peak bytes of the streamed preparation (:mod:`jkatana.render.streamed`) of a map read from a
-    file, not counting :data:`BASE_BYTES`; None for an environment that is not read from a file."""
+def streamed_bytes(environment, *, interactive: bool = False) -> float | None:
+    """Estimated peak bytes of the streamed preparation (:mod:`jkatana.render.streamed`; ``interactive``: the
+    bake's for ``view``) of a map read from a file, not counting :data:`BASE_BYTES`; None for an environment
+    that is not read from a file."""
     size = environment_resolution(environment)
     if size is None or environment.type not in ("exr", "hdr"):
         return None
-    return size[0] * size[1] * STREAM_BYTES_PER_TEXEL + STREAM_BLOCK_BYTES
+    per_texel = VIEW_STREAM_BYTES_PER_TEXEL if interactive else STREAM_BYTES_PER_TEXEL
+    return size[0] * size[1] * per_texel + STREAM_BLOCK_BYTES
 
 
 def environment_route(environment, bands: int, *, interactive: bool = False, max_memory=None,
@@ -113,8 +121,8 @@ def environment_route(environment, bands: int, *, interactive: bool = False, max
     ``extra`` bytes beside them, or where the map cannot be streamed; ``"streamed"`` otherwise."""
     from jkatana.io.limits import memory_budget
 
-    stream = streamed_bytes(environment)
-    if stream is None or interactive:
+    stream = streamed_bytes(environment, interactive=interactive)
+    if stream is None:
         return "full"
     full = BASE_BYTES + extra + full_bytes(environment, bands, interactive=interactive)
     return "full" if full <= memory_budget(max_memory) or full <= BASE_BYTES + extra + stream else "streamed"
@@ -126,7 +134,7 @@ def environment_bytes(environment, bands: int, *, interactive: bool = False, max
     (:func:`environment_route`), not counting :data:`BASE_BYTES` nor the frame."""
     if environment_route(environment, bands, interactive=interactive, max_memory=max_memory,
                          extra=extra) == "streamed":
-        return streamed_bytes(environment)
+        return streamed_bytes(environment, interactive=interactive)
     return full_bytes(environment, bands, interactive=interactive)
 
 
@@ -165,6 +173,6 @@ def environment_field(environment) -> str:
 
 
 __all__ = ["image_resolution", "environment_resolution", "environment_bytes", "environment_estimate",
-           "full_bytes", "streamed_bytes", "environment_route", "STREAM_BYTES_PER_TEXEL",
+           "full_bytes", "streamed_bytes", "environment_route", "STREAM_BYTES_PER_TEXEL", "VIEW_STREAM_BYTES_PER_TEXEL",
            "check_environment_memory", "environment_field", "RENDER_BYTES_PER_VALUE", "VIEW_BYTES_PER_VALUE",
            "TAP_FIT_BYTES", "BASE_BYTES"]
