@@ -14,8 +14,16 @@ Each case is the command line a user runs, in its own process (peak RSS from ``o
   material in ``render`` (the same file, prefiltered: levels prefiltered with that lobe) — full run only;
 - a new mesh through ``jkatana shape`` (the shared hammer scan, CC BY 4.0, Andrea Spognetta).
 
+A map whose whole spectra do not fit the budget is streamed (:mod:`jkatana.render.streamed`): its records
+carry the environment the frame reports (``env``: factored, channels, and ``rank_residual``, the low-rank
+error measured against exact spectra). Full run also: the 6000×3000 map as a 61-band spectral EXR (written in
+row blocks from the HDR's chromaticity-table spectra, :func:`jkatana.light.spectral_exr.write_spectral_exr_rows`)
+through ``render`` prefiltered (``BENCH_FIRST_USE_SPECTRAL_EXR``: such a file written before).
+``BENCH_FIRST_USE_MAPS`` (comma-separated labels, e.g. ``6000×3000``) keeps only those maps' cases.
+
 Quick mode (CI): the 1k map resized to 256×128 through ``render`` prefiltered at 160×120, the 6000×3000 map's
-refusal by ``render``, and ``shape``. Every record carries the estimate beside the measured peak.
+refusal by ``render`` under ``--max-memory 2G``, and ``shape``. Every record carries the estimate beside the
+measured peak.
 ``python benchmarks/bench_first_use.py --plot RESULTS.json OUT.png`` draws time and peak memory against map size.
 """
 
@@ -106,6 +114,37 @@ def resized_hdr(src: str, width: int, height: int, out: Path) -> Path:
     return out
 
 
+def spectral_exr(hdr: Path, out: Path) -> Path:
+    """``hdr`` as a 61-band Fichet 2021 spectral EXR of the same size, written in row blocks: each texel's
+    Jakob 2019 spectrum from the chromaticity table (:class:`jkatana.light.streaming.RGBRows`)."""
+    import numpy as np
+
+    from jkatana.light.spectral_exr import write_spectral_exr_rows
+    from jkatana.light.streaming import RGBRows
+    from jkatana.spectral import DEFAULT_GRID
+
+    src = RGBRows(hdr, DEFAULT_GRID)
+    eye = np.eye(DEFAULT_GRID.size)
+    return write_spectral_exr_rows(out, src.height, src.width, DEFAULT_GRID, lambda a, b: src.project(a, b, eye),
+                                   block=32)
+
+
+def frame_environment(out: str | Path) -> dict | None:
+    """The ``jkatana_environment`` a frame's EXR reports (channels, factored, rank_residual), or None."""
+    import OpenImageIO as oiio
+
+    for exr in sorted(Path(out).rglob("*.exr")):
+        inp = oiio.ImageInput.open(str(exr))
+        if inp is None:
+            continue
+        value = inp.spec().getattribute("jkatana_environment")
+        inp.close()
+        if value:
+            info = json.loads(value)
+            return {k: info.get(k) for k in ("channels", "factored", "rank_residual", "caps")}
+    return None
+
+
 def ggx_file(path: Path) -> Path:
     """A hiraji parameter file of a GGX lobe, its ``lobe`` built by the fit model as ``jkatana fit`` does."""
     import jax.numpy as jnp
@@ -153,27 +192,31 @@ def _run(quick: bool, work: Path) -> list[dict]:
     big = ("6000×3000", resized_hdr(hdr, 6000, 3000, work / "map6k.hdr"))
     maps = [("256×128", resized_hdr(hdr, 256, 128, work / "map256.hdr")), big] if quick else \
         [("1k", Path(hdr)), big, ("2k", resized_hdr(hdr, 2048, 1024, work / "map2k.hdr"))]
+    only = [m for m in os.environ.get("BENCH_FIRST_USE_MAPS", "").split(",") if m]
+    maps = [m for m in maps if not only or m[0] in only]
     ggx = ggx_file(work / "ggx.json")
 
     def scene_file(label, path, material=""):
-        p = work / f"scene-{label.replace('×', 'x')}{'-ggx' if material else ''}.toml"
-        p.write_text(_SCENE.format(kind="hdr", path=path, material=material, w=w, h=h))
+        p = work / f"scene-{label.replace('×', 'x').replace(' ', '-')}{'-ggx' if material else ''}.toml"
+        p.write_text(_SCENE.format(kind="exr" if str(path).endswith(".exr") else "hdr", path=path,
+                                   material=material, w=w, h=h))
         return p
 
-    def case(kind, label, argv, scene, *, interactive=False, extra=None, uses=("first", "second")):
+    def case(kind, label, argv, scene, *, interactive=False, extra=None, uses=("first", "second"), cap=None):
+        limit_here = limit if cap is None else min(limit, cap)
         if time.perf_counter() - t_start > 0.8 * deadline:
             print(f"bench_first_use: {kind} {label}: skipped (module budget)", file=sys.stderr)
             return
         sc = load_scene(scene) if scene is not None else None
         estimate = None
         if sc is not None:
-            estimate = (environment_estimate(sc, interactive=True) if interactive
-                        else render_memory(sc)[0])
+            estimate = (environment_estimate(sc, interactive=True, max_memory=limit_here) if interactive
+                        else render_memory(sc, max_memory=limit_here)[0])
         cache = work / f"cache-{len(records)}"
         cache.mkdir()
         runs = []
         for use in uses:
-            runs.append(measure(argv + (["--max-memory", str(limit)] if scene is not None else []), cache,
+            runs.append(measure(argv + (["--max-memory", str(limit_here)] if scene is not None else []), cache,
                                 work / f"log-{len(records)}-{use}.txt"))
             if runs[-1]["rc"] != 0:
                 break
@@ -190,7 +233,8 @@ def _run(quick: bool, work: Path) -> list[dict]:
                      second_s=runs[1]["wall_s"] if len(runs) > 1 else None, second_rc=runs[-1]["rc"],
                      second_peak_mb=runs[1]["peak_rss_mb"] if len(runs) > 1 else None,
                      estimate_mb=None if estimate is None else round(estimate / 2 ** 20, 1),
-                     max_memory_mb=round(limit / 2 ** 20, 1) if scene is not None else None,
+                     max_memory_mb=round(limit_here / 2 ** 20, 1) if scene is not None else None,
+                     env=frame_environment(argv[argv.index("-o") + 1]) if "-o" in argv and scene else None,
                      texels=None if size is None else size[0] * size[1],
                      cache_mb=round(sum(p.stat().st_size for p in cache.rglob("*") if p.is_file()) / 2 ** 20, 1),
                      message=first["last_line"] if first["rc"] != 0 else None)
@@ -208,14 +252,20 @@ def _run(quick: bool, work: Path) -> list[dict]:
         scene = scene_file(label, path)
         out = str(work / f"out-{label.replace('×', 'x')}")
         case("render prefiltered", label, CLI + ["render", str(scene), "-o", out + "-p", "--mode", "prefiltered"],
-             scene)
-        if quick:  # CI: one first use and one refusal
+             scene, cap=2 * 2 ** 30 if quick and label == big[0] else None)
+        if quick:  # CI: one first use and one refusal (the big map under 2 GiB)
             continue
         case("render reference", label, CLI + ["render", str(scene), "-o", out + "-r", "--mode", "reference",
                                                "--samples", "16"], scene)
         case("view", label, CLI + ["view", str(scene), "--offscreen", "--frames", "1", "-o", out + "-v"], scene,
              interactive=True)
-    if not quick:
+    if not quick and (not only or big[0] in only):
+        label = "6000×3000"
+        given = os.environ.get("BENCH_FIRST_USE_SPECTRAL_EXR")  # one written before (minutes on a loaded machine)
+        scene = scene_file("6000×3000-61", Path(given) if given else spectral_exr(big[1], work / "map6k-61.exr"))
+        case("render prefiltered, 61-band spectral EXR", label, CLI + ["render", str(scene), "-o", str(work / "out-6k-exr-p"), "--mode",
+                                                 "prefiltered"], scene)
+    if not quick and not only:
         scene = scene_file("1k", hdr, material='[material]\nmap = "builtin"\nhiraji = "ggx.json"')
         out = str(work / "out-ggx")
         case("view, new lobe family (GGX)", "1k", CLI + ["view", str(scene), "--offscreen", "--frames", "1",
