@@ -42,20 +42,6 @@ class Start:
         return self.propose(terms, y, w, spec, *args, **kwargs)
 
 
-#: The start strategies by name.
-STARTS: dict[str, Start] = {}
-
-
-def _strategy(name: str):
-    """Decorator: the function as a :class:`Start` of this name, listed in :data:`STARTS`."""
-    def wrap(propose):
-        STARTS[name] = Start(name, propose)
-        return STARTS[name]
-
-    return wrap
-
-
-@_strategy("default")
 @functools.partial(jax.jit, static_argnames=("spec",))
 def start_vector(terms: Terms, y, w, spec: ModelSpec, fallback=None):
     """The default start: closed form for the paper's Gaussian models, :func:`moment_start` for other lobes
@@ -69,7 +55,6 @@ def start_vector(terms: Terms, y, w, spec: ModelSpec, fallback=None):
 MOMENT_FACTORS = (3.0 ** -0.5, 3.0 ** 0.5, 3)
 
 
-@_strategy("moment")
 @functools.partial(jax.jit, static_argnames=("spec",))
 def moment_start(terms: Terms, y, w, spec: ModelSpec, fallback=None):
     """Start for a non-paper lobe from the data's peak width: 5 model evaluations instead of 21 over the whole width range.
@@ -176,7 +161,6 @@ def pair_start(terms: Terms, y, w, spec: ModelSpec, width):
 GRID_WIDTHS = (1e-3, 0.5, 48)
 
 
-@_strategy("two-level")
 @functools.partial(jax.jit, static_argnames=("spec",))
 def two_level_start(terms: Terms, y, w, spec: ModelSpec):
     """:func:`grid_start` in two levels: 12 widths over the :data:`GRID_WIDTHS` range, then 9 widths spanning
@@ -194,7 +178,6 @@ def two_level_start(terms: Terms, y, w, spec: ModelSpec):
     return grid_start(terms, y, w, spec, mus=best * jnp.geomspace(1.0 / step, step, 9).astype(y.dtype))
 
 
-@_strategy("grid")
 @functools.partial(jax.jit, static_argnames=("spec",))
 def grid_start(terms: Terms, y, w, spec: ModelSpec, mus=None):
     """Coarse-grid start: for each width on a log grid (other shape parameters at their defaults) the
@@ -217,7 +200,6 @@ def grid_start(terms: Terms, y, w, spec: ModelSpec, mus=None):
     return vec(logs[i], jnp.log(mus[i]))
 
 
-@_strategy("log-quadratic")
 @functools.partial(jax.jit, static_argnames=("spec", "snr_min", "rel_min", "mu_fallback"))
 def closed_form_start(terms: Terms, y, w, spec: ModelSpec, *, snr_min: float = 3.0,
                       rel_min: float = 1e-3, mu_fallback: float = 0.05):
@@ -280,6 +262,12 @@ def _log_quadratic(terms: Terms, y, w, tilt: bool, floor: bool, *, snr_min: floa
     if floor:
         parts.append(jnp.zeros((), dtype))
     return jnp.stack(parts).astype(dtype), good
+
+
+#: The start strategies by name.
+STARTS: dict[str, Start] = {s.name: s for s in (
+    Start("default", start_vector), Start("log-quadratic", closed_form_start), Start("moment", moment_start),
+    Start("grid", grid_start), Start("two-level", two_level_start))}
 
 
 __all__ = ["Start", "STARTS", "closed_form_start", "grid_start", "two_level_start", "moment_start", "pair_start",
