@@ -16,6 +16,7 @@ builds the moment-matched three-tap pattern.
 from __future__ import annotations
 
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -41,6 +42,42 @@ def region_lobes(keys: dict | None = None) -> tuple:
     return tuple(paper if keys.get(region) is None else
                  WidthFamily(lobe_key(normalised_params(key_params(keys[region]))))
                  for region, paper in zip(("hiraji", "hamon"), PAPER_LOBES))
+
+
+#: The families whose three taps are fitted (:func:`jkatana.interactive.taps.tap_fit`) and shipped for iron beside
+#: the paper's: one lobe shape each (a single microfacet lobe's shape is its distribution alone).
+FITTED_FAMILIES = (WidthFamily(lobe_key({"lobe": "ggx", "alpha": 1.0})),
+                   WidthFamily(lobe_key({"lobe": "beckmann", "alpha": 1.0})))
+
+
+def gtr_core_factor(gamma: float) -> float:
+    """The GGX width whose distribution has the half maximum of GTR's at width 1 and exponent γ.
+
+    GTR's D ∝ (α² cos²φ + sin²φ)^−γ = cos^−2γ φ (α² + tan²φ)^−γ (Burley 2012, "Physically-based shading at
+    Disney", eq. 4, appendix B) falls to half its peak at tan²φ = α² (2^{1/γ} − 1), GGX's (γ = 2; Walter et al.
+    2007, eq. 33) at α² (√2 − 1): the factor √((2^{1/γ} − 1)/(√2 − 1)), 1 at γ = 2."""
+    return math.sqrt((2.0 ** (1.0 / gamma) - 1.0) / (math.sqrt(2.0) - 1.0))
+
+
+def family_core(family) -> tuple:
+    """``(base, c)``: the family whose fitted taps hold the core of ``family``'s lobe, ``base(c μ)`` standing for
+    ``family(μ)`` near the mirror direction: the paper's lobes and :data:`FITTED_FAMILIES` themselves (c = 1, or
+    a width ratio inside a mixture); GTR the GGX of equal half maximum (:func:`gtr_core_factor`); a
+    :class:`~jkatana.models.lobes.Mixture` its narrower part's core (the wider part's light is the tail tap's,
+    :func:`jkatana.interactive.taps.tail_fit`). Other families: ``(family, 1.0)``, fitted themselves."""
+    if family in PAPER_LOBES:
+        return family, 1.0
+    name, items = family.key
+    p = dict(items)
+    if name in ("ggx", "beckmann"):
+        return WidthFamily(lobe_key({"lobe": name, "alpha": 1.0})), float(p["alpha"])
+    if name in ("gaussian", "gaussian-vcavity") and p.get("normalised", True):
+        return PAPER_LOBES[name == "gaussian-vcavity"], float(p["mu"])
+    if name == "gtr":
+        return FITTED_FAMILIES[0], float(p["alpha"]) * gtr_core_factor(float(p["gamma"]))
+    if name == "mixture":
+        return min((family_core(WidthFamily(p[part])) for part in ("first", "second")), key=lambda bc: bc[1])
+    return family, 1.0
 
 
 def family_names(lobes) -> tuple[str, ...]:

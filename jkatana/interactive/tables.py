@@ -21,8 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jkatana.interactive.levels import MU_LEVELS
-from jkatana.interactive.lobe_tables import LUT_SOURCES, PAPER_LOBES, family_names, lobe_lut
-from jkatana.interactive.taps import FIT_SOURCES, N_TAPS, TAIL_SOURCES, tail_fit, tap_fit
+from jkatana.interactive.lobe_tables import FITTED_FAMILIES, LUT_SOURCES, PAPER_LOBES, family_core, family_names
+from jkatana.interactive.lobe_tables import gtr_core_factor, lobe_lut
+from jkatana.interactive.taps import FIT_SOURCES, N_TAPS, TAIL_SOURCES, core_taps, tail_fit, tap_fit
 from jkatana.light.fresnel_basis import basis_of_table, fresnel_basis
 from jkatana.models import Conductor
 from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
@@ -115,43 +116,46 @@ def tap_fit_key(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64, lobes: tup
 
 
 def cached_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None, lobes: tuple = PAPER_LOBES):
-    """:func:`tap_fit` (≈ 1–5 min on 2 CPU cores) cached: it depends on the conductor and the μ levels,
-    not on the environment. Looked up first among the tables shipped in ``jkatana/data/interactive``
-    (iron, Johnson & Christy 1974, at the default levels: computed by this code with
-    :func:`write_shipped_tap_table`; a test checks the shipped key is current), then in the user cache
-    beside :func:`jkatana.interactive.bake.cached_bake`'s tables; else fitted and cached, once per conductor,
-    levels and pair of lobe families (``lobes``). Key: :func:`tap_fit_key`."""
-    key = tap_fit_key(conductor, mus, n_cos, lobes)
+    """``(taps, l1, ok)`` of :func:`tap_fit` for the regions' lobes ``lobes``, per region.
+
+    The paper's pair (≈ 1–5 min on 2 CPU cores) is looked up first among the tables shipped in
+    ``jkatana/data/interactive`` (iron, Johnson & Christy 1974, at the default levels: computed by this code
+    with :func:`write_shipped_tap_table`; a test checks the shipped key is current), then in the user cache
+    beside :func:`jkatana.interactive.bake.cached_bake`'s tables; else fitted and cached once per conductor and
+    levels. A region holding another lobe takes its row from :func:`family_tables` (shipped for
+    :data:`~jkatana.interactive.lobe_tables.FITTED_FAMILIES`, else built from their taps without a fit). Key of
+    the paper's pair: :func:`tap_fit_key`."""
+    taps, l1, ok = (np.array(a) for a in _paper_tap_fit(conductor, mus, n_cos, cache_dir))
+    for i, family in enumerate(lobes):
+        if family is not PAPER_LOBES[i]:
+            taps[i], l1[i], ok[i] = (family_tables(conductor, mus, n_cos, family, cache_dir)[k]
+                                     for k in ("taps", "l1", "ok"))
+    return taps, l1, ok
+
+
+def _paper_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None):
+    """:func:`tap_fit` of the paper's lobes, shipped or cached (:func:`cached_tap_fit`)."""
+    key = tap_fit_key(conductor, mus, n_cos)
     for path in (SHIPPED_TAPS / f"taps-{key}.npz", cache_folder(cache_dir) / f"taps-{key}.npz"):
         if path.exists():
             found = load_entry(path, lambda z: (z["taps"], z["l1"], z["ok"]))
             if found is not None:
                 return found
-    _, taps, l1, ok = tap_fit(conductor, mus, n_cos=n_cos, lobes=lobes)
+    _, taps, l1, ok = tap_fit(conductor, mus, n_cos=n_cos)
     save_entry(path, cache_dir, taps=taps, l1=l1, ok=ok)
     return taps, l1, ok
 
 
 def cached_tail_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None, lobes: tuple = PAPER_LOBES):
-    """``(taps, tail, l1)``: :func:`~jkatana.interactive.taps.tail_fit` (a tail tap for the regions holding a
-    lobe other than the paper's, beside :func:`cached_tap_fit`'s three taps), cached in the user cache. Key:
-    :func:`tap_fit_key`'s and the source of :data:`~jkatana.interactive.taps.TAIL_SOURCES`. Regions holding the paper's lobes keep the three-tap table
-    (w_t = 0); with the paper's lobes in both regions nothing is fitted."""
-    import hashlib
-    import inspect
-
+    """``(taps, tail, l1)``: :func:`cached_tap_fit`'s taps and, for the regions holding a lobe other than the
+    paper's, the tail tap of :func:`~jkatana.interactive.taps.tail_fit` and its ∫ |K − mix| dω, from
+    :func:`family_tables`; regions holding the paper's lobes keep the three-tap table (w_t = 0, l1 0)."""
     taps, _, _ = cached_tap_fit(conductor, mus, n_cos, cache_dir, lobes)
-    if all(family in PAPER_LOBES for family in lobes):
-        return tail_fit(conductor, taps, mus, n_cos, lobes)
-    h = hashlib.sha256(tap_fit_key(conductor, mus, n_cos, lobes).encode())
-    for f in TAIL_SOURCES:
-        h.update(inspect.getsource(f).encode())
-    path = cache_folder(cache_dir) / f"tail-{h.hexdigest()[:24]}.npz"
-    found = load_entry(path, lambda z: (z["taps"], z["tail"], z["l1"]))
-    if found is not None:
-        return found
-    taps, tail, l1 = tail_fit(conductor, taps, mus, n_cos, lobes)
-    save_entry(path, cache_dir, taps=taps, tail=tail, l1=l1)
+    tail, l1 = np.zeros(taps.shape[:3] + (3,)), np.zeros(taps.shape[:3])
+    for i, family in enumerate(lobes):
+        if family is not PAPER_LOBES[i]:
+            entry = family_tables(conductor, mus, n_cos, family, cache_dir)
+            tail[i], l1[i] = entry["tail"], entry["tail_l1"]
     return taps, tail, l1
 
 
@@ -160,24 +164,106 @@ def cached_material_tables(conductor: Conductor, rank: int, mus, cache_dir=None,
     conductor, the rank and the μ levels but not on the environment, cached beside the tap fit (seconds of
     JAX compilation that a new environment need not pay again). Looked up first among the tables shipped
     with the package (iron at the default grid, rank 3 and levels: :func:`write_shipped_tap_table`), then in
-    the user cache; ``lobes`` as :func:`cached_tap_fit`. Key: :func:`tap_fit_key`'s inputs, the rank and the
-    source of the two functions."""
+    the user cache. A region holding a lobe other than the paper's takes its rows from
+    :func:`family_material_tables`. Key: :func:`tap_fit_key`'s inputs, the rank and the source of the two
+    functions."""
+    b, err, lut, spread = _paper_material_tables(conductor, rank, mus, cache_dir)
+    lut, spread = np.array(lut), np.array(spread)
+    for i, family in enumerate(lobes):
+        if family is not PAPER_LOBES[i]:
+            lut[i], spread[i] = family_material_tables(conductor, rank, mus, family, cache_dir, b)
+    return b, err, lut, spread
+
+
+def _material_key(conductor: Conductor, rank: int, mus, lobes: tuple) -> str:
     import hashlib
     import inspect
 
     h = hashlib.sha256(tap_fit_key(conductor, mus, 64, lobes).encode() + repr(rank).encode())
     for f in (material_basis, fresnel_basis, basis_of_table, *LUT_SOURCES):
         h.update(inspect.getsource(f).encode())
-    name = f"material-{h.hexdigest()[:24]}.npz"
+    return h.hexdigest()[:24]
+
+
+def _paper_material_tables(conductor: Conductor, rank: int, mus, cache_dir=None):
+    """:func:`cached_material_tables` of the paper's lobes."""
+    name = f"material-{_material_key(conductor, rank, mus, PAPER_LOBES)}.npz"
     for path in (SHIPPED_TAPS / name, cache_folder(cache_dir) / name):
         if path.exists():
             found = load_entry(path, lambda z: (z["b"], float(z["err"]), z["lut"], z["spread"]))
             if found is not None:
                 return found
     b, err = material_basis(conductor, rank)
-    _, lut, spread = lobe_lut(conductor, b, mus, lobes=lobes)
+    _, lut, spread = lobe_lut(conductor, b, mus)
     save_entry(path, cache_dir, b=b, err=np.float64(err), lut=lut, spread=spread)
     return b, err, lut, spread
+
+
+def family_material_tables(conductor: Conductor, rank: int, mus, family, cache_dir=None, b=None):
+    """``(lut, spread)`` of one region's lobe family (:func:`lobe_lut`'s rows, ``(n_mu, 64, ·)``): shipped for
+    iron at rank 3 and the default levels (:data:`~jkatana.interactive.lobe_tables.FITTED_FAMILIES`,
+    :func:`write_shipped_family_tables`), else cached, else computed (seconds: one JAX compilation). ``b``:
+    the conductor's basis (:func:`material_basis`) when the caller has it."""
+    name = f"family-material-{_material_key(conductor, rank, mus, (family,))}.npz"
+    for path in (SHIPPED_TAPS / name, cache_folder(cache_dir) / name):
+        if path.exists():
+            found = load_entry(path, lambda z: (z["lut"], z["spread"]))
+            if found is not None:
+                return found
+    b = material_basis(conductor, rank)[0] if b is None else b
+    _, lut, spread = lobe_lut(conductor, b, mus, lobes=(family,))
+    save_entry(path, cache_dir, lut=lut[0], spread=spread[0])
+    return lut[0], spread[0]
+
+
+def family_key(conductor: Conductor, mus, n_cos: int, family) -> str:
+    """Key of :func:`family_tables`: :func:`tap_fit_key` of the family alone and the source of the tail fit
+    and of the core's construction (a code change invalidates it)."""
+    import hashlib
+    import inspect
+
+    h = hashlib.sha256(tap_fit_key(conductor, mus, n_cos, (family,)).encode())
+    for f in (*TAIL_SOURCES, core_taps, family_core, gtr_core_factor, family_tables):
+        h.update(inspect.getsource(f).encode())
+    return h.hexdigest()[:24]
+
+
+def family_tables(conductor: Conductor, mus, n_cos: int, family, cache_dir=None, fitted=None) -> dict:
+    """One region's tap rows for a lobe family other than the paper's: ``taps, l1, ok (n_mu, n_cos, ·)`` as
+    :func:`tap_fit`'s rows, ``tail, tail_l1`` as :func:`~jkatana.interactive.taps.tail_fit`'s.
+
+    Looked up among the tables shipped with the package, then in the user cache. Else built: the three
+    taps of :data:`~jkatana.interactive.lobe_tables.FITTED_FAMILIES` (GGX, Beckmann) are fitted
+    (:func:`tap_fit`, minutes: shipped for iron at the default levels, so only another conductor or other
+    levels pay it; ``fitted``: that fit's ``(taps, l1, ok)`` rows when the caller has them); every other
+    family's are its core's (:func:`~jkatana.interactive.lobe_tables.family_core`: GTR's equal-half-maximum
+    GGX, a mixture's narrower part) scaled to its width (:func:`~jkatana.interactive.taps.core_taps`, no fit;
+    ``l1``/``ok`` those of the core's fit at the level it is read from). The tail tap is then fitted to the
+    family's own lobe (:func:`~jkatana.interactive.taps.tail_fit`, no iteration: seconds)."""
+    name = f"family-{family_key(conductor, mus, n_cos, family)}.npz"
+    for path in (SHIPPED_TAPS / name, cache_folder(cache_dir) / name):
+        if path.exists():
+            found = load_entry(path, lambda z: {k: z[k] for k in z.files})
+            if found is not None:
+                return found
+    base, c = family_core(family)
+    if fitted is not None:
+        taps, l1, ok = fitted
+    elif base == family:
+        _, taps, l1, ok = tap_fit(conductor, mus, n_cos=n_cos, lobes=(family, family))
+        taps, l1, ok = taps[0], l1[0], ok[0]
+    else:
+        if base in PAPER_LOBES:
+            rows = [a[PAPER_LOBES.index(base)] for a in _paper_tap_fit(conductor, mus, n_cos, cache_dir)]
+        else:
+            rows = [family_tables(conductor, mus, n_cos, base, cache_dir)[k] for k in ("taps", "l1", "ok")]
+        taps, j = core_taps(rows[0], mus, c)
+        l1, ok = rows[1][j], rows[2][j]
+    _, tail, tail_l1 = tail_fit(conductor, np.asarray(taps)[None], mus, n_cos, (family,))
+    entry = {"taps": np.asarray(taps, np.float64), "l1": np.asarray(l1, np.float64), "ok": np.asarray(ok),
+             "tail": tail[0], "tail_l1": tail_l1[0]}
+    save_entry(path, cache_dir, **entry)
+    return entry
 
 
 def write_shipped_tap_table(source: str = "Fe-Johnson", grid: WavelengthGrid = DEFAULT_GRID) -> Path:
@@ -197,6 +283,30 @@ def write_shipped_tap_table(source: str = "Fe-Johnson", grid: WavelengthGrid = D
     _save_npz(path, taps=taps, l1=l1, ok=ok)
     write_shipped_material_table(source, grid)
     return path
+
+
+def write_shipped_family_tables(source: str = "Fe-Johnson", grid: WavelengthGrid = DEFAULT_GRID, rank: int = 3,
+                                 fitted: dict | None = None) -> list[Path]:
+    """:func:`family_tables` and :func:`family_material_tables` of
+    :data:`~jkatana.interactive.lobe_tables.FITTED_FAMILIES` for ``source`` at the default levels and rank 3,
+    float64, into the package's data folder (stale ``family-*`` tables removed): one tap fit of the pair
+    (minutes), unless ``fitted`` gives ``{family: (taps, l1, ok)}`` rows of a fit by this code."""
+    jax.config.update("jax_enable_x64", True)
+    conductor = Conductor.from_table(source, grid, dtype=jnp.float64)
+    if fitted is None:
+        _, taps, l1, ok = tap_fit(conductor, MU_LEVELS, n_cos=64, lobes=FITTED_FAMILIES)
+        fitted = {f: (taps[i], l1[i], ok[i]) for i, f in enumerate(FITTED_FAMILIES)}
+    for old in SHIPPED_TAPS.glob("family-*.npz"):
+        old.unlink()
+    written = []
+    with __import__("tempfile").TemporaryDirectory() as tmp:
+        for family in FITTED_FAMILIES:
+            family_tables(conductor, MU_LEVELS, 64, family, tmp, fitted=fitted[family])
+            family_material_tables(conductor, rank, MU_LEVELS, family, tmp)
+        for made in sorted((Path(tmp) / "interactive").glob("family-*.npz")):
+            _save_npz(SHIPPED_TAPS / made.name, **dict(np.load(made)))
+            written.append(SHIPPED_TAPS / made.name)
+    return written
 
 
 def write_shipped_material_table(source: str = "Fe-Johnson", grid: WavelengthGrid = DEFAULT_GRID,

@@ -16,6 +16,7 @@ tails, which the three taps miss, back where the lobe has it.
 from __future__ import annotations
 
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -324,6 +325,27 @@ def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int =
             rows[:, 0] = np.where(rows[:, 2] > 0, rows[:, 0], 0.0)     # no wider level: no tail, s_t = 0
             tail[m, k], l1[m, k] = rows[:, :3], rows[:, 3]
     return taps, tail, l1
+
+
+def core_taps(base: np.ndarray, mus, c: float) -> tuple[np.ndarray, np.ndarray]:
+    """Three taps for a lobe whose core is that of the base family at c times its width
+    (:func:`~jkatana.interactive.lobe_tables.family_core`), from the base's fitted taps ``base (n_mu, n_cos,
+    1 + 2T)`` (:func:`tap_fit`'s layout): at level μ_k, the base's pattern fitted at the level μ_j nearest to
+    c μ_k (in log μ), scaled by c μ_k / μ_j — offsets times that ratio, filter width μ_e = c μ_k e^{s_j}, so
+    s = s_j + ln c, weights kept. Exact where the base lobe's kernel is self-similar in its width (a narrow
+    lobe: f_r depends on the facet slope over the width, Walter et al. 2007, eqs. 33, 35); the tail tap
+    (:func:`tail_fit`, run on the lobe itself) puts back what the core's pattern misses.
+
+    **Returns** ``(taps (n_mu, n_cos, 1 + 2T), j (n_mu,))``: the taps and the base level each is read from."""
+    mus = np.asarray(mus, np.float64)
+    log_mu = np.log(mus)
+    target = np.log(c * mus)
+    j = np.abs(target[:, None] - log_mu[None, :]).argmin(-1)
+    ratio = c * mus / mus[j]
+    out = np.array(base[j], np.float64)
+    out[..., 0] += math.log(c)
+    out[..., 1:1 + N_TAPS] *= ratio[:, None, None]
+    return out, j
 
 
 #: The functions whose source text keys the tail table (:func:`jkatana.interactive.tables.cached_tail_fit`).
