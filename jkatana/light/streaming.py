@@ -124,14 +124,18 @@ class SpectralEXRRows(RowSource):
             r1 - r0, self.width, -1)
 
     def texels(self, rows, cols):
-        rows, cols = np.asarray(rows), np.asarray(cols)
+        """Reads only the rows named, in runs of consecutive rows of at most :meth:`block_rows`."""
+        rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
         out = np.empty((rows.size, self.grid.size))
+        wanted = np.unique(rows)
         step = self.block_rows()
-        for r0 in range(0, self.height, step):
-            sel = (rows >= r0) & (rows < r0 + step)
-            if sel.any():
-                lo, hi = int(rows[sel].min()), int(rows[sel].max()) + 1
+        start = 0
+        for k in range(1, wanted.size + 1):
+            if k == wanted.size or wanted[k] != wanted[k - 1] + 1 or wanted[k] - wanted[start] >= step:
+                lo, hi = int(wanted[start]), int(wanted[k - 1]) + 1
+                sel = (rows >= lo) & (rows < hi)
                 out[sel] = self._rows(lo, hi)[rows[sel] - lo, cols[sel]]
+                start = k
         return out * self.scale
 
 
