@@ -12,7 +12,7 @@ import pytest
 
 from jkatana.light.envmap import texel_directions_np
 from jkatana.models import Conductor
-from jkatana.render import frame as F
+from jkatana.render import background as B, derived as D, frame as F
 from jkatana.render.camera import Camera
 from jkatana.render.environment import bilinear_equirect, lookup_prefiltered, lookup_prefiltered_many
 from jkatana.render.film import film_weights
@@ -55,7 +55,7 @@ def _directions(n=4000, seed=0):
 def test_background_from_the_xyz_map_equals_the_spectral_lookup(env):
     d = _directions()
     want, _ = background(env, d, jnp.asarray(CMF))
-    got, _ = background(F.background_environment(env, CMF), d, jnp.eye(3, dtype=jnp.float32))
+    got, _ = background(B.background_environment(env, CMF), d, jnp.eye(3, dtype=jnp.float32))
     assert float(jnp.max(want[:50, 1])) > 1e3  # the cap is seen
     np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=2e-6, atol=1e-6)
 
@@ -68,22 +68,22 @@ def test_derived_maps_are_reused_per_environment_and_dropped_with_it(env):
         return object()
 
     a = jnp.ones((4, 4))
-    v1 = F.derived("t", (a,), 1, build)
-    assert F.derived("t", (a,), 1, build) is v1 and len(calls) == 1
-    F.derived("t", (a,), 2, build)  # another extra key: built again
+    v1 = D.derived("t", (a,), 1, build)
+    assert D.derived("t", (a,), 1, build) is v1 and len(calls) == 1
+    D.derived("t", (a,), 2, build)  # another extra key: built again
     b = jnp.ones((4, 4))  # equal values, another array: built again
-    F.derived("t", (b,), 1, build)
+    D.derived("t", (b,), 1, build)
     assert len(calls) == 3
-    n = len(F._DERIVED)
+    n = len(D._DERIVED)
     del a
     gc.collect()
-    assert len(F._DERIVED) == n - 2
+    assert len(D._DERIVED) == n - 2
     # a rotation changes nothing that is derived: the same XYZ map serves any rotation
     rot = jnp.asarray(np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]), jnp.float32)
-    e1 = F.background_environment(env, CMF)
+    e1 = B.background_environment(env, CMF)
     import equinox as eqx
 
-    e2 = F.background_environment(eqx.tree_at(lambda e: e.rotation, env, rot), CMF)
+    e2 = B.background_environment(eqx.tree_at(lambda e: e.rotation, env, rot), CMF)
     assert e2.channels is e1.channels and np.array_equal(np.asarray(e2.rotation), np.asarray(rot))
 
 
@@ -91,9 +91,9 @@ def test_cached_fresnel_fold_equals_the_fold(env):
     mat = _iron()
     R, vt = fresnel_rank_for(mat.ftable, _basis_too=True)
     basis = jnp.asarray(vt[:R], jnp.float32)
-    m1, e1 = F.fold_with_caps(R, mat, env, jnp.asarray(CMF), basis)
-    m2, e2 = F.folded(R, mat, env, jnp.asarray(CMF), basis)
-    m3, e3 = F.folded(R, Material(mat.ftable, mat.chi * 2, mat.beta), env, jnp.asarray(CMF), basis)
+    m1, e1 = D.fold_with_caps(R, mat, env, jnp.asarray(CMF), basis)
+    m2, e2 = D.folded(R, mat, env, jnp.asarray(CMF), basis)
+    m3, e3 = D.folded(R, Material(mat.ftable, mat.chi * 2, mat.beta), env, jnp.asarray(CMF), basis)
     assert e3.channels is e2.channels and float(m3.chi) == 2 * float(mat.chi)  # reused; scales current
     for x, y in ((m1.ftable, m2.ftable), (e1.channels, e2.channels), (e1.caps.channels, e2.caps.channels),
                  *zip(e1.prefiltered, e2.prefiltered)):
@@ -127,7 +127,7 @@ def test_frame_is_the_frame_without_the_derived_maps(env):
     sphere = ("sphere", (0.0, 0.0, 0.0), 1.0)
     f1 = F.render_frame(plan, mat, env, None, sphere, cam, maps, CMF)
     f2 = F.render_frame(plan, mat, env, None, sphere, cam, maps, CMF)
-    F._DERIVED.clear()
+    D._DERIVED.clear()
     f3 = F.render_frame(plan, mat, env, None, sphere, cam, maps, CMF)
     np.testing.assert_array_equal(f1.xyz, f2.xyz)
     np.testing.assert_array_equal(f1.xyz, f3.xyz)
@@ -137,13 +137,13 @@ def test_frame_is_the_frame_without_the_derived_maps(env):
 
 
 def test_background_along_the_camera_rays_made_on_the_devices(env):
-    """:func:`~jkatana.render.frame.background_camera` (rays made on the devices from the camera's per-column
-    and per-row terms) is :func:`~jkatana.render.frame.background_all` of :meth:`Camera.rays` to float32
+    """:func:`~jkatana.render.background.background_camera` (rays made on the devices from the camera's per-column
+    and per-row terms) is :func:`~jkatana.render.background.background_all` of :meth:`Camera.rays` to float32
     rounding, for an image whose pixel count does not divide by the devices."""
     cam = Camera(position=(0.3, 0.2, 4.0), look_at=(0.0, 0.1, 0.0), fov_deg=55.0, width=37, height=23)
-    fwd, xr, yu = F._camera_axes(cam, np.float64)
+    fwd, xr, yu = B._camera_axes(cam, np.float64)
     d = fwd + xr[None, :, :] + yu[:, None, :]
     np.testing.assert_allclose(d / np.linalg.norm(d, axis=-1, keepdims=True), cam.rays()[1], rtol=0, atol=1e-15)
-    got = np.asarray(F.background_camera(env, cam, CMF, jnp.float32))[:37 * 23]
-    want = np.asarray(F.background_all(env, cam.rays()[1].reshape(-1, 3), CMF, jnp.float32))[:37 * 23]
+    got = np.asarray(B.background_camera(env, cam, CMF, jnp.float32))[:37 * 23]
+    want = np.asarray(B.background_all(env, cam.rays()[1].reshape(-1, 3), CMF, jnp.float32))[:37 * 23]
     np.testing.assert_allclose(got, want, rtol=2e-5, atol=1e-6)

@@ -13,7 +13,8 @@ from jkatana.models import Conductor
 from jkatana.render.camera import Camera
 from jkatana.render.film import film_weights
 from jkatana.render.fresnel_fold import FRESNEL_RANK_TOL_SAMPLED
-from jkatana.render.frame import render_frame, resolve_plan
+from jkatana.render.dispatch import resolve_plan
+from jkatana.render.frame import render_frame
 from jkatana.render.plan import MODES, SAMPLED_MODES
 from jkatana.render.points import sobol_table
 from jkatana.render.environment import build_environment

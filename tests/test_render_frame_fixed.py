@@ -12,13 +12,14 @@ import pytest
 from jax.sharding import NamedSharding, PartitionSpec as PS
 
 from jkatana.models import Conductor
-from jkatana.render import frame as F
+from jkatana.render import derived as D, dispatch, frame as F
 from jkatana.render.camera import Camera
 from jkatana.render.film import film_weights
 from jkatana.render.gbuffer import gbuffer_sphere
 from jkatana.render.environment import build_environment
 from jkatana.render.fresnel_fold import Material, fresnel_table
 from jkatana.render.plan import Plan
+from jkatana.render.points import PixelIds
 from jkatana.spectral import DEFAULT_GRID
 
 GRID = DEFAULT_GRID
@@ -77,14 +78,15 @@ def test_sphere_gbuffer_is_the_dense_one_kept_per_view_and_read_only(cam, center
 
 
 def test_fine_tail_only_where_the_points_follow_the_pixel():
-    ids = F.PixelIds(np.zeros(4, np.uint32), np.zeros(4, np.int32))
+    ids = PixelIds(np.zeros(4, np.uint32), np.zeros(4, np.int32))
     for mode, with_ids, sub, free in (("prefiltered", False, 1, True), ("reference", True, 4, True),
                                       ("lowrank", True, 4, True), ("reference", False, 4, False),
                                       ("reference", True, 1, False), ("paper", True, 4, False)):
-        assert F._layout_free(Plan(mode=mode, subpixels=sub), ids if with_ids else None) is free, (mode, with_ids, sub)
+        got = dispatch._layout_free(Plan(mode=mode, subpixels=sub), ids if with_ids else None)
+        assert got is free, (mode, with_ids, sub)
     # 186 104 pixels over 2 devices in calls of 16 384 per device: 6 whole calls, or a last call of 12 288
-    assert F._call_sizes(Plan(), 186104, 2, 16384, False) == (16384, [16384] * 6)
-    assert F._call_sizes(Plan(), 186104, 2, 16384, True) == (16384, [16384] * 5 + [12288])
+    assert dispatch._call_sizes(Plan(), 186104, 2, 16384, False) == (16384, [16384] * 6)
+    assert dispatch._call_sizes(Plan(), 186104, 2, 16384, True) == (16384, [16384] * 5 + [12288])
 
 
 def test_pixel_id_frame_with_the_fine_tail_equals_whole_calls(monkeypatch):
@@ -97,10 +99,11 @@ def test_pixel_id_frame_with_the_fine_tail_equals_whole_calls(monkeypatch):
     plan = Plan(samples=4)
     n_dev = len(jax.local_devices())
     P = int(gbuffer_sphere(cam).mask.sum())
-    whole, fine = F._call_sizes(plan, P, n_dev, 4096, False)[1], F._call_sizes(plan, P, n_dev, 4096, True)[1]
+    whole = dispatch._call_sizes(plan, P, n_dev, 4096, False)[1]
+    fine = dispatch._call_sizes(plan, P, n_dev, 4096, True)[1]
     assert sum(fine) < sum(whole)  # the fine tail pads less here
     a = F.render_frame(plan, mat, env, None, SPHERE, cam, maps, CMF, supersample=2, chunk=4096)
-    monkeypatch.setattr(F, "_layout_free", lambda plan, ids: False)
+    monkeypatch.setattr(dispatch, "_layout_free", lambda plan, ids: False)
     b = F.render_frame(plan, mat, env, None, SPHERE, cam, maps, CMF, supersample=2, chunk=4096)
     m = a.mask
     assert m.sum() == P
@@ -116,10 +119,10 @@ def test_frames_of_one_view_reuse_its_pixels_and_follow_the_maps():
     maps = np.array([[[0.3, 0.05, 0.15]]], np.float32).repeat(2, 0).repeat(2, 1)
     plan = Plan(samples=2)
     a = F.render_frame(plan, mat, env, None, SPHERE, cam, maps, CMF, supersample=2, seed=3)
-    n_entries = len(F._DERIVED)
+    n_entries = len(D._DERIVED)
     b = F.render_frame(plan, mat, env, None, SPHERE, cam, maps, CMF, supersample=2, seed=3)
     np.testing.assert_array_equal(a.xyz, b.xyz)
-    assert len(F._DERIVED) == n_entries  # nothing new derived: pixels, call inputs and tables were kept
+    assert len(D._DERIVED) == n_entries  # nothing new derived: pixels, call inputs and tables were kept
     maps[..., 2] = 0.3  # a wider hamon lobe, same array
     c = F.render_frame(plan, mat, env, None, SPHERE, cam, maps, CMF, supersample=2, seed=3)
     g = gbuffer_sphere(cam)
@@ -130,8 +133,8 @@ def test_frames_of_one_view_reuse_its_pixels_and_follow_the_maps():
     px, ids = F._frame_pixels(g, keep, maps, jnp.float32, 2)
     assert F._frame_pixels(g, keep, maps.copy(), jnp.float32, 2)[0] is px  # kept per (G-buffer, maps' values)
     assert F._frame_pixels(fresh, keep, maps, jnp.float32, 2)[0] is not px  # a writable G-buffer: built anew
-    assert F._call_inputs(px, ids, (len(g.index),), F.NamedSharding(jax.make_mesh((1,), ("d",)), PS("d")))[0] is \
-        F._call_inputs(px, ids, (len(g.index),), F.NamedSharding(jax.make_mesh((1,), ("d",)), PS("d")))[0]
+    assert dispatch._call_inputs(px, ids, (len(g.index),), NamedSharding(jax.make_mesh((1,), ("d",)), PS("d")))[0] is \
+        dispatch._call_inputs(px, ids, (len(g.index),), NamedSharding(jax.make_mesh((1,), ("d",)), PS("d")))[0]
     m = a.mask
     assert not np.allclose(a.xyz[m], c.xyz[m], rtol=1e-3)
     np.testing.assert_array_equal(c.xyz[m], d.xyz[m])  # (d's background comes from host-made rays)
@@ -142,14 +145,14 @@ def test_replicated_puts_a_leaf_once_while_it_lives():
     rep = NamedSharding(mesh, PS())
     a = jnp.arange(6.0, dtype=jnp.float32) + 1.0  # a fresh single-device array
     host = np.arange(3.0, dtype=np.float32)
-    t1 = F.replicated((a, host), rep)
-    t2 = F.replicated((a, host), rep)
+    t1 = D.replicated((a, host), rep)
+    t2 = D.replicated((a, host), rep)
     assert t2[0] is t1[0] and t1[0].sharding == rep
     np.testing.assert_array_equal(np.asarray(t1[0]), np.asarray(a))
     assert t2[1] is not t1[1]  # NumPy leaves may change in place: put each time
     host[0] = 9.0
-    assert float(F.replicated((a, host), rep)[1][0]) == 9.0
-    n = len(F._DERIVED)
+    assert float(D.replicated((a, host), rep)[1][0]) == 9.0
+    n = len(D._DERIVED)
     del a, t1, t2
     gc.collect()
-    assert len(F._DERIVED) == n - 1  # the copy leaves with its source
+    assert len(D._DERIVED) == n - 1  # the copy leaves with its source

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jkatana.render import frame, shading
+from jkatana.render import dispatch, shading
 from jkatana.render.environment import build_environment
 from jkatana.render.fresnel_fold import Material, fresnel_table
 from jkatana.render.plan import Pixels, Plan
@@ -46,8 +46,8 @@ def test_changing_a_plan_field_gives_another_compiled_program(field):
     base = Plan(mode="reference", samples=4, fresnel_rank=0)
     other = dataclasses.replace(base, **{field: ALTERNATIVES[field]})
     assert other != base
-    assert frame._compiled(other, 1, 1024)[0] is not frame._compiled(base, 1, 1024)[0]
-    assert frame._compiled(base, 1, 1024)[0] is frame._compiled(base, 1, 1024)[0]  # and the same plan hits
+    assert dispatch._compiled(other, 1, 1024)[0] is not dispatch._compiled(base, 1, 1024)[0]
+    assert dispatch._compiled(base, 1, 1024)[0] is dispatch._compiled(base, 1, 1024)[0]  # and the same plan hits
 
 
 def _inputs():
@@ -90,7 +90,7 @@ def test_a_lobe_static_parameter_is_part_of_the_compile_key(a, b):
     """A lobe's static parameters (GTR's γ, a two-lobe's weight) select the compiled program like any Plan field."""
     pa, pb = (Plan(mode="reference", samples=4, fresnel_rank=0, hiraji_lobe=k) for k in (a, b))
     assert pa != pb and hash(pa) != hash(pb)
-    assert frame._compiled(pa, 1, 1024)[0] is not frame._compiled(pb, 1, 1024)[0]
+    assert dispatch._compiled(pa, 1, 1024)[0] is not dispatch._compiled(pb, 1, 1024)[0]
     mat, env, px, cmf = _inputs()
     key = jax.random.PRNGKey(0)
 

@@ -404,7 +404,7 @@ def test_caps_on_their_own_pass_equal_the_one_pass(sun_map, monkeypatch):
     """A prefiltered frame whose caps are shaded on their own pass over the pixels :func:`cap_pixels` keeps
     (a narrow lobe on a sphere: a few of them) equals the frame shading them in the one pass with the
     environment, to float32 rounding."""
-    from jkatana.render import frame
+    from jkatana.render import dispatch
     from jkatana.render.caps import cap_pixels
 
     env, fac, _ = build_environment(sun_map, grid=GRID, split_sun=True, prefilter_mus=(0.02, 0.1))
@@ -414,9 +414,9 @@ def test_caps_on_their_own_pass_equal_the_one_pass(sun_map, monkeypatch):
     narrow = px._replace(w=jnp.ones_like(px.w), mu0=jnp.full_like(px.w, 0.03))  # the maps' pixels
     share = float(np.asarray(cap_pixels(plan, env, narrow)).mean())
     assert 0.0 < share < 0.5
-    monkeypatch.setattr(frame, "CAP_PASS_MAX", 1.0)
+    monkeypatch.setattr(dispatch, "CAP_PASS_MAX", 1.0)
     apart = render_frame(plan, mat, env, None, SPHERE, CAM, maps, CMF)
-    monkeypatch.setattr(frame, "CAP_PASS_MAX", -1.0)
+    monkeypatch.setattr(dispatch, "CAP_PASS_MAX", -1.0)
     one = render_frame(plan, mat, env, None, SPHERE, CAM, maps, CMF)
     m = one.mask
     assert np.asarray(one.xyz[m][:, 1]).max() > 10 * np.median(one.xyz[m][:, 1])  # the glint is in the frame

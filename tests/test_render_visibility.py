@@ -13,7 +13,7 @@ import trimesh
 
 from jkatana.errors import InputError
 from jkatana.models import Conductor
-from jkatana.render import frame as frame_mod
+from jkatana.render import dispatch
 from jkatana.render.camera import Camera
 from jkatana.render.film import film_weights
 from jkatana.render.frame import render_frame
@@ -157,9 +157,9 @@ def test_no_occluders_means_no_visibility_step():
            "render": {"samples": 2}}
     p = prepare(scene_from_dict(raw))
     assert not p.plan.visibility and p.occluders is None
-    before = frame_mod._compiled_rays.cache_info()
+    before = dispatch._compiled_rays.cache_info()
     f = render_view(p)
-    assert frame_mod._compiled_rays.cache_info() == before  # the direction pass is never built or called
+    assert dispatch._compiled_rays.cache_info() == before  # the direction pass is never built or called
     assert "visibility_rays" not in f.timing
     raw["occluders"] = [{"box": [0.5, 0.5, 0.5], "center": [2.0, 0.0, 0.0]}]
     p = prepare(scene_from_dict(raw))

@@ -74,7 +74,7 @@ class Plan:
       environment (:func:`~jkatana.render.fresnel_fold.fold_fresnel`: per sample a ``3R``-channel lookup and
       ``R`` Fresnel coefficients instead of ``wl`` bands; the caller passes the
       folded material and environment). ``0``: full spectra. ``None`` (default):
-      :func:`jkatana.render.frame.shade_pixels` picks the smallest ``R`` whose
+      :func:`jkatana.render.dispatch.shade_pixels` picks the smallest ``R`` whose
       Fresnel table residual is below :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL_SAMPLED` in the
       modes of :data:`SAMPLED_MODES` and :data:`~jkatana.render.fresnel_fold.FRESNEL_RANK_TOL` in the others,
       when the plan allows it (no spectral output, no lights, not ``factored``), else 0;
@@ -109,7 +109,7 @@ class Plan:
       pixel and cap, any lobe width) or ``"stroud"``
       (:func:`jkatana.light.capquad.cap_disc_nodes`, 4, for lobes ≥ 8 cap radii
       wide), or one of those per lobe part, comma-separated (``"nodes,stroud"``).
-      ``None``: :func:`jkatana.render.frame.shade_pixels` picks it per lobe from the
+      ``None``: :func:`jkatana.render.dispatch.shade_pixels` picks it per lobe from the
       pixels' lobe widths (:func:`~jkatana.render.caps.cap_rule_for`);
       :func:`shade` called directly treats ``None`` as ``"nodes"``.
     """
