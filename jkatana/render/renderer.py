@@ -259,12 +259,7 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     <jkatana.render.plan.Plan.env_window>`. ``max_memory``: the budget (bytes) a map file's whole spectra
     must fit, else it is streamed (:func:`jkatana.render.streamed.streams`).
     """
-    mode = scene.render.mode if mode is None else mode
-    samples = scene.render.samples if samples is None else samples
-    if mode not in RENDER_MODES:
-        raise InputError(f"must be one of {list(RENDER_MODES)}, got {mode!r}", field="mode")
-    if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= LIMITS["samples"]:
-        raise InputError(f"must be an integer in [1, {LIMITS['samples']}], got {samples!r}", field="samples")
+    mode, samples = _mode_and_samples(scene, mode, samples)
     t0 = time.perf_counter()
     grid = scene.spectral.grid
     dtype = jnp.float64 if scene.render.precision == "float64" else jnp.float32
@@ -273,32 +268,69 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
     geometry = load_geometry(scene)
     maps, chi, beta, lobes = load_material(scene, geometry)
     check_lobe_mode(lobes, scene, mode)
+    mat = _material(scene, grid, dtype, chi, beta)
+    env, factored, resid, env_rank = _environment(scene, grid, dtype, integrator_for(mode), maps, lobes, rank=rank,
+                                                  env_radiance=env_radiance, split_sun=split_sun,
+                                                  max_memory=max_memory)
+    lights = _lights(scene, grid, dtype)
+    plan = _plan(scene, mode, samples, maps, lobes, factored)
+    occluders = None
+    if scene.occluders:
+        from jkatana.render.gbuffer import Occluders, occluder_mesh
+
+        occluders = Occluders(occluder_mesh(scene.occluders))
+    env_info = {"channels": int(env.channels.shape[-1]), "factored": factored, "rank_residual": resid,
+                "grey": bool(factored and env_rank is None), "resolution": list(env.channels.shape[:2]),
+                "caps": 0 if env.caps is None else env.caps.count}
+    return Prepared(scene, grid, dtype, geometry, maps, mat, env, env_info, lights, plan,
+                    film_weights(grid), time.perf_counter() - t0, occluders)
+
+
+def _mode_and_samples(scene: Scene, mode: str | None, samples: int | None) -> tuple[str, int]:
+    """:func:`prepare`'s mode and sample count: the overrides, or the scene's, checked as the scene's fields are."""
+    mode = scene.render.mode if mode is None else mode
+    samples = scene.render.samples if samples is None else samples
+    if mode not in RENDER_MODES:
+        raise InputError(f"must be one of {list(RENDER_MODES)}, got {mode!r}", field="mode")
+    if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= LIMITS["samples"]:
+        raise InputError(f"must be an integer in [1, {LIMITS['samples']}], got {samples!r}", field="samples")
+    return mode, samples
+
+
+def _material(scene: Scene, grid: WavelengthGrid, dtype, chi, beta) -> Material:
+    """The shader's :class:`Material`: the Fresnel table of the scene's optical constants on ``grid`` (through
+    the cache, :mod:`jkatana.light.cache`) and the regions' scales."""
+    from jkatana.light.cache import cached_tree, fresnel_key
     from jkatana.spectral.optical_constants import load as load_oc
 
     try:
         n, k = load_oc(scene.material.optical_constants).on_grid(grid)
     except InputError as err:
         raise InputError(str(err), field="material.optical_constants") from None
-    from jkatana.light.cache import cached_tree, fresnel_key
-
     table = cached_tree(fresnel_key(n, k, dtype), lambda: fresnel_table(jnp.asarray(n, dtype), jnp.asarray(k, dtype)),
                         kind="fresnel")
-    mat = Material(jnp.asarray(table, dtype), jnp.asarray(chi, dtype), jnp.asarray(beta, dtype))
-    integrator = integrator_for(mode)
+    return Material(jnp.asarray(table, dtype), jnp.asarray(chi, dtype), jnp.asarray(beta, dtype))
+
+
+def _environment(scene: Scene, grid: WavelengthGrid, dtype, integrator, maps, lobes: dict, *, rank, env_radiance,
+                 split_sun, max_memory) -> tuple[Environment, bool, float, int | None]:
+    """``(environment, factored, rank residual, rank or None)``: the scene's environment as ``integrator`` shades
+    it (projected on ``rank`` principal spectra for a low-rank one; prefiltered levels for the maps' widths and the
+    regions' lobes; the sun split off or not), built once per content (:mod:`jkatana.light.cache`), streamed when
+    a map file's whole spectra do not fit ``max_memory`` (:func:`jkatana.render.streamed.streams`), and rotated."""
+    from jkatana.light.cache import cached_tree, environment_key, radiance_key
+
     env_rank = (scene.render.rank if rank is None else rank) if integrator.low_rank else None
     mus = ()
     if integrator.prefiltered:
         lo = max(float(np.min(maps[..., 1:])), 1e-3)
         hi = max(float(np.max(maps[..., 1:])), lo * 1.01)
         mus = tuple(np.geomspace(lo, hi, 4))
-    # environment and its tables built once per content (jkatana.light.cache); rotation set afterwards
-    from jkatana.light.cache import environment_key, radiance_key
-
     pre_lobes = region_lobe_keys(lobes, scene.material.calibration) if mus else (None, None)
     split_sun = scene.render.split_sun if split_sun is None else split_sun
     split = integrator.splits_sun if split_sun is None else bool(split_sun)
     if integrator.whole_map and split:
-        raise InputError(f"the {mode} mode shades the whole map: no sun split (render.split_sun)",
+        raise InputError(f"the {integrator.name} mode shades the whole map: no sun split (render.split_sun)",
                          field="mode")
     rad_key = radiance_key(scene.environment, grid) if env_radiance is None else None
     env_key = None if rad_key is None else environment_key(rad_key, rank=env_rank, prefilter_mus=mus,
@@ -321,35 +353,34 @@ def prepare(scene: Scene, *, mode: str | None = None, samples: int | None = None
 
     env, factored, resid = cached_tree(env_key, build)
     env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rotation_y(scene.environment.rotation_deg), dtype))
-    # effects on demand: decided here, on the host, from the data
+    return env, factored, resid, env_rank
+
+
+def _lights(scene: Scene, grid: WavelengthGrid, dtype) -> Light | None:
+    """The scene's point and directional lights as the shader's :class:`Light`, or ``None`` without any."""
+    if not scene.lights:
+        return None
+    from jkatana.spectral.colorimetry import illuminant
+
+    vec = np.array([lt.vector for lt in scene.lights], np.float64)
+    kind = np.array([0.0 if lt.type == "point" else 1.0 for lt in scene.lights])
+    spec = np.stack([illuminant(lt.spectrum, grid) / 100.0 * lt.intensity for lt in scene.lights])
+    return Light(jnp.asarray(vec, dtype), jnp.asarray(kind, dtype), jnp.asarray(spec, dtype))
+
+
+def _plan(scene: Scene, mode: str, samples: int, maps, lobes: dict, factored: bool) -> Plan:
+    """The static shading plan, effects on demand decided here, on the host, from the data: hiraji only where
+    some w > 0, hamon where some w < 1, a perfect-mirror hiraji where every hiraji μ0 < ``MIRROR_MU``."""
     w = maps[..., 0]
     hiraji = bool((w > 0).any())
     hamon = bool((w < 1).any())
     mirror = (hiraji and lobes["hiraji"] is None
               and float(np.max(np.where(w > 0, maps[..., 1], 0.0))) < MIRROR_MU)
-    lights = None
-    if scene.lights:
-        from jkatana.spectral.colorimetry import illuminant
-
-        vec = np.array([lt.vector for lt in scene.lights], np.float64)
-        kind = np.array([0.0 if lt.type == "point" else 1.0 for lt in scene.lights])
-        spec = np.stack([illuminant(lt.spectrum, grid) / 100.0 * lt.intensity for lt in scene.lights])
-        lights = Light(jnp.asarray(vec, dtype), jnp.asarray(kind, dtype), jnp.asarray(spec, dtype))
-    plan = Plan(mode=mode, samples=int(samples), hiraji=hiraji, hamon=hamon, mirror=mirror,
+    return Plan(mode=mode, samples=int(samples), hiraji=hiraji, hamon=hamon, mirror=mirror,
                 env_sampling=True, factored=factored, lights=len(scene.lights),
                 calibration=scene.material.calibration, hiraji_lobe=lobes["hiraji"], hamon_lobe=lobes["hamon"],
                 spectral=scene.output.spectral and not factored,
                 visibility=bool(scene.occluders), env_window=scene.render.env_window)
-    occluders = None
-    if scene.occluders:
-        from jkatana.render.gbuffer import Occluders, occluder_mesh
-
-        occluders = Occluders(occluder_mesh(scene.occluders))
-    env_info = {"channels": int(env.channels.shape[-1]), "factored": factored, "rank_residual": resid,
-                "grey": bool(factored and env_rank is None), "resolution": list(env.channels.shape[:2]),
-                "caps": 0 if env.caps is None else env.caps.count}
-    return Prepared(scene, grid, dtype, geometry, maps, mat, env, env_info, lights, plan,
-                    film_weights(grid), time.perf_counter() - t0, occluders)
 
 
 def camera_for(scene: Scene, view: int = 0, views: int = 1) -> Camera:
