@@ -216,7 +216,9 @@ def _run(quick: bool, work: Path) -> list[dict]:
         cache.mkdir()
         runs = []
         for use in uses:
-            runs.append(measure(argv + (["--max-memory", str(limit_here)] if scene is not None else []), cache,
+            # a second render renders again (--force: a batch skips the frames it finished) from the warm cache
+            again = ["--force"] if runs and "render" in argv else []
+            runs.append(measure(argv + again + (["--max-memory", str(limit_here)] if scene is not None else []), cache,
                                 work / f"log-{len(records)}-{use}.txt"))
             if runs[-1]["rc"] != 0:
                 break
