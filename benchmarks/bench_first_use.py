@@ -265,8 +265,8 @@ def _run(quick: bool, work: Path) -> list[dict]:
         label = "6000×3000"
         given = os.environ.get("BENCH_FIRST_USE_SPECTRAL_EXR")  # one written before (minutes on a loaded machine)
         scene = scene_file("6000×3000-61", Path(given) if given else spectral_exr(big[1], work / "map6k-61.exr"))
-        case("render prefiltered, 61-band spectral EXR", label, CLI + ["render", str(scene), "-o", str(work / "out-6k-exr-p"), "--mode",
-                                                 "prefiltered"], scene)
+        case("render prefiltered, 61-band spectral EXR", label,
+             CLI + ["render", str(scene), "-o", str(work / "out-6k-exr-p"), "--mode", "prefiltered"], scene)
     if not quick and not only:
         scene = scene_file("1k", hdr, material='[material]\nmap = "builtin"\nhiraji = "ggx.json"')
         out = str(work / "out-ggx")

@@ -219,7 +219,8 @@ def _level_stack(levels, height: int, width: int, rank: int) -> np.ndarray:
 
 def _bake_rows(rows, *, conductor, rank, mus, colourspace, transfer, cache_dir, split_sun, lobes):
     """:func:`_bake` of a :class:`~jkatana.light.streaming.RowSource`: the map projected on the Fresnel basis
-    × CIE weights as it streams (a linear projection per texel, :func:`~jkatana.light.fresnel_basis.projection_matrix`),
+    × CIE weights as it streams (a linear projection per texel,
+    :func:`~jkatana.light.fresnel_basis.projection_matrix`),
     its sun split from the exact spectra of its texels (:func:`jkatana.light.sun.split_texels`), box-filtered to
     the finest level's resolution (:func:`jkatana.light.prefilter.level_shape`), which is also the size of the
     texture the shaders read (not the map's: the finest level holds no more detail)."""

@@ -141,7 +141,8 @@ class SpectralEXRRows(RowSource):
 
 def row_source(path: str | Path, grid: WavelengthGrid, upsampling: str = "Jakob 2019", scale: float = 1.0,
                colourspace: str = "sRGB") -> RowSource:
-    """The :class:`RowSource` of an environment file: spectral EXR or RGB (as :func:`~jkatana.light.envmap.load_envmap`)."""
+    """The :class:`RowSource` of an environment file: spectral EXR or RGB (as
+    :func:`~jkatana.light.envmap.load_envmap` reads it)."""
     from jkatana.errors import InputError
     from jkatana.light import spectral_exr
 

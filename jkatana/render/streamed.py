@@ -168,10 +168,6 @@ def build_streamed_environment(source, *, rank: int | None = None, rotation=None
     return env, True, resid
 
 
-__all__ = ["build_streamed_environment", "build_scene_streamed", "streams", "streamed_key", "stream_basis", "subsample", "prefilter_factor", "box_rows",
-           "measured_residual", "STREAM_TOLERANCE", "STREAM_MAX_RANK"]
-
-
 def streams(scene, max_memory=None) -> bool:
     """Whether ``scene``'s environment is prepared by :func:`build_streamed_environment`: a map read from a
     file whose whole spectra would not fit the memory budget (:func:`jkatana.render.memory.environment_route`)."""
@@ -201,3 +197,7 @@ def build_scene_streamed(scene, grid, **kw):
 
     e = scene.environment
     return build_streamed_environment(row_source(e.path, grid, e.upsampling, e.scale, e.colourspace), **kw)
+
+
+__all__ = ["build_streamed_environment", "build_scene_streamed", "streams", "streamed_key", "stream_basis",
+           "subsample", "prefilter_factor", "box_rows", "measured_residual", "STREAM_TOLERANCE", "STREAM_MAX_RANK"]
