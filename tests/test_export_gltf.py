@@ -139,12 +139,13 @@ def test_paper_lobes_get_the_ggx_alpha_of_equal_reflected_width():
     import jax.numpy as jnp
 
     from jkatana.export.gltf import region_alpha
-    from jkatana.models.lobes import GGX, lobe_shape
+    from jkatana.models.lobes import GGX
+    from jkatana.models.lobe_id import LobeId
 
     mu = np.array([[0.01, 0.05, 0.2]])
     np.testing.assert_allclose(region_alpha("hiraji", None, mu), mu / np.sqrt(np.log(2.0)), rtol=1e-6)
     np.testing.assert_allclose(region_alpha("hamon", None, mu), mu / np.sqrt(np.log(2.0)), rtol=1e-6)
-    _, key = lobe_shape(GGX(jnp.asarray(0.1)).to_params())
+    _, key = LobeId.shape_of(GGX(jnp.asarray(0.1)).to_params())
     np.testing.assert_allclose(region_alpha("hiraji", key, mu), mu, rtol=1e-6)
 
 

@@ -132,10 +132,11 @@ def test_lobe_tables_of_a_parameter_files_lobe():
     import jax.numpy as jnp
 
     from jkatana.models import Conductor
-    from jkatana.models.lobes import GGX, GaussianVCavity, lobe_shape
+    from jkatana.models.lobes import GGX, GaussianVCavity
+    from jkatana.models.lobe_id import LobeId
 
     iron = Conductor.from_table("Fe-Johnson", dtype=jnp.float64)
-    width, key = lobe_shape(GGX(jnp.float64(0.08)).to_params())
+    width, key = LobeId.shape_of(GGX(jnp.float64(0.08)).to_params())
     lobes = LT.region_lobes({"hiraji": key, "hamon": None})
     assert lobes[1] is GaussianVCavity and lobes[0] == LT.region_lobes({"hiraji": key})[0]   # hashable by value
     assert LT.region_lobes() == LT.PAPER_LOBES

@@ -124,11 +124,12 @@ def _ggx_beckmann_table():
     """The cap kernel table of GGX (α 0.05, on the first level) and Beckmann (α 0.12, between the last two)
     families at four μ levels, 0.05–0.141."""
     from jkatana.interactive import captable as CT
-    from jkatana.models.lobes import WidthFamily, lobe_from_params, lobe_shape
+    from jkatana.models.lobes import lobe_from_params
+    from jkatana.models.lobe_id import LobeId
 
     iron, dt, _ = _tables()
     lobes = tuple(lobe_from_params({"lobe": name, "alpha": a}, dt) for name, a in (("ggx", 0.05), ("beckmann", 0.12)))
-    families = tuple(WidthFamily(lobe_shape(lobe.to_params())[1]) for lobe in lobes)
+    families = tuple(LobeId.shape_of(lobe.to_params())[1] for lobe in lobes)
     mus = MU_LEVELS[4:8]
     return lobes, mus, CT.cap_kernel_table(families, mus, RADIUS, iron)
 
@@ -196,10 +197,11 @@ def test_cap_kernel_table_reading_and_when_it_is_baked():
     """The paper's lobes keep the closed-form rule (no table); a non-paper family needs one. A table of μ² K̄ = 1
     reads 1/μ² at the pixel's own μ (between levels too) inside the table's reach and 0 beyond it."""
     from jkatana.interactive import captable as CT
-    from jkatana.models.lobes import WidthFamily, lobe_from_params, lobe_shape
+    from jkatana.models.lobes import lobe_from_params
+    from jkatana.models.lobe_id import LobeId
 
     assert not CT.needs_table(LT.PAPER_LOBES)
-    ggx = WidthFamily(lobe_shape(lobe_from_params({"lobe": "ggx", "alpha": 0.05}).to_params())[1])
+    ggx = LobeId.shape_of(lobe_from_params({"lobe": "ggx", "alpha": 0.05}).to_params())[1]
     assert CT.needs_table((ggx, LT.PAPER_LOBES[1]))
     mus = MU_LEVELS[:3]
     table = np.zeros((2, 3, CT.N_COS, CT.N_V, CT.N_U))          # ln 1

@@ -17,7 +17,7 @@ from jkatana.interactive import bake as B
 from jkatana.interactive import taps as TP
 from jkatana.interactive.lobe_tables import PAPER_LOBES, moment_taps, region_lobes
 from jkatana.models import Conductor
-from jkatana.models.lobes import lobe_shape
+from jkatana.models.lobe_id import LobeId
 from jkatana.spectral import DEFAULT_GRID
 
 MUS = np.array([0.05, 0.2])                 # the widest level bounds the tail tap's width: 4 μ at μ = 0.05
@@ -26,7 +26,7 @@ N_COS = 5                                   # cos θv 0, 0.25, 0.5, 0.75, 1
 
 def _shape_key(model: str, values: dict):
     fm = FIT_MODELS[model]
-    return lobe_shape(fm.build(jnp.asarray(fm.shape_from_natural(values))).to_params())[1]
+    return LobeId.shape_of(fm.build(jnp.asarray(fm.shape_from_natural(values))).to_params())[1]
 
 
 @functools.lru_cache(maxsize=None)

@@ -22,7 +22,8 @@ import pytest
 
 from jkatana.errors import InputError
 from jkatana.fit._model import FIT_MODELS, MODELS, ModelSpec, from_natural, green, prepare as prepare_terms
-from jkatana.models.lobes import lobe_from_params, lobe_shape, lobe_with_width, normalised_params
+from jkatana.models.lobes import lobe_from_params
+from jkatana.models.lobe_id import LobeId, normalised_params
 from jkatana.render.renderer import camera_for, prepare, render_view
 from jkatana.render.scenefile import load_scene
 
@@ -87,11 +88,11 @@ def test_plan_records_the_lobe_and_rebuilds_it_at_the_fitted_width(tmp_path, mod
     d = params_dict(model)
     prep = prepare(load_scene(write_scene(tmp_path, hiraji=d)))
     key = prep.plan.hiraji_lobe
-    assert key is not None and key[0] == d["lobe"]["lobe"] and prep.plan.hamon_lobe is None
+    assert key is not None and key.family == d["lobe"]["lobe"] and prep.plan.hamon_lobe is None
     hash(prep.plan)  # hashable: part of the compile key
     width = float(np.median(prep.maps[..., 1]))
-    assert width == pytest.approx(lobe_shape(d["lobe"])[0], rel=1e-6)
-    rebuilt = lobe_with_width(key, jnp.float64(width), jnp.float64).to_params()
+    assert width == pytest.approx(LobeId.shape_of(d["lobe"])[0], rel=1e-6)
+    rebuilt = key.at_width(jnp.float64(width), jnp.float64).to_params()
     assert _close(rebuilt, lobe_from_params(d["lobe"], jnp.float64).to_params())
     assert float(prep.material.chi) == pytest.approx(d["values"]["scale"])  # the calibrated scale s
 
@@ -143,6 +144,7 @@ def test_interactive_view_takes_the_lobe_of_a_parameter_file(tmp_path):
     (normalised, rebuilt at any width) for the bake's tables, the hamon the paper's, the map the fitted width."""
     from jkatana.interactive.scene import from_render_scene
     from jkatana.models.lobes import GTR, GaussianVCavity
+    from jkatana.models.lobe_id import LobeId
 
     d = params_dict("gtr")
     text = write_scene(tmp_path, hiraji=d).read_text()
@@ -152,7 +154,7 @@ def test_interactive_view_takes_the_lobe_of_a_parameter_file(tmp_path):
     sc = from_render_scene(tmp_path / "scene.toml")
     hiraji, hamon = sc.lobes
     assert hamon is GaussianVCavity
-    width = lobe_shape(d["lobe"])[0]
+    width = LobeId.shape_of(d["lobe"])[0]
     lobe = hiraji(jnp.float64(width))
     assert isinstance(lobe, GTR) and float(lobe.alpha) == pytest.approx(width)
     assert float(np.median(sc.refl_map[..., 1])) == pytest.approx(width, rel=1e-6)
@@ -195,7 +197,7 @@ def quadrature_y(params: dict, N: np.ndarray, V: np.ndarray, conductor, cmf, n_t
     file's lobe (the renderer's convention without calibration).
     """
     lobe = lobe_from_params(normalised_params(params), jnp.float64)
-    alpha = lobe_shape(params)[0]
+    alpha = LobeId.shape_of(params)[0]
     t_max = (np.pi / 2) / (np.pi / 2 + alpha)
     x, wx = np.polynomial.legendre.leggauss(n_t)
     t = 0.5 * t_max * (x + 1)
@@ -244,7 +246,7 @@ def render_vs_quadrature(tmp_path, d, quad_params=None, samples=64):
     conductor = Conductor.from_table("Fe-Johnson", scene.spectral.grid, dtype=jnp.float64)
     width = float(np.median(prep.maps[..., 1]))
     params = d["lobe"] if quad_params is None else quad_params
-    scaled = lobe_with_width(lobe_shape(params)[1], jnp.float64(width), jnp.float64).to_params()
+    scaled = (LobeId.shape_of(params)[1]).at_width(jnp.float64(width), jnp.float64).to_params()
     q = np.array([quadrature_y(scaled, P[i, j], V[i, j], conductor, prep.cmf) for i, j in zip(*np.nonzero(sel))])
     m = y.mean(0)[sel]
     r = m - q
@@ -305,9 +307,9 @@ def test_every_lobe_round_trips_fit_to_render(tmp_path, model):
     if model in ("hiraji", "hamon"):
         assert key is None and width == pytest.approx(fit.values["mu"], rel=1e-6)
     else:
-        assert key == lobe_shape(d["lobe"])[1]
+        assert key == LobeId.shape_of(d["lobe"])[1]
         assert width == pytest.approx(fit.values["alpha"], rel=1e-6)
-        assert _close(lobe_with_width(key, jnp.float64(width), jnp.float64).to_params(),
+        assert _close(key.at_width(jnp.float64(width), jnp.float64).to_params(),
                       lobe_from_params(d["lobe"], jnp.float64).to_params())
     f = render_view(prep)
     assert np.isfinite(f.xyz).all() and f.xyz[f.mask].max() > 0
@@ -319,7 +321,6 @@ def test_every_lobe_round_trips_fit_to_render(tmp_path, model):
 @pytest.mark.parametrize("model", ["ggx", "two-lobe"])
 def test_prefiltered_mode_builds_levels_of_the_region_lobe(tmp_path, model):
     from jkatana.render.environment import lobe_albedo
-    from jkatana.render.regions import shader_lobe_key
 
     scene = load_scene(write_scene(tmp_path, hiraji=params_dict(model), hamon=params_dict("hamon", region="hamon"),
                                    w=0.5, mode="prefiltered", res=7))
@@ -328,7 +329,7 @@ def test_prefiltered_mode_builds_levels_of_the_region_lobe(tmp_path, model):
     M = len(env.prefiltered)
     assert len(env.lobe_prefiltered) == 2 and len(env.lobe_prefiltered[0]) == M and env.lobe_prefiltered[1] == ()
     # the region's levels carry its lobe's albedo: a constant map's level is albedo × the map
-    key = shader_lobe_key(prep.plan.hiraji_lobe, None)
+    key = prep.plan.hiraji_lobe.rendered(None)
     mu = float(env.prefilter_mus[0])
     flat = np.asarray(env.lobe_prefiltered[0][0])[0, 0] / np.asarray(env.prefiltered[0])[0, 0]  # zenith row: A_UP
     np.testing.assert_allclose(flat, lobe_albedo(key, mu), rtol=1e-4)
@@ -339,10 +340,11 @@ def test_prefiltered_mode_builds_levels_of_the_region_lobe(tmp_path, model):
 def test_paper_lobe_albedo_is_one_and_paper_files_build_no_levels(tmp_path):
     """The normalised paper lobe carries albedo 1 at normal incidence (what the paper's prefiltered path
     assumes), so a region's own levels (albedo included) are on the same footing; paper files add none."""
-    from jkatana.models.lobes import Gaussian, lobe_shape
+    from jkatana.models.lobes import Gaussian
+    from jkatana.models.lobe_id import LobeId
     from jkatana.render.environment import lobe_albedo
 
-    key = lobe_shape(Gaussian(jnp.float64(0.05), normalised=True).to_params())[1]
+    key = LobeId.shape_of(Gaussian(jnp.float64(0.05), normalised=True).to_params())[1]
     assert lobe_albedo(key, 0.05) == pytest.approx(1.0, abs=2e-3)
     scene = load_scene(write_scene(tmp_path, hiraji=params_dict("hiraji"), mode="prefiltered", res=7))
     assert prepare(scene, env_radiance=two_band(scene.spectral.grid.size)).env.lobe_prefiltered == ()

@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jkatana.models.lobe_id import LobeId
 from jkatana.render import dispatch, shading
 from jkatana.render.environment import build_environment
 from jkatana.render.fresnel_fold import Material, fresnel_table
@@ -16,10 +17,11 @@ from jkatana.render.plan import Pixels, Plan
 from jkatana.render.shading import shade
 from jkatana.spectral import DEFAULT_GRID
 
-GGX_KEY = ("ggx", (("alpha", 1.0),))
-BECKMANN_KEY = ("beckmann", (("alpha", 1.0),))
-# a two-lobe mixture (sharp GGX + haze 8× wider, weight 0.9), keyed as jkatana.models.lobes.lobe_shape keys it
-TWO_LOBE_KEY = ("mixture", (("first", GGX_KEY), ("second", ("ggx", (("alpha", 8.0),))), ("weight", 0.9)))
+GGX_KEY = LobeId.of({"lobe": "ggx", "alpha": 1.0})
+BECKMANN_KEY = LobeId.of({"lobe": "beckmann", "alpha": 1.0})
+# a two-lobe mixture (sharp GGX + haze 8× wider, weight 0.9), at unit primary width as LobeId.shape_of gives it
+TWO_LOBE_KEY = LobeId.of({"lobe": "mixture", "first": {"lobe": "ggx", "alpha": 1.0},
+                          "second": {"lobe": "ggx", "alpha": 8.0}, "weight": 0.9})
 # a value different from the default for every field of Plan
 ALTERNATIVES = {"mode": "paper", "samples": 8, "hiraji": False, "hamon": False, "mirror": True,
                 "env_sampling": False, "env_samples": 2, "env_window": 2.0, "factored": True, "fresnel_rank": 3, "lights": 1, "hiraji_lobe": GGX_KEY,

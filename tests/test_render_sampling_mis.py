@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from jkatana.models import Conductor
-from jkatana.models.lobes import lobe_key
+from jkatana.models.lobe_id import LobeId
 from jkatana.render.film import film_weights
 from jkatana.render.environment import build_environment
 from jkatana.render.fresnel_fold import Material, fresnel_table
@@ -24,7 +24,7 @@ from jkatana.spectral import DEFAULT_GRID
 
 GRID = DEFAULT_GRID
 CMF = film_weights(GRID)
-BECKMANN = lobe_key({"lobe": "beckmann", "alpha": 1.0})
+BECKMANN = LobeId.of({"lobe": "beckmann", "alpha": 1.0})
 
 
 def _scene(n_pix: int, alpha: float):

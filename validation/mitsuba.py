@@ -221,9 +221,9 @@ def render_jkatana(env_path, *, alpha: float | None, size: int = 96, samples: in
     if alpha is None:
         plan, maps = Plan(samples=1, hiraji=True, hamon=False, mirror=True), [1.0, 0.0, 0.05]
     else:
-        from jkatana.models.lobes import lobe_key
+        from jkatana.models.lobe_id import LobeId
 
-        plan = Plan(samples=samples, hiraji=False, hamon=True, hamon_lobe=lobe_key({"lobe": "beckmann", "alpha": 1.0}),
+        plan = Plan(samples=samples, hiraji=False, hamon=True, hamon_lobe=LobeId.of({"lobe": "beckmann", "alpha": 1.0}),
                     env_samples=env_samples, fresnel_rank=fresnel_rank, env_window=env_window)
         maps = [0.0, 0.05, alpha]
     cmf = film_weights(grid)

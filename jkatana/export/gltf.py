@@ -138,20 +138,18 @@ def region_alpha(region: str, key, width: np.ndarray) -> np.ndarray:
     (``None``: the paper's :class:`~jkatana.models.lobes.Gaussian` for the hiraji,
     :class:`~jkatana.models.lobes.GaussianVCavity` for the hamon); the lobe is built
     as the renderer builds it in the normalised convention
-    (:func:`~jkatana.render.regions.shader_lobe_key`,
-    :func:`~jkatana.models.lobes.lobe_with_width`). α = σ/√2 inverts GGX's
+    (:meth:`~jkatana.models.lobe_id.LobeId.rendered`, :meth:`~jkatana.models.lobe_id.LobeId.at_width`). α = σ/√2 inverts GGX's
     reflected width σ = √2 α, so a GGX lobe maps to itself.
     """
     import jax.numpy as jnp
 
-    from jkatana.models.lobes import Gaussian, GaussianVCavity, lobe_with_width
-    from jkatana.render.regions import shader_lobe_key
+    from jkatana.models.lobes import Gaussian, GaussianVCavity
 
     mu = jnp.asarray(np.asarray(width, np.float32))
     if key is None:
         lobe = (Gaussian if region == "hiraji" else GaussianVCavity)(mu, normalised=True)
     else:
-        lobe = lobe_with_width(shader_lobe_key(key, None), mu, jnp.float32)
+        lobe = key.rendered(None).at_width(mu, jnp.float32)
     sigma = np.asarray(lobe.reflected_width(), np.float64)
     return sigma / math.sqrt(2.0)
 

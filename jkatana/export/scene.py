@@ -109,9 +109,8 @@ def region_lobe(region: str, key, width: float, spread, *, calibration: float | 
     import jax
     import jax.numpy as jnp
 
-    from jkatana.models.lobes import Gaussian, GaussianVCavity, lobe_with_width
+    from jkatana.models.lobes import Gaussian, GaussianVCavity
     from jkatana.render.plan import MIRROR_MU
-    from jkatana.render.regions import shader_lobe_key
 
     with jax.enable_x64(True):
         mu = jnp.asarray(width, jnp.float64)
@@ -122,7 +121,7 @@ def region_lobe(region: str, key, width: float, spread, *, calibration: float | 
             else:
                 lobe, gain = cls(mu, jnp.asarray(scale / calibration, jnp.float64), normalised=False), 1.0
         else:
-            lobe = lobe_with_width(shader_lobe_key(key, calibration), mu, jnp.float64)
+            lobe = key.rendered(calibration).at_width(mu, jnp.float64)
             gain = 1.0 if calibration is None else scale / calibration
     mirror = key is None and region == "hiraji" and width < MIRROR_MU
     return RegionLobe(region, lobe, float(width), spread, float(gain), mirror)

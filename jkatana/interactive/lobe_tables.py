@@ -25,8 +25,7 @@ import numpy as np
 
 from jkatana.interactive.levels import MU_LEVELS
 from jkatana.models import Conductor
-from jkatana.models.lobes import Gaussian, GaussianVCavity, WidthFamily, key_params, lobe_key
-from jkatana.models.lobes import normalised_params
+from jkatana.models.lobes import Gaussian, GaussianVCavity
 
 
 #: The paper's lobes (hiraji: Gaussian, eq. 1; hamon: Gaussian V-cavity, eq. 2), normalised, as families
@@ -40,7 +39,7 @@ def region_lobes(keys: dict | None = None) -> tuple:
     paper's lobe of that region)."""
     keys = keys or {}
     return tuple(paper if keys.get(region) is None else
-                 WidthFamily(lobe_key(normalised_params(key_params(keys[region]))))
+                 keys[region].normalised()
                  for region, paper in zip(("hiraji", "hamon"), PAPER_LOBES))
 
 
@@ -82,7 +81,7 @@ def family_core(family) -> tuple:
 
 def family_names(lobes) -> tuple[str, ...]:
     """Stable names of lobe families (a cache key's part): a lobe class's ``name``, a
-    :class:`WidthFamily`'s key."""
+    :class:`~jkatana.models.lobe_id.LobeId`'s name."""
     return tuple(str(f.name) for f in lobes)
 
 

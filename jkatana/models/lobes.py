@@ -156,8 +156,8 @@ class Lobe(eqx.Module):
     """Base class: subclasses define ``terms_at``, ``sample``, ``pdf`` and the class attribute ``name``.
 
     ``widths`` names the fields that set the lobe's angular width (μ of the
-    Gaussian lobes, α of the microfacet ones): :func:`lobe_shape` and
-    :func:`lobe_with_width` scale them together.
+    Gaussian lobes, α of the microfacet ones): :meth:`jkatana.models.lobe_id.LobeId.shape_of` and
+    :meth:`~jkatana.models.lobe_id.LobeId.at_width` scale them together.
     """
 
     name: ClassVar[str] = ""
@@ -811,125 +811,5 @@ def lobe_from_params(params: dict, dtype=None) -> Lobe:
     return LOBES[name].from_params(params, dtype)
 
 
-#: A lobe's parameters in hashable form: ``(name, ((field, value), ...))`` with the fields sorted, nested
-#: lobes as keys themselves and numbers as Python floats (a static part of a compiled program).
-LobeKey = tuple
-
-
-def lobe_key(params: dict) -> LobeKey:
-    """The hashable form of a ``to_params()`` dict (inverse: :func:`key_params`)."""
-    def freeze(v):
-        if isinstance(v, dict):
-            return lobe_key(v)
-        if isinstance(v, (bool, str)) or v is None:
-            return v
-        a = np.asarray(v, np.float64)
-        if a.ndim:
-            raise ValueError(f"a lobe key needs scalar parameters, got shape {a.shape}")
-        return float(a)
-
-    p = dict(params)
-    name = p.pop("lobe")
-    return (name, tuple(sorted((k, freeze(v)) for k, v in p.items())))
-
-
-def key_params(key: LobeKey) -> dict:
-    """The ``to_params()`` dict of a :func:`lobe_key`."""
-    name, items = key
-    return {"lobe": name, **{k: key_params(v) if _is_key(v) else v for k, v in items}}
-
-
-def _is_key(v) -> bool:
-    return isinstance(v, tuple) and len(v) == 2 and isinstance(v[0], str) and isinstance(v[1], tuple)
-
-
-def _widths_of(params: dict) -> list[tuple[tuple[str, ...], str]]:
-    """Paths ``(nested field names, width field)`` of every width in a ``to_params()`` dict, first part first."""
-    cls = LOBES[params["lobe"]]
-    out = [((), f) for f in cls.widths if f in params]
-    for f in _field_names(cls):
-        v = params.get(f)
-        if isinstance(v, dict):
-            out += [((f,) + path, w) for path, w in _widths_of(v)]
-    return out
-
-
-def _map_widths(params: dict, fn) -> dict:
-    p = dict(params)
-    for f in LOBES[p["lobe"]].widths:
-        if f in p:
-            p[f] = fn(p[f])
-    for f, v in p.items():
-        if isinstance(v, dict):
-            p[f] = _map_widths(v, fn)
-    return p
-
-
-def lobe_shape(params: dict) -> tuple[float, LobeKey]:
-    """``(width, key)``: a lobe's primary width (that of its first part) and its :func:`lobe_key` with every
-    width divided by it, so that :func:`lobe_with_width` can rebuild the lobe at any width with the same
-    shape (the same width ratios of a :class:`Mixture`'s parts, the same γ of :class:`GTR`)."""
-    paths = _widths_of(params)
-    if not paths:
-        raise ValueError(f"lobe {params.get('lobe')!r} has no width parameter")
-    sub = params
-    for f in paths[0][0]:
-        sub = sub[f]
-    width = float(np.asarray(sub[paths[0][1]], np.float64))
-    if not (math.isfinite(width) and width > 0):
-        raise ValueError(f"lobe width must be > 0, got {width!r}")
-    return width, lobe_key(_map_widths(params, lambda v: float(np.asarray(v, np.float64)) / width))
-
-
-def lobe_with_width(key: LobeKey, width, dtype=None) -> Lobe:
-    """The lobe of ``key`` (from :func:`lobe_shape`) with every width multiplied by ``width`` (an array of
-    any batch shape: per-pixel widths give per-pixel lobes). Other parameters are cast to ``dtype``."""
-    width = jnp.asarray(width, dtype) if dtype is not None else jnp.asarray(width)
-
-    def other(p: dict) -> dict:  # the other numeric parameters take the widths' batch shape
-        out = {}
-        for f, v in p.items():
-            if isinstance(v, dict):
-                v = other(v)
-            elif f != "lobe" and not isinstance(v, (bool, str)) and v is not None:
-                v = jnp.broadcast_to(jnp.asarray(v, width.dtype), width.shape)
-            out[f] = v
-        return out
-
-    params = _map_widths(other(key_params(key)), lambda v: width * v)
-    return lobe_from_params(params, width.dtype)
-
-
-@dataclasses.dataclass(frozen=True)
-class WidthFamily:
-    """The lobe of a :func:`lobe_shape` key as a family width ↦ lobe (:func:`lobe_with_width`), the form the
-    prefilter and the interactive tables take a lobe in (:data:`jkatana.light.prefilter.LobeFamily`):
-    hashable by value, so a jitted function of it compiles once per lobe family."""
-
-    key: LobeKey
-
-    def __call__(self, width) -> Lobe:
-        return lobe_with_width(self.key, width)
-
-    @property
-    def name(self) -> str:
-        """A stable name (a cache key's part): the key's repr."""
-        return repr(self.key)
-
-
-def normalised_params(params: dict) -> dict:
-    """A ``to_params()`` dict with every Gaussian part in the normalised convention (scale N(μ), recomputed;
-    the microfacet lobes are normalised already): the lobe a renderer uses without a calibration."""
-    p = dict(params)
-    if issubclass(LOBES[p["lobe"]], _GaussianBase):
-        p.pop("scale", None)
-        p["normalised"] = True
-    for f, v in p.items():
-        if isinstance(v, dict):
-            p[f] = normalised_params(v)
-    return p
-
-
-__all__ = ["LOBES", "Lobe", "Geometry", "LobeKey", "Gaussian", "GaussianVCavity", "Beckmann", "GGX", "GTR", "Mixture", "reflect",
-           "lobe_from_params", "lobe_key", "key_params", "lobe_shape", "lobe_with_width", "normalised_params",
-           "WidthFamily"]
+__all__ = ["LOBES", "Lobe", "Geometry", "Gaussian", "GaussianVCavity", "Beckmann", "GGX", "GTR", "Mixture", "reflect",
+           "lobe_from_params"]

@@ -28,7 +28,6 @@ from jkatana.light.prefilter import blend_levels
 from jkatana.light.envmap import bilinear_uv as bilinear_equirect_uv  # the one bilinear lookup, under the render name
 from jkatana.light.sampling import EnvSampler
 from jkatana.light.sun import SunSplit, cap_solid_angle, split_compact_sources
-from jkatana.models.lobes import WidthFamily
 
 
 #: Render modes that split compact sources off the map by default (where one exists): the fast
@@ -197,8 +196,8 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     one ``split_sun=False`` builds, array for array.
 
     ``prefilter_lobes``: per region (hiraji, hamon) ``None`` (the paper's lobe: the
-    levels of `Environment.prefiltered`) or a :func:`~jkatana.models.lobes.lobe_shape`
-    key, the lobe the shader renders that region with (the normalised form in the
+    levels of `Environment.prefiltered`) or a :class:`~jkatana.models.lobe_id.LobeId`
+    at unit width, the lobe the shader renders that region with (the normalised form in the
     normalised convention); such a region gets levels of its own
     (`Environment.lobe_prefiltered`): the map convolved with that lobe's kernel at
     each μ of ``prefilter_mus`` as its primary width (:func:`jkatana.light.prefilter.prefilter`,
@@ -257,7 +256,7 @@ def prefiltered_levels(src: EnvMap, mus: tuple, basis: np.ndarray, prefilter_lob
     pre = project(light_prefilter(src, mus).levels)
     lobe_pre = ()
     if any(key is not None for key in prefilter_lobes):
-        lobe_pre = tuple(() if key is None else project(light_prefilter(src, mus, lobe=WidthFamily(key)).levels,
+        lobe_pre = tuple(() if key is None else project(light_prefilter(src, mus, lobe=key).levels,
                                                         [lobe_albedo(key, m) for m in mus])
                          for key in prefilter_lobes)
     return pre, lobe_pre
@@ -269,7 +268,7 @@ def lobe_albedo(key, mu: float) -> float:
     on its nodes, which resolve the peak)."""
     from jkatana.light.prefilter import kernel_table, lobe_of_width
 
-    x, k = kernel_table(lobe_of_width(WidthFamily(key), mu))
+    x, k = kernel_table(lobe_of_width(key, mu))
     return float(4.0 * np.pi * np.trapezoid(k, x))
 
 

@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 from jaxtyping import Array, Float
 
+from jkatana.models.lobe_id import LobeId
 from jkatana.render.integrators import INTEGRATORS
 
 #: Below this μ0 (radians) the hiraji lobe is treated as a perfect mirror (one lookup).
@@ -82,7 +83,7 @@ class Plan:
     - `lights`: number of point/directional lights (0: none evaluated).
     - `calibration`: ``None`` for the normalised convention, else K (see models).
     - `hiraji_lobe`, `hamon_lobe`: the region's lobe other than the paper's, as
-      :func:`jkatana.models.lobes.lobe_shape`'s key (class and static parameters,
+      :class:`jkatana.models.lobe_id.LobeId` (family and static parameters,
       every width relative to the primary one; the per-pixel μ0 / μ1 of the maps
       is that primary width), or ``None`` for the paper's lobe (hiraji: eq. 1,
       :class:`~jkatana.models.lobes.Gaussian`; hamon: eq. 2,
@@ -125,8 +126,8 @@ class Plan:
     factored: bool = False
     fresnel_rank: int | None = None
     lights: int = 0
-    hiraji_lobe: tuple | None = None
-    hamon_lobe: tuple | None = None
+    hiraji_lobe: LobeId | None = None
+    hamon_lobe: LobeId | None = None
     calibration: float | None = None
     spectral: bool = False
     visibility: bool = False

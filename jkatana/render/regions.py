@@ -12,8 +12,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from jkatana.models.lobes import (Gaussian, GaussianVCavity, Mixture, key_params, lobe_key, lobe_with_width,
-                                  normalised_params)
+from jkatana.models.lobes import Gaussian, GaussianVCavity, Mixture
 from jkatana.models.microfacet import gaussian_normalisation
 from jkatana.render.fresnel_fold import Material
 from jkatana.render.plan import LOBE_MODES, Pixels, Plan
@@ -32,10 +31,10 @@ def _norms(plan: Plan, mat: Material, px: Pixels):
 
 def _region_lobe(plan: Plan, key, width, norm, paper):
     """``(lobe, gain)`` of one region: the paper's lobe ``paper`` (scale ``norm``, gain ``None``) or, for a
-    :func:`~jkatana.models.lobes.lobe_shape` key, that lobe at the per-pixel ``width``.
+    :class:`~jkatana.models.lobe_id.LobeId` at unit width, that lobe at the per-pixel ``width``.
 
     Another lobe in the normalised convention is its energy-normalised form
-    (:func:`~jkatana.models.lobes.normalised_params`, gain ``None``); calibrated,
+    (:meth:`~jkatana.models.lobe_id.LobeId.normalised`, gain ``None``); calibrated,
     it is the lobe as fitted times ``norm`` = s/K, where s is the params file's
     scale: the fit's model is ρ = s · f_r cos θi · F̄ (:mod:`jkatana.fit._model`),
     so s/K converts camera units to reflectance exactly as χ/K does for the
@@ -45,22 +44,14 @@ def _region_lobe(plan: Plan, key, width, norm, paper):
     if key is None:
         return paper(width, norm, normalised=normalised), None
     if plan.mode not in LOBE_MODES:
-        raise ValueError(f"lobe {key[0]!r} renders in modes {list(LOBE_MODES)} only, not {plan.mode!r}")
-    return lobe_with_width(shader_lobe_key(key, plan.calibration), width, width.dtype), (None if normalised else norm)
-
-
-def shader_lobe_key(key: tuple, calibration: float | None) -> tuple:
-    """The :func:`~jkatana.models.lobes.lobe_shape` key of the lobe a region with ``key`` is rendered with: its
-    energy-normalised form (:func:`~jkatana.models.lobes.normalised_params`) in the normalised convention
-    (``calibration`` None), else the lobe as fitted (its gain s/K applied by the shader)."""
-    if calibration is None:
-        return lobe_key(normalised_params(key_params(key)))
-    return key
+        raise ValueError(f"lobe {key.family!r} renders in modes {list(LOBE_MODES)} only, not {plan.mode!r}")
+    return key.rendered(plan.calibration).at_width(width, width.dtype), (None if normalised else norm)
 
 
 def region_lobe_keys(lobes: dict, calibration: float | None) -> tuple:
-    """``(hiraji, hamon)``: :func:`shader_lobe_key` of each region's lobe key in ``lobes``, ``None`` for the paper's."""
-    return tuple(None if lobes[r] is None else shader_lobe_key(lobes[r], calibration) for r in ("hiraji", "hamon"))
+    """``(hiraji, hamon)``: the :meth:`~jkatana.models.lobe_id.LobeId.rendered` identity of each region's lobe in
+    ``lobes``, ``None`` for the paper's."""
+    return tuple(None if lobes[r] is None else lobes[r].rendered(calibration) for r in ("hiraji", "hamon"))
 
 
 def _lobes(plan: Plan, px: Pixels, norms):

@@ -29,6 +29,7 @@ from jkatana.render.film import display, scene_exposure, film_weights, write_png
 from jkatana.render.frame import Frame, pixel_blocks, render_frame
 from jkatana.render.scene import LIMITS, RENDER_MODES, Scene
 from jkatana.render.scenefile import scene_to_toml
+from jkatana.models.lobe_id import LobeId
 from jkatana.render.regions import region_lobe_keys
 from jkatana.render.environment import Environment, build_environment
 from jkatana.render.fresnel_fold import Material, fresnel_table
@@ -103,7 +104,7 @@ def load_material(scene: Scene, geometry) -> tuple[np.ndarray, float, float, dic
     median is the fitted width (μ of the paper's lobes, the primary α of the
     others; a two-lobe's haze width keeps its ratio to it). ``lobes`` maps each
     region to ``None`` (the paper's lobe) or the lobe's
-    :func:`~jkatana.models.lobes.lobe_shape` key (``Plan.hiraji_lobe`` /
+    :class:`~jkatana.models.lobe_id.LobeId` at unit width (``Plan.hiraji_lobe`` /
     ``hamon_lobe``). The file's scale (χ, β or s) is the calibrated scale of its
     region (``[material] calibration``; unused in the normalised convention).
     """
@@ -143,9 +144,9 @@ def load_material(scene: Scene, geometry) -> tuple[np.ndarray, float, float, dic
     return maps, chi, beta, lobes
 
 
-def _file_lobe(p, path, region) -> tuple[float, tuple]:
-    """``(width, key)`` of a parameter file's lobe (its ``lobe`` entry, else rebuilt from its values)."""
-    from jkatana.models.lobes import lobe_from_params, lobe_shape
+def _file_lobe(p, path, region) -> tuple[float, LobeId]:
+    """``(width, identity)`` of a parameter file's lobe (its ``lobe`` entry, else rebuilt from its values)."""
+    from jkatana.models.lobes import lobe_from_params
 
     field = f"material.{region}"
     try:
@@ -157,7 +158,7 @@ def _file_lobe(p, path, region) -> tuple[float, tuple]:
             fm = FIT_MODELS[p.model]
             params = fm.build(jnp.asarray(fm.shape_from_natural(p.values))).to_params()
         lobe_from_params(params)  # every field known and well-formed
-        return lobe_shape(params)
+        return LobeId.shape_of(params)
     except (ValueError, TypeError, KeyError) as err:
         raise InputError(f"lobe entry is not a lobe jkatana renders ({err})", path=path,
                          field=f"{field} (lobe)") from None
@@ -176,7 +177,7 @@ def check_lobe_mode(lobes: dict, scene: Scene, mode: str) -> None:
           "cut off this lobe's tails"
     for region, key in lobes.items():
         if key is not None:
-            raise InputError(f"holds a {key[0]!r} lobe, which renders in modes {', '.join(LOBE_MODES)} only "
+            raise InputError(f"holds a {key.family!r} lobe, which renders in modes {', '.join(LOBE_MODES)} only "
                              f"(mode {mode!r} {why}): set [render] mode or --mode",
                              path=getattr(scene.material, region), field=f"material.{region}")
 
