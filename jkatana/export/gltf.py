@@ -398,7 +398,7 @@ def _alpha_stats(maps, lobes: dict, per_region: dict, alpha_full: np.ndarray) ->
         a = per_region[region][used]
         if a.size:
             stats[region] = {"min": float(a.min()), "median": float(np.median(a)), "max": float(a.max()),
-                             "lobe": "paper" if lobes[region] is None else lobes[region][0]}
+                             "lobe": "paper" if lobes[region] is None else lobes[region].family}
     stats["blend"] = {"min": float(alpha_full.min()), "median": float(np.median(alpha_full)),
                       "max": float(alpha_full.max())}
     return stats
