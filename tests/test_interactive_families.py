@@ -12,7 +12,8 @@ from jkatana.interactive import taps as TP
 from jkatana.interactive.levels import MU_LEVELS
 from jkatana.interactive.lobe_tables import FITTED_FAMILIES, PAPER_LOBES, family_core, region_lobes
 from jkatana.models import Conductor
-from jkatana.models.lobes import LOBES, lobe_shape
+from jkatana.models.lobe_id import LobeId
+from jkatana.models.lobes import LOBES
 
 #: One parameter set per registered lobe (and the mixtures ``jkatana fit`` writes): the family of each.
 PARAMS = {
@@ -35,7 +36,7 @@ def iron():
 
 
 def _family(params):
-    return region_lobes({"hiraji": lobe_shape(params)[1]})[0]
+    return region_lobes({"hiraji": LobeId.shape_of(params)[1]})[0]
 
 
 def test_every_registered_lobe_has_a_params_case():

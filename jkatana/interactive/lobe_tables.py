@@ -25,6 +25,7 @@ import numpy as np
 
 from jkatana.interactive.levels import MU_LEVELS
 from jkatana.models import Conductor
+from jkatana.models.lobe_id import LobeId
 from jkatana.models.lobes import Gaussian, GaussianVCavity
 
 
@@ -45,8 +46,8 @@ def region_lobes(keys: dict | None = None) -> tuple:
 
 #: The families whose three taps are fitted (:func:`jkatana.interactive.taps.tap_fit`) and shipped for iron beside
 #: the paper's: one lobe shape each (a single microfacet lobe's shape is its distribution alone).
-FITTED_FAMILIES = (WidthFamily(lobe_key({"lobe": "ggx", "alpha": 1.0})),
-                   WidthFamily(lobe_key({"lobe": "beckmann", "alpha": 1.0})))
+FITTED_FAMILIES = (LobeId.of({"lobe": "ggx", "alpha": 1.0}),
+                   LobeId.of({"lobe": "beckmann", "alpha": 1.0}))
 
 
 def gtr_core_factor(gamma: float) -> float:
@@ -66,16 +67,15 @@ def family_core(family) -> tuple:
     :func:`jkatana.interactive.taps.tail_fit`). Other families: ``(family, 1.0)``, fitted themselves."""
     if family in PAPER_LOBES:
         return family, 1.0
-    name, items = family.key
-    p = dict(items)
+    name, p = family.family, dict(family.fields)
     if name in ("ggx", "beckmann"):
-        return WidthFamily(lobe_key({"lobe": name, "alpha": 1.0})), float(p["alpha"])
+        return LobeId.of({"lobe": name, "alpha": 1.0}), float(p["alpha"])
     if name in ("gaussian", "gaussian-vcavity") and p.get("normalised", True):
         return PAPER_LOBES[name == "gaussian-vcavity"], float(p["mu"])
     if name == "gtr":
         return FITTED_FAMILIES[0], float(p["alpha"]) * gtr_core_factor(float(p["gamma"]))
     if name == "mixture":
-        return min((family_core(WidthFamily(p[part])) for part in ("first", "second")), key=lambda bc: bc[1])
+        return min((family_core(p[part]) for part in ("first", "second")), key=lambda bc: bc[1])
     return family, 1.0
 
 
