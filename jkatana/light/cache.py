@@ -4,7 +4,7 @@ Turning an HDR file into the renderer's environment is the slow part of
 loading a scene: reading and spectrally upsampling the image
 (:mod:`jkatana.light.upsampling`), then the sampling tables, the spectral
 basis and, for the ``prefiltered`` mode, the lobe-convolved levels
-(:func:`jkatana.render.shading.build_environment`). Both steps are pure
+(:func:`jkatana.render.environment.build_environment`). Both steps are pure
 functions of their inputs, so their results are kept under a content key:
 
 - :func:`radiance_key`: the file's bytes (SHA-256), or the sky's parameters,
@@ -111,17 +111,17 @@ def radiance_key(env, grid) -> str | None:
 
 def environment_key(rad_key: str, *, rank, prefilter_mus, prefilter_resolution: int, dtype,
                     split_sun: bool = False) -> str:
-    """Key of :func:`jkatana.render.shading.build_environment`'s result for radiance ``rad_key``
+    """Key of :func:`jkatana.render.environment.build_environment`'s result for radiance ``rad_key``
     (``split_sun``: compact sources split off as caps, :mod:`jkatana.light.sun`)."""
     mus = tuple(round(float(m), 12) for m in prefilter_mus)
     return _key("environment", rad_key, rank, mus, int(prefilter_resolution), np.dtype(dtype).name, bool(split_sun),
-                _source_digest("jkatana.render.shading", "jkatana.render.environment", "jkatana.light.sampling",
+                _source_digest("jkatana.render.environment", "jkatana.render.streamed", "jkatana.light.sampling",
                                "jkatana.light.prefilter", "jkatana.light.sun", "jkatana.light.envmap",
-                               "jkatana.models.lobes"))
+                               "jkatana.light.streaming", "jkatana.models.lobes", "jkatana.models.lobe_id"))
 
 
 def fresnel_key(n, k, dtype) -> str:
-    """Key of :func:`jkatana.render.shading.fresnel_table` for optical constants ``n``, ``k`` on a grid."""
+    """Key of :func:`jkatana.render.fresnel_fold.fresnel_table` for optical constants ``n``, ``k`` on a grid."""
     nk = np.concatenate([np.asarray(n, np.float64).ravel(), np.asarray(k, np.float64).ravel()]).tobytes()
     return _key("fresnel", np.dtype(dtype).name, hashlib.sha256(nk).hexdigest(),
                 _source_digest("jkatana.render.fresnel_fold", "jkatana.models.fresnel"))

@@ -385,7 +385,7 @@ def mis_weight(p_this, p_other, n_this=1, n_other=1, heuristic: str = "balance",
     ``f`` is multiplied by in the combined estimator ``Σ w f / (n p)`` (the balance heuristic's
     ``1 / Σ n p``, which needs no division by a density that may be 0). ``valid`` (default: the
     denominator > 0) says where the sample counts; elsewhere the result is 0. The renderer's strategies
-    (:func:`jkatana.render.shading.shade`) all weigh their samples with this function.
+    (:mod:`jkatana.render.integrators.mis`) all weigh their samples with this function.
     """
     a = n_this * p_this
     b = n_other * p_other

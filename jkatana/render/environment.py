@@ -28,11 +28,13 @@ from jkatana.light.prefilter import blend_levels
 from jkatana.light.envmap import bilinear_uv as bilinear_equirect_uv  # the one bilinear lookup, under the render name
 from jkatana.light.sampling import EnvSampler
 from jkatana.light.sun import SunSplit, cap_solid_angle, split_compact_sources
+from jkatana.render.integrators import INTEGRATORS
 
 
-#: Render modes that split compact sources off the map by default (where one exists): the fast
-#: deterministic and low-rank modes. The reference mode keeps the whole map (the yardstick) unless asked.
-SPLIT_MODES = ("prefiltered", "paper", "lowrank")
+#: Render modes that split compact sources off the map by default (where one exists): the integrators of
+#: :data:`~jkatana.render.integrators.INTEGRATORS` marked ``splits_sun``, the fast deterministic and low-rank
+#: modes. The reference mode keeps the whole map (the yardstick) unless asked.
+SPLIT_MODES = tuple(name for name, integrator in INTEGRATORS.items() if integrator.splits_sun)
 
 
 class Caps(eqx.Module):

@@ -101,6 +101,7 @@ from typing import Any
 import tomli_w
 
 from jkatana.errors import InputError
+from jkatana.render.integrators import integrator_for
 from jkatana.render.scene import (ENV_TYPES, LIMITS, RENDER_MODES, WAVELENGTH_RANGE, CameraSpec, EnvironmentSpec, FilmSpec,
                                   GeometrySpec, LightSpec, MaterialSpec, OccluderSpec, OutputSpec, RenderSpec, Scene, SpectralSpec, UniformSpec)
 
@@ -233,7 +234,7 @@ def scene_from_dict(raw: dict, path: Path | None = None) -> Scene:
     spectral = _spectral(raw, path)
     render = _render(raw, path, spectral)
     environment = _environment(raw, path, spectral)
-    if render.mode == "lowrank" and environment.resolution is not None:
+    if integrator_for(render.mode).low_rank and environment.resolution is not None:
         texels = environment.resolution[0] * environment.resolution[1]
         if render.rank > texels:
             raise InputError(f"must be at most the environment's {texels} texels in lowrank mode, got {render.rank}",
@@ -388,7 +389,7 @@ def _render(raw, path, spectral: SpectralSpec) -> RenderSpec:
                     chunk=r.integer("chunk", 16384, lo=256, hi=LIMITS["chunk"]),
                     split_sun=_split_sun(r), env_window=_env_window(r))
     r.check_unknown()
-    if render.mode == "paper-published" and render.split_sun:
+    if integrator_for(render.mode).whole_map and render.split_sun:
         raise r.err("split_sun", "the paper-published mode shades the whole map, as published: no sun split")
     return render
 
