@@ -386,12 +386,12 @@ def _params_file(path, model: str, region: str, values: dict) -> str:
 
 
 @pytest.mark.gl
-@pytest.mark.slow          # ~5–10 min on 2 loaded cores: tap fits for two new lobe families, a 256-spp reference
+@pytest.mark.slow          # a 256-spp reference; the GGX and Beckmann rows are shipped (no tap fit)
 def test_gl_frame_renders_the_lobes_of_parameter_files(glr, tmp_path):
-    """Parameter files holding a GGX (hiraji) and a Beckmann (hamon) lobe: the bake fits its lobe table and
-    taps to those lobes (:func:`lobe_tables.region_lobes`), and the GL frame agrees with jkatana.render
-    (reference mode, the same files) within the paper's lobe's bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5) on the
-    studio demo view; the paper's tables on the same maps do not."""
+    """Parameter files holding a GGX (hiraji) and a Beckmann (hamon) lobe: the bake reads those lobes' rows of
+    the lobe table and taps (:func:`lobe_tables.region_lobes`; shipped, no fit), and the GL frame agrees with
+    jkatana.render (reference mode, the same files) within the paper's lobe's bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5)
+    on the studio demo view; the paper's tables on the same maps do not."""
     from jkatana.interactive.lobe_tables import region_lobes
     from jkatana.render.film import auto_exposure
     from jkatana.render.renderer import render_view
@@ -400,15 +400,14 @@ def test_gl_frame_renders_the_lobes_of_parameter_files(glr, tmp_path):
     rad = S.environment("studio")
     prep = _files_prepared(tmp_path, view, rad)
     keys = {"hiraji": prep.plan.hiraji_lobe, "hamon": prep.plan.hamon_lobe}
-    assert keys["hiraji"][0] == "ggx" and keys["hamon"][0] == "beckmann"
+    assert keys["hiraji"].family == "ggx" and keys["hamon"].family == "beckmann"
     fr = render_view(prep)
     exposure = auto_exposure(fr.xyz, fr.mask, key=0.6, percentile=75.0)
     ref = A.display255(fr.xyz, exposure)
     maps = np.asarray(prep.maps, np.float64)
-    mus = LV.MU_LEVELS[2:9]                    # 0.025–0.2 rad: the maps' widths, fewer levels to fit
     stats = {}
-    for name, lobes, levels in (("files", region_lobes(keys), mus), ("paper", region_lobes(), LV.MU_LEVELS)):
-        baked = B.cached_bake(rad, rank=3, mus=levels, lobes=lobes)   # the user cache: fitted once per family
+    for name, lobes in (("files", region_lobes(keys)), ("paper", region_lobes())):
+        baked = B.cached_bake(rad, rank=3, lobes=lobes)                # the shipped rows of both families
         st = glr.ShadingState(baked, maps, exposure=exposure)
         img, gl_mask = A.gl_frame(st, view, S.blade(), return_mask=True)
         stats[name] = A.compare(img, ref, fr.mask & gl_mask)[0]
@@ -418,7 +417,7 @@ def test_gl_frame_renders_the_lobes_of_parameter_files(glr, tmp_path):
 
 
 @pytest.mark.gl
-@pytest.mark.slow          # ~2 min on 2 loaded cores: a 256-spp reference, tap fits for two lobe families (cached)
+@pytest.mark.slow          # ~2 min on 2 loaded cores: a 256-spp reference, the cap kernel table
 def test_sun_glint_on_parameter_files_lobes_under_a_real_hdr(glr, tmp_path):
     """A sun (split cap) on regions holding non-paper lobes: GGX hiraji (α 0.05) and Beckmann hamon (α 0.12)
     from parameter files under ``sunrise.exr``, at its sun-glint view; the GL frame against jkatana.render
@@ -435,7 +434,7 @@ def test_sun_glint_on_parameter_files_lobes_under_a_real_hdr(glr, tmp_path):
     keys = {"hiraji": prep.plan.hiraji_lobe, "hamon": prep.plan.hamon_lobe}
     fr = render_view(prep)
     exposure = auto_exposure(fr.xyz, fr.mask, key=0.6, percentile=75.0)
-    baked = B.cached_bake(rad, rank=3, mus=LV.MU_LEVELS[2:9], lobes=region_lobes(keys))
+    baked = B.cached_bake(rad, rank=3, lobes=region_lobes(keys))
     assert baked.n_caps == 1
     st = glr.ShadingState(baked, np.asarray(prep.maps, np.float64), exposure=exposure)
     img, gl_mask = A.gl_frame(st, view, mesh, return_mask=True)
