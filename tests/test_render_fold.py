@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from jkatana.models import Conductor
+from jkatana.models.lobe_id import LobeId
 from jkatana.render.camera import Camera
 from jkatana.render.film import film_weights
 from jkatana.render.fresnel_fold import FRESNEL_RANK_TOL_SAMPLED
@@ -60,7 +61,7 @@ def test_fresnel_rank_meets_its_tolerance(source):
 
 
 @pytest.mark.parametrize("mode,kw", [("reference", dict(hiraji=True, hamon=True)),
-                                     ("reference", dict(hiraji=False, hamon=True, hamon_lobe=("beckmann", (("alpha", 1.0),)))),
+                                     ("reference", dict(hiraji=False, hamon=True, hamon_lobe=LobeId.of({"lobe": "beckmann", "alpha": 1.0}))),
                                      ("paper", dict(hiraji=True, hamon=True)),
                                      ("reference", dict(hiraji=True, hamon=False, mirror=True)),
                                      ("prefiltered", dict(hiraji=True, hamon=True))])
@@ -105,7 +106,7 @@ def test_sampled_modes_default_to_the_sampled_tolerance_rank(source):
 
 
 @pytest.mark.parametrize("kw", [dict(hiraji=True, hamon=True),
-                                dict(hiraji=False, hamon=True, hamon_lobe=("beckmann", (("alpha", 1.0),)))])
+                                dict(hiraji=False, hamon=True, hamon_lobe=LobeId.of({"lobe": "beckmann", "alpha": 1.0}))])
 def test_sampled_default_rank_bias_is_bounded_by_the_table_residual(kw):
     """Same samples at the default (rank-3) fold and at full spectra: every sample's weight and radiance are
     non-negative, so per pixel and channel |XYZ_R − XYZ| ≤ max|F − F_R| / min F · XYZ. The difference is

@@ -85,9 +85,10 @@ def test_changing_a_plan_field_changes_the_traced_program(field, value):
     assert program(other) != program(base)
 
 
-@pytest.mark.parametrize("a,b", [(("gtr", (("alpha", 1.0), ("gamma", 1.5))), ("gtr", (("alpha", 1.0), ("gamma", 1.6)))),
-                                 (TWO_LOBE_KEY, ("mixture", (("first", GGX_KEY), ("second", ("ggx", (("alpha", 8.0),))),
-                                                             ("weight", 0.8))))])
+@pytest.mark.parametrize("a,b", [(LobeId.of({"lobe": "gtr", "alpha": 1.0, "gamma": 1.5}),
+                                  LobeId.of({"lobe": "gtr", "alpha": 1.0, "gamma": 1.6})),
+                                 (TWO_LOBE_KEY, LobeId.of({"lobe": "mixture", "first": {"lobe": "ggx", "alpha": 1.0},
+                                                           "second": {"lobe": "ggx", "alpha": 8.0}, "weight": 0.8}))])
 def test_a_lobe_static_parameter_is_part_of_the_compile_key(a, b):
     """A lobe's static parameters (GTR's γ, a two-lobe's weight) select the compiled program like any Plan field."""
     pa, pb = (Plan(mode="reference", samples=4, fresnel_rank=0, hiraji_lobe=k) for k in (a, b))
