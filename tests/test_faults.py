@@ -499,6 +499,7 @@ def _clean_interrupt(rc, err, sig=signal.SIGINT):
     assert "interrupted" in last
 
 
+@pytest.mark.slow
 def test_sigint_during_fit_emcee_exits_130_without_output(campaign, tmp_path):
     rc, err = _interrupt(["fit", campaign / "table.csv", "--region", "hiraji", "-o", tmp_path / "f.json",
                           "--emcee"], tmp_path, after=120.0, seen="emcee")
@@ -507,6 +508,7 @@ def test_sigint_during_fit_emcee_exits_130_without_output(campaign, tmp_path):
     no_temporaries(tmp_path)
 
 
+@pytest.mark.slow
 def test_sigterm_during_simulate_exits_143_and_resume_completes(tmp_path):
     argv = ["simulate", "-o", tmp_path / "s", "--incidences", "15", "25", "35", "45", "--dense-step", "0.5",
             "--sparse-step", "5", "--size", "24", "24", "--quiet"]
@@ -709,6 +711,7 @@ _KILLED_MID_CAPTURE = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_resume_after_kill_mid_capture_redoes_the_truncated_capture(tmp_path):
     from jkatana.measure.decode import read_frame
 

@@ -295,6 +295,7 @@ def test_per_incidence_refits_compile_no_program_beyond_the_region_fit(geometry,
 
 
 @pytest.mark.parametrize("model", ["hiraji", "gtr", "two-lobe"])
+@pytest.mark.slow
 def test_refits_one_at_a_time_equal_the_batched_refits(geometry, model):
     """:func:`refit_each` (the region fit's program once per row of weights) gives the batched :func:`_refits`'
     fits: the same optimum to a tiny fraction of its standard error, the same verdicts."""

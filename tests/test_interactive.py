@@ -169,6 +169,7 @@ def test_gl_frame_agrees_with_the_reference_renderer_under_the_sky(glr, sky_scen
 
 
 @pytest.mark.gl
+@pytest.mark.slow
 def test_every_combination_of_the_static_switches_compiles_and_links(glr, sky_scene):
     """Each shader variant of the static switches (rough, blend, two-tap) compiles and links (unused
     uniforms are allowed only where the switch removes them)."""
@@ -504,6 +505,7 @@ def test_cli_offscreen_orbit(tmp_path):
 
 
 @pytest.mark.gl
+@pytest.mark.slow
 def test_windowed_viewer_under_xvfb(glr, tmp_path):
     """The window (GLX on Xvfb, llvmpipe) draws the deferred path, and its frame is the headless
     renderer's frame of the same view (same shaders, same tables: equal up to 8-bit rounding)."""
@@ -555,6 +557,7 @@ def test_windowed_viewer_under_xvfb(glr, tmp_path):
 
 
 @pytest.mark.gl
+@pytest.mark.slow
 def test_viewer_measures_its_frame_rate_under_xvfb(tmp_path):
     """--measure-fps draws N frames and reports their interval; with --drag-scale 0.5 (as during a drag)
     the window still shows the whole blade, shaded at half resolution and scaled up."""

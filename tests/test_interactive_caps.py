@@ -95,6 +95,7 @@ def test_cap_rule_for_a_narrow_lobe_at_66_degrees():
     assert _errors(Hiraji, 3, ROWS[66]) < NARROW_TOL[66]
 
 
+@pytest.mark.slow
 def test_cap_rule_needs_the_in_plane_spread():
     """It can fail: with the lobe's in-plane spread dropped (an isotropic kernel of the across-plane width)
     a narrow lobe at 66° misses the cap quadrature by far more than the bound."""

@@ -58,6 +58,7 @@ def lobe(mu):
 
 @pytest.mark.parametrize("theta", [0.0, 0.6, 1.2])
 @pytest.mark.parametrize("mu", [0.001, 0.003, 0.01, 0.03, 0.1, 0.3])
+@pytest.mark.slow
 def test_cap_rule_error_vs_dense(mu, theta):
     """Error of the default rule (4 × 16) against a dense quadrature, relative to the value with
     the cap centred on the mirror direction, for the sun's cap (0.255°): ≤ 2e-2 where the cap's

@@ -40,6 +40,7 @@ WINDOWS = [(1.2, 0.3, 0.5), (1.0, math.pi - 0.05, 0.4), (0.2, 1.0, 0.5), (2.9, -
 
 
 @pytest.mark.parametrize("theta,phi,half", WINDOWS)
+@pytest.mark.slow
 def test_window_density_normalised_followed_by_samples_and_holding_the_cone(sampler, theta, phi, half):
     d = _unit(theta, phi)
     win = sampler.window(d, jnp.asarray([half], jnp.float32))
@@ -79,6 +80,7 @@ def test_window_density_normalised_followed_by_samples_and_holding_the_cone(samp
     assert counts[expected == 0].sum() == 0
 
 
+@pytest.mark.slow
 def test_window_estimates_the_windows_power_without_bias(sampler):
     """E[L(d)/p] over the window's samples = the radiance integral over its weighted texels (the sun included)."""
     env = hosek_wilkie_sky(25.0, 100.0, 3.0, 0.1, (H, W), G7, dtype=jnp.float32)
@@ -107,6 +109,7 @@ def test_window_tables_are_exact_integers_in_float32(sampler):
     np.testing.assert_array_equal(tab, ref)
 
 
+@pytest.mark.slow
 def test_reference_frame_unchanged_by_the_window():
     """The peer study's rough sphere, converged with and without the window: equal within the noise."""
     from validation import mitsuba as mc

@@ -293,6 +293,7 @@ def _check_f32(kind, log_w, cos_v, seed):
 @given(kind=st.sampled_from(KINDS), log_w=st.floats(-6.0, 0.0),
        cos_v=st.one_of(st.floats(0.0, 1.0), st.sampled_from([0.0, 1e-7, 1e-4, 1.0])),
        seed=st.integers(0, 2**16))
+@pytest.mark.slow
 def test_float32_samples_pdf_and_gradients_are_finite(kind, log_w, cos_v, seed):
     _check_f32(kind, log_w, cos_v, seed)
 

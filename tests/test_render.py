@@ -90,6 +90,7 @@ def test_rough_lobe_in_furnace_is_close_to_fresnel(mode):
     assert np.all(ratio < 1.2)  # per-pixel Monte Carlo noise at 64 spp; the median above is the energy check
 
 
+@pytest.mark.slow
 def test_factored_grey_equals_full_spectral():
     """A grey environment shaded as one band equals the 61-band path (same samples)."""
     mat, _ = _mat()
@@ -134,6 +135,7 @@ def test_reference_converges_and_modes_agree_with_it():
     assert err(frame(Plan(mode="prefiltered"), env_pf)) < 0.2
 
 
+@pytest.mark.slow
 def test_point_light_matches_analytic_brdf():
     """A point light on a black environment: pixel = f cos θi · I / r² from the models' brdf_cos."""
     from jkatana.models import Hiraji

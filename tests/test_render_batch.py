@@ -18,6 +18,7 @@ def _frames(d: Path):
     return sorted(p for p in d.glob("*.png") if not p.name.startswith("."))
 
 
+@pytest.mark.slow
 def test_killed_batch_resumes_without_redoing_or_corrupting(tmp_path):
     from PIL import Image
 

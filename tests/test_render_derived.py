@@ -117,6 +117,7 @@ def test_prefiltered_levels_side_by_side_equal_one_lookup_per_level(env):
         np.testing.assert_array_equal(np.asarray(lookup_prefiltered(env, mu, R)), np.asarray(g))
 
 
+@pytest.mark.slow
 def test_frame_is_the_frame_without_the_derived_maps(env):
     """A prefiltered frame rendered twice (derived maps built, then reused) and with the cache cleared is
     the same frame; its background equals the spectral background to float32 rounding."""

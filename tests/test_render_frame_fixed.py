@@ -89,6 +89,7 @@ def test_fine_tail_only_where_the_points_follow_the_pixel():
     assert dispatch._call_sizes(Plan(), 186104, 2, 16384, True) == (16384, [16384] * 5 + [12288])
 
 
+@pytest.mark.slow
 def test_pixel_id_frame_with_the_fine_tail_equals_whole_calls(monkeypatch):
     """Reference mode with 2×2 subpixels: the last call cut from the tail ladder gives the frame of whole calls
     (the points depend on the pixel ids only; programs of another size may round differently in the last

@@ -83,6 +83,7 @@ def _shader(plan, mat, env, px, ids):
     return jax.jit(jax.vmap(lambda k: shade(plan, mat, env, None, px, jnp.asarray(CMF), k, None, ids)[0]))
 
 
+@pytest.mark.slow
 def test_pixel_estimate_is_unbiased_and_less_noisy():
     """Over many seeds each subpixel's and each pixel's mean matches a converged estimate (z-scores), and the
     pixel estimate's variance is lower than with independently shifted subpixel sets."""
@@ -111,6 +112,7 @@ def test_pixel_estimate_is_unbiased_and_less_noisy():
 
 @pytest.mark.parametrize("n_env", [pytest.param(0, marks=pytest.mark.slow), 1,
                                    pytest.param(12, marks=pytest.mark.slow)])
+@pytest.mark.slow
 def test_estimate_is_unbiased_for_any_number_of_environment_samples(n_env):
     """The balance heuristic with sample counts: 4 lobe samples beside 0, 1 or 12 environment samples per
     subpixel all have the converged mean (z-scores over seeds); ``env_samples=None`` is one per lobe sample."""
@@ -133,6 +135,7 @@ def test_estimate_is_unbiased_for_any_number_of_environment_samples(n_env):
         assert not np.allclose(est[:4], same[..., 1], rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_frame_is_independent_of_chunking_and_devices():
     """With pixel ids the scramble depends on the frame seed and the pixel only: chunk size and device
     count do not change the frame; the seed does."""
@@ -158,6 +161,7 @@ def test_frame_is_independent_of_chunking_and_devices():
                                                           height=48), maps, CMF, supersample=2)
 
 
+@pytest.mark.slow
 def test_render_view_supersample_box_averages_a_shared_set():
     """``render_view(supersample=2)``: the camera's resolution, each pixel the mean of its 4 subpixels shaded
     with one per-pixel set (equal to averaging ``render_frame(supersample=2)`` by hand), close to the

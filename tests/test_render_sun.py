@@ -400,6 +400,7 @@ def test_cap_pixels_leave_out_only_pixels_the_cap_cannot_reach():
     assert a[near].min() > 0  # inside the reach the tail is still there
 
 
+@pytest.mark.slow
 def test_caps_on_their_own_pass_equal_the_one_pass(sun_map, monkeypatch):
     """A prefiltered frame whose caps are shaded on their own pass over the pixels :func:`cap_pixels` keeps
     (a narrow lobe on a sphere: a few of them) equals the frame shading them in the one pass with the
