@@ -595,6 +595,7 @@ def test_viewer_measures_its_frame_rate_under_xvfb(tmp_path):
 
 
 @pytest.mark.gl
+@pytest.mark.slow
 def test_cli_shading_switches(glr, tmp_path):
     """--taps and --rank reach the shaders: each choice gives its own frame; bad values are refused."""
     import argparse

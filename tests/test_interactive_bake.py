@@ -123,6 +123,7 @@ def test_bake_without_a_compact_source_is_unchanged():
     assert c.n_caps == 1 and c.cap_q.shape == (1, 3, 3) and np.all(c.cap_q[:, 0, 1] > 0)
 
 
+@pytest.mark.slow
 def test_lobe_tables_of_a_parameter_files_lobe():
     """The bake's tables for another lobe (:func:`lobe_tables.region_lobes` of a GGX parameter file): its
     energy is the lobe's own ∫ f_r cos θi dω (against a 4× finer quadrature and the lobe's albedo from

@@ -102,6 +102,7 @@ def test_rough_lobe_is_darker_where_it_sees_the_box_and_identical_where_no_ray_d
     assert np.mean(untouched[far]) > 0.5
 
 
+@pytest.mark.slow
 def test_point_light_is_shadowed_only_by_an_occluder_in_front_of_it():
     env, fac, _ = build_environment(np.zeros((4, 8, GRID.size), np.float32) + 1e-20)
     mat = _mat()
