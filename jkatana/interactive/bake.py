@@ -55,6 +55,7 @@ from jkatana.interactive.lobe_tables import PAPER_LOBES, family_names
 from jkatana.interactive.tables import MAX_RANK as MAX_RANK, cache_folder, load_entry, save_entry
 from jkatana.interactive.tables import cached_material_tables, cached_tail_fit, cached_tap_fit
 from jkatana.interactive.taps import resolved_taps
+from jkatana.light.envmap import box_downsample
 from jkatana.light.fresnel_basis import project_on_basis
 from jkatana.models import Conductor
 from jkatana.render.film import film_weights
@@ -228,7 +229,6 @@ def _bake_rows(rows, *, conductor, rank, mus, colourspace, transfer, cache_dir, 
     from jkatana.light.fresnel_basis import projection_matrix
     from jkatana.light.prefilter import level_shape
     from jkatana.light.sun import split_texels
-    from jkatana.render.streamed import box_rows
     from jkatana.spectral.colorimetry import xyz_weights
 
     grid, H, Wd = rows.grid, rows.height, rows.width
@@ -251,7 +251,7 @@ def _bake_rows(rows, *, conductor, rank, mus, colourspace, transfer, cache_dir, 
                                                                       film_weights(grid), xp=np) for c in caps])
     del y
     h, w = level_shape(float(np.min(mus)), (H, Wd), TEXELS_PER_MU)
-    small = box_rows(proj, H // h, rows.block_rows(H // h))
+    small = box_downsample(proj, H // h, rows.block_rows(H // h))
     del proj
     levels = [prefilter_level(small, float(mu)) for mu in mus]
     taps, tap_l1, tap_ok = cached_tap_fit(conductor, mus, lut.shape[2], cache_dir, lobes)

@@ -214,12 +214,22 @@ def texel_solid_angles(height: int, width: int, dtype=jnp.float32) -> Float[Arra
     return jnp.asarray(texel_solid_angles_np(height, width), dtype)
 
 
-def box_downsample(image: Float[np.ndarray, "H W C"], factor: int) -> Float[np.ndarray, "h w C"]:
+def box_downsample(image: Float[np.ndarray, "H W C"], factor: int, block: int | None = None
+                   ) -> Float[np.ndarray, "h w C"]:
     """Box-filter an equirectangular ``(H, W, C)`` image by ``factor`` in both axes, each block weighted by
-    its texels' solid angles (power-preserving: Σ L Ω unchanged)."""
+    its texels' solid angles (power-preserving: Σ L Ω unchanged), in float64.
+
+    ``block``: about that many rows at a time (a multiple of ``factor``), so that a large float32 image is
+    never copied whole to float64 (the streamed environments); ``None``: all rows at once."""
     H, W = image.shape[:2]
     f = int(factor)
-    num = (image * texel_solid_angles_np(H, W)[..., None]).reshape(H // f, f, W // f, f, -1).sum(axis=(1, 3))
+    omega = texel_solid_angles_np(H, W)
+    step = H if block is None else max(f, block // f * f)
+    num = np.empty((H // f, W // f, image.shape[-1]))
+    for r0 in range(0, H, step):
+        r1 = min(H, r0 + step)
+        part = image[r0:r1] * omega[r0:r1, :, None]
+        num[r0 // f:r1 // f] = part.reshape((r1 - r0) // f, f, W // f, f, -1).sum(axis=(1, 3))
     return num / texel_solid_angles_np(H // f, W // f)[..., None]
 
 

@@ -35,7 +35,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from jkatana.light.envmap import EnvMap, row_edges_cos, texel_solid_angles_np
+from jkatana.light.envmap import EnvMap, box_downsample
 from jkatana.light.sampling import EnvSampler
 from jkatana.light.sun import split_texels
 from jkatana.render.environment import Environment, caps_on_basis, prefiltered_levels
@@ -103,21 +103,6 @@ def prefilter_factor(height: int, width: int, columns: int) -> int:
     return min(fits) if fits else max(divisors)
 
 
-def box_rows(coeffs: np.ndarray, f: int, block: int) -> np.ndarray:
-    """Solid-angle weighted box filter of ``(H, W, C)`` by ``f`` in both axes, ``block`` rows at a time
-    (:func:`jkatana.light.envmap.box_downsample`'s arithmetic without its full-size float64 copy)."""
-    H, W, C = coeffs.shape
-    edges = row_edges_cos(H)
-    band = (edges[:-1] - edges[1:]) * (2 * np.pi / W)
-    out = np.empty((H // f, W // f, C))
-    step = max(f, block // f * f)
-    for r0 in range(0, H, step):
-        r1 = min(H, r0 + step)
-        part = coeffs[r0:r1].astype(np.float64) * band[r0:r1, None, None]
-        out[r0 // f:r1 // f] = part.reshape((r1 - r0) // f, f, W // f, f, C).sum(axis=(1, 3))
-    return out / texel_solid_angles_np(H // f, W // f)[..., None]
-
-
 def measured_residual(source, coeffs: np.ndarray, basis: np.ndarray, skip: np.ndarray | None = None) -> float:
     """``‖coeffs @ basis − L‖ / ‖L‖`` over the offset subsample's texels (exact spectra ``L``), leaving out
     those where ``skip`` (flat texel indices, e.g. a sun's, whose coefficients hold the remainder)."""
@@ -159,7 +144,7 @@ def build_streamed_environment(source, *, rank: int | None = None, rotation=None
     pre, lobe_pre = (), ()
     if mus:
         f = prefilter_factor(source.height, source.width, prefilter_resolution)
-        small = box_rows(coeffs, f, source.block_rows(f)) @ basis
+        small = box_downsample(coeffs, f, source.block_rows(f)) @ basis
         src = EnvMap(jnp.asarray(np.maximum(small, 0.0), jnp.float32), source.grid)
         pre, lobe_pre = prefiltered_levels(src, mus, basis, prefilter_lobes, dtype)
     rot = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
@@ -200,4 +185,4 @@ def build_scene_streamed(scene, grid, **kw):
 
 
 __all__ = ["build_streamed_environment", "build_scene_streamed", "streams", "streamed_key", "stream_basis",
-           "subsample", "prefilter_factor", "box_rows", "measured_residual", "STREAM_TOLERANCE", "STREAM_MAX_RANK"]
+           "subsample", "prefilter_factor", "measured_residual", "STREAM_TOLERANCE", "STREAM_MAX_RANK"]
