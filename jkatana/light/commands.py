@@ -6,7 +6,7 @@
   the RGB → spectrum → RGB round-trip error.
 - ``inspect``: any environment map → PNG preview (sun = brightest texel marked) and a
   summary (size, grid, power, sun direction and its share of the power).
-- ``prefilter``: a scene's environment (spectra, sampler, the prefiltered levels its
+- ``prefilter`` (added and run by :mod:`jkatana.render.commands`): a scene's environment (spectra, sampler, the prefiltered levels its
   materials call for) built into the render cache (:mod:`jkatana.light.cache`), so that
   every later render or batch of that scene loads it at once.
 - ``cache``: list the environment and bake cache (size, last use) or clear it; its size budget
@@ -32,7 +32,9 @@ def _grid_args(p):
                    help="wavelength grid in nm (default 400 700 5)")
 
 
-def light_add_arguments(p: argparse.ArgumentParser) -> None:
+def light_add_arguments(p: argparse.ArgumentParser):
+    """The light stage's subcommands; returns their subparsers, to which the render stage adds ``prefilter``
+    (it prepares a render, :func:`jkatana.render.commands.light_add_arguments`)."""
     sub = p.add_subparsers(dest="light_command", metavar="ACTION", required=True)
 
     b = sub.add_parser("build", help="spectral Hosek–Wilkie sky (+ sun, + ground) → spectral EXR + PNG")
@@ -62,16 +64,10 @@ def light_add_arguments(p: argparse.ArgumentParser) -> None:
     i.add_argument("--exposure", type=float, help="multiplier on luminance (default: median sky → 0.18)")
     _grid_args(i)
 
-    f = sub.add_parser("prefilter", help="build a scene's environment (spectra, sampler, prefiltered levels) into "
-                                         "the render cache; later renders of the scene load it at once")
-    f.add_argument("scene", help="scene TOML")
-    f.add_argument("--mode", default="prefiltered", choices=("reference", "paper", "prefiltered", "lowrank",
-                                                                   "paper-published"),
-                   help="the render mode to prepare for (default prefiltered: also builds the prefiltered levels)")
-
     k = sub.add_parser("cache", help="list the environment/bake cache (default) or clear it; size budget "
                                      "$JKATANA_CACHE_MAX_MB (default 2048), least recently used entries evicted")
     k.add_argument("--clear", action="store_true", help="remove every entry no running process uses")
+    return sub
 
 
 def _grid(args):
