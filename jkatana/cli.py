@@ -29,6 +29,7 @@ from pathlib import Path
 
 from jkatana.errors import InputError, SceneWarning
 from jkatana.io.interrupt import hold_if_exiting
+from jkatana.runtime import compile_cache
 
 # name -> (module, attribute prefix). The prefix lets one module hold several
 # commands: ``measure`` and ``simulate`` both live in ``jkatana.measure.commands``
@@ -161,6 +162,7 @@ def main(argv: list[str] | None = None, *, handle_signals: bool | None = None) -
     if args.command is None:
         parser.print_help()
         return 0
+    compile_cache()  # before the command's module imports JAX (jkatana.runtime)
     module, prefix = _load(args.command)
     if module is None:
         print(f"jkatana: the command {args.command!r} is not available in this build", file=sys.stderr)

@@ -82,3 +82,39 @@ def xla_threads(threads: int | str | None) -> bool:
             except OSError:  # a thread that has exited since
                 pass
     return True
+
+
+#: Environment variable that switches JAX's persistent compilation cache off (:func:`compile_cache`).
+NO_CACHE_VAR = "JKATANA_NO_JAX_CACHE"
+
+
+def compile_cache() -> str | None:
+    """Keep XLA's compiled programs between runs: JAX's persistent compilation cache in the folder ``jax`` of
+    jkatana's cache (``$JKATANA_CACHE``, else ``~/.cache/jkatana``), every program kept however quick to
+    compile (a program is tens to hundreds of kB; the folder may be deleted at any time).
+
+    A command runs tens to hundreds of small programs (eager array operations, per-region steps, a frame's
+    passes) whose compilation together costs seconds; from the cache the second run of the same shapes pays
+    tracing alone. Before JAX is imported this sets the ``JAX_*`` variables JAX reads its defaults from (so
+    a batch's worker processes share the folder); afterwards it updates JAX's config, unless a cache folder
+    is already set (a caller's own, e.g. the test suite's). JAX makes the folder at its first compilation (a
+    command refused before any leaves nothing behind); where it cannot (a read-only home) every program is
+    compiled. Does nothing with ``$JKATANA_NO_JAX_CACHE`` set. Returns the folder used.
+    """
+    from pathlib import Path
+
+    if os.environ.get(NO_CACHE_VAR):
+        return None
+    root = Path(os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana") / "jax"
+    settings = {"jax_compilation_cache_dir": str(root), "jax_persistent_cache_min_compile_time_secs": 0.0}
+    if "jax" not in sys.modules:
+        for name, value in settings.items():
+            os.environ.setdefault(name.upper(), str(value))
+        return os.environ["JAX_COMPILATION_CACHE_DIR"]
+    import jax
+
+    if jax.config.jax_compilation_cache_dir:
+        return jax.config.jax_compilation_cache_dir
+    for name, value in settings.items():
+        jax.config.update(name, value)
+    return str(root)

@@ -69,3 +69,46 @@ def test_cli_fit_refuses_a_bad_thread_count(tmp_path):
     assert r.returncode == 2
     assert ENV_VAR in r.stderr and "many" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+CACHE_PROBE = """
+import collections, json, sys
+from jkatana.runtime import compile_cache
+folder = compile_cache()
+import jax, jax.monitoring, jax.numpy as jnp
+events = collections.Counter()
+jax.monitoring.register_event_duration_secs_listener(lambda name, secs, **kw: events.update({name: secs}))
+jax.jit(lambda x: jnp.cos(x) * 3.0 + 1.0)(jnp.ones(7)).block_until_ready()
+print(json.dumps({"folder": folder, "saved": "/jax/compilation_cache/cache_retrieval_time_sec" in events}))
+"""
+
+
+@pytest.mark.parametrize("off", [False, True], ids=["on", "JKATANA_NO_JAX_CACHE"])
+def test_compile_cache_keeps_programs_for_the_next_process(tmp_path, off):
+    """Every command's compiled programs go to ``$JKATANA_CACHE/jax`` (however quick to compile), and a second
+    process reads them back instead of compiling; with ``$JKATANA_NO_JAX_CACHE`` nothing is kept."""
+    env = cli_env()
+    env["JKATANA_CACHE"] = str(tmp_path)
+    for name in ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "JKATANA_NO_JAX_CACHE"):
+        env.pop(name, None)
+    if off:
+        env["JKATANA_NO_JAX_CACHE"] = "1"
+    runs = [json.loads(subprocess.run([sys.executable, "-c", CACHE_PROBE], capture_output=True, text=True,
+                                      env=env, check=True).stdout.strip().splitlines()[-1]) for _ in range(2)]
+    if off:
+        assert runs[0]["folder"] is None and not (tmp_path / "jax").exists() and not runs[1]["saved"]
+    else:
+        assert runs[0]["folder"] == str(tmp_path / "jax") and any((tmp_path / "jax").iterdir())
+        assert not runs[0]["saved"] and runs[1]["saved"]
+
+
+def test_the_command_line_sets_the_compile_cache_before_jax_starts(tmp_path):
+    """``jkatana`` points JAX at the cache before the command's module imports it (so its worker processes
+    inherit the folder too)."""
+    env = cli_env()
+    env["JKATANA_CACHE"] = str(tmp_path)
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    code = ("from jkatana.cli import main; main(['light', 'cache']); import jax; "
+            "print(jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert out.stdout.strip().splitlines()[-1] == f"{tmp_path / 'jax'} 0.0"

@@ -74,18 +74,11 @@ def _x64():
 
     import jax
 
-    from jkatana.runtime import ENV_VAR, xla_threads
+    from jkatana.runtime import ENV_VAR, compile_cache, xla_threads
 
     xla_threads(os.environ.get(ENV_VAR, "1"))
     jax.config.update("jax_enable_x64", True)
-    if not os.environ.get("JKATANA_NO_JAX_CACHE"):
-        root = Path(os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana") / "jax"
-        try:
-            root.mkdir(parents=True, exist_ok=True)
-            jax.config.update("jax_compilation_cache_dir", str(root))
-            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-        except OSError:  # a read-only home: compile every time
-            pass
+    compile_cache()
 
 
 def instrument_from_args(args, table=None):
