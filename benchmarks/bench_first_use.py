@@ -10,8 +10,9 @@ Each case is the command line a user runs, in its own process (peak RSS from ``o
   memory available when the run starts (and at most 10 GiB): a map whose estimate
   (:mod:`jkatana.render.memory`) does not fit is recorded as refused, with the estimate and the one-line
   refusal, instead of being run;
-- a new lobe family in ``view`` (a GGX hiraji parameter file: the taps are fitted to it on first use) and a new
-  material in ``render`` (the same file, prefiltered: levels prefiltered with that lobe) — full run only;
+- a new lobe family in ``view`` (a hiraji parameter file of GGX, GTR and a two-lobe sum, :data:`FAMILIES`: the
+  tables of its lobe are built on first use) and a new material in ``render`` (the GGX file, prefiltered:
+  levels prefiltered with that lobe) — full run only;
 - a new mesh through ``jkatana shape`` (the shared hammer scan, CC BY 4.0, Andrea Spognetta).
 
 A map whose whole spectra do not fit the budget is streamed (:mod:`jkatana.render.streamed`): its records
@@ -63,8 +64,12 @@ directory = "out"
 name = "frame"
 """
 
-#: Natural values of the GGX parameter file (as ``jkatana fit --model ggx`` writes them).
-GGX = {"scale": 2000.0, "alpha": 0.06}
+#: Natural values of the parameter files of each lobe family a first ``view`` meets (as ``jkatana fit --model``
+#: writes them): GGX and Beckmann taps ship with the package, GTR's and a two-lobe's are built from their core.
+FAMILIES = {"ggx": {"scale": 2000.0, "alpha": 0.06},
+            "gtr": {"scale": 2000.0, "alpha": 0.06, "gamma": 1.5},
+            "two-lobe": {"scale": 2000.0, "alpha": 0.06, "alpha_haze": 0.3, "weight": 0.9}}
+GGX = FAMILIES["ggx"]
 
 
 #: A small Python process that runs the command and reports its wall time and peak RSS (``os.wait4``). Linux
@@ -145,16 +150,17 @@ def frame_environment(out: str | Path) -> dict | None:
     return None
 
 
-def ggx_file(path: Path) -> Path:
-    """A hiraji parameter file of a GGX lobe, its ``lobe`` built by the fit model as ``jkatana fit`` does."""
+def family_file(path: Path, model: str = "ggx") -> Path:
+    """A hiraji parameter file of a ``model`` lobe (:data:`FAMILIES`), its ``lobe`` built by the fit model as
+    ``jkatana fit`` does."""
     import jax.numpy as jnp
 
     from jkatana.models.fitted import FIT_MODELS
 
-    fm = FIT_MODELS["ggx"]
-    lobe = fm.build(jnp.asarray(fm.shape_from_natural(GGX))).to_params()
-    path.write_text(json.dumps({"format": "jkatana-params/1", "region": "hiraji", "model": "ggx", "lobe": lobe,
-                                "values": GGX, "optical_constants": "Fe-Johnson", "converged": True}))
+    fm, values = FIT_MODELS[model], FAMILIES[model]
+    lobe = fm.build(jnp.asarray(fm.shape_from_natural(values))).to_params()
+    path.write_text(json.dumps({"format": "jkatana-params/1", "region": "hiraji", "model": model, "lobe": lobe,
+                                "values": values, "optical_constants": "Fe-Johnson", "converged": True}))
     return path
 
 
@@ -194,10 +200,11 @@ def _run(quick: bool, work: Path) -> list[dict]:
         [("1k", Path(hdr)), big, ("2k", resized_hdr(hdr, 2048, 1024, work / "map2k.hdr"))]
     only = [m for m in os.environ.get("BENCH_FIRST_USE_MAPS", "").split(",") if m]
     maps = [m for m in maps if not only or m[0] in only]
-    ggx = ggx_file(work / "ggx.json")
+    for model in FAMILIES:
+        family_file(work / f"{model}.json", model)
 
-    def scene_file(label, path, material=""):
-        p = work / f"scene-{label.replace('×', 'x').replace(' ', '-')}{'-ggx' if material else ''}.toml"
+    def scene_file(label, path, material="", tag=""):
+        p = work / f"scene-{label.replace('×', 'x').replace(' ', '-')}{'-' + tag if tag else ''}.toml"
         p.write_text(_SCENE.format(kind="exr" if str(path).endswith(".exr") else "hdr", path=path,
                                    material=material, w=w, h=h))
         return p
@@ -268,12 +275,14 @@ def _run(quick: bool, work: Path) -> list[dict]:
         case("render prefiltered, 61-band spectral EXR", label,
              CLI + ["render", str(scene), "-o", str(work / "out-6k-exr-p"), "--mode", "prefiltered"], scene)
     if not quick and not only:
-        scene = scene_file("1k", hdr, material='[material]\nmap = "builtin"\nhiraji = "ggx.json"')
-        out = str(work / "out-ggx")
-        case("view, new lobe family (GGX)", "1k", CLI + ["view", str(scene), "--offscreen", "--frames", "1",
-                                                         "-o", out + "-v"], scene, interactive=True)
-        case("render prefiltered, new material (GGX)", "1k",
-             CLI + ["render", str(scene), "-o", out + "-p", "--mode", "prefiltered"], scene)
+        for model in FAMILIES:
+            scene = scene_file("1k", hdr, material=f'[material]\nmap = "builtin"\nhiraji = "{model}.json"', tag=model)
+            out = str(work / f"out-{model}")
+            case(f"view, new lobe family ({model})", "1k", CLI + ["view", str(scene), "--offscreen", "--frames",
+                                                                  "1", "-o", out + "-v"], scene, interactive=True)
+            if model == "ggx":
+                case("render prefiltered, new material (ggx)", "1k",
+                     CLI + ["render", str(scene), "-o", out + "-p", "--mode", "prefiltered"], scene)
     return records
 
 

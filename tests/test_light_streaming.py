@@ -164,3 +164,38 @@ def test_streamed_bake_levels_equal_the_full_bake(tmp_path):
         assert np.linalg.norm(b - a) / np.linalg.norm(a) < 1e-3
     np.testing.assert_array_equal(rows.taps, full.taps)
     assert rows.env.shape[2:4] == lv_rows[0].shape[:2] and rows.env.shape[:2] == full.env.shape[:2]
+
+
+def test_project_all_is_the_row_blocks_stitched(tmp_path, monkeypatch):
+    """One pass of row blocks (several here) cut into the callers' arrays equals the whole map's projection;
+    a 0 in ``splits`` gives a 2-D array; splits that do not cover the projection are refused."""
+    import jkatana.light.streaming as streaming
+
+    path = _write_hdr(tmp_path / "m.hdr", _rgb_map(32, 64))
+    source = streaming.row_source(path, DEFAULT_GRID)
+    P = np.random.default_rng(1).standard_normal((DEFAULT_GRID.size, 4))
+    whole = source.project(0, source.height, P)
+    monkeypatch.setattr(streaming, "BLOCK_TEXELS", 5 * 64)        # 5 rows a block: 7 blocks, the last short
+    assert source.block_rows() == 5
+    a, y, z = source.project_all(P, (2, 0, 0))
+    assert a.shape == (32, 64, 2) and y.shape == z.shape == (32, 64)
+    np.testing.assert_array_equal(a, whole[..., :2])
+    np.testing.assert_array_equal(y, whole[..., 2])
+    np.testing.assert_array_equal(z, whole[..., 3])
+    with pytest.raises(ValueError, match="do not cover"):
+        source.project_all(P, (2, 0))
+
+
+def test_view_streams_every_map_file_and_render_only_those_too_large():
+    """``view``'s bake reads projections only: every map file takes the row route for it, whatever its size;
+    ``render`` keeps a map that fits on the whole-spectra path (its frames unchanged); the built-in sky has no
+    file to stream."""
+    from jkatana.render.memory import environment_route
+    from jkatana.render.scenefile import scene_from_dict
+
+    hdr = scene_from_dict({"environment": {"type": "hdr", "path": str(HDR_1K)}}).environment
+    sky = scene_from_dict({}).environment
+    assert environment_route(hdr, 61, interactive=True) == "streamed"
+    assert environment_route(hdr, 61) == "full"
+    assert environment_route(hdr, 61, max_memory=1 << 30) == "streamed"
+    assert environment_route(sky, 61, interactive=True) == environment_route(sky, 61) == "full"

@@ -53,7 +53,7 @@ from jkatana.interactive.captable import cap_kernel_table, needs_table
 from jkatana.interactive.levels import MU_LEVELS, prefilter_level, upsample
 from jkatana.interactive.lobe_tables import PAPER_LOBES, family_names
 from jkatana.interactive.tables import MAX_RANK as MAX_RANK, cache_folder, load_entry, save_entry
-from jkatana.interactive.tables import cached_material_tables, cached_tail_fit, cached_tap_fit
+from jkatana.interactive.tables import lobe_tables, material_basis_of
 from jkatana.interactive.taps import resolved_taps
 from jkatana.light.envmap import box_downsample
 from jkatana.light.fresnel_basis import project_on_basis
@@ -224,21 +224,40 @@ def _bake_rows(rows, *, conductor, rank, mus, colourspace, transfer, cache_dir, 
     :func:`~jkatana.light.fresnel_basis.projection_matrix`),
     its sun split from the exact spectra of its texels (:func:`jkatana.light.sun.split_texels`), box-filtered to
     the finest level's resolution (:func:`jkatana.light.prefilter.level_shape`), which is also the size of the
-    texture the shaders read (not the map's: the finest level holds no more detail)."""
+    texture the shaders read (not the map's: the finest level holds no more detail). The environment-independent
+    tables (:func:`~jkatana.interactive.tables.lobe_tables`: seconds of JAX compilation for a lobe family met for
+    the first time) are built on a second thread meanwhile."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    b = material_basis_of(conductor, rank, mus, cache_dir)
+    with ThreadPoolExecutor(1) as pool:  # the lobe tables compile and run on the other core meanwhile
+        tables = pool.submit(lobe_tables, conductor, rank, mus, cache_dir, lobes)
+        baked_env = _rows_environment(rows, b, rows.grid, mus, split_sun)
+        b, err, lut, spread, taps, tap_l1, tap_ok, tail = tables.result()
+    levels, h, w, cap_dir, cap_radius, cap_q = baked_env
+    taps, tail = resolved_taps(taps, spread, mus, h, tail)
+    cap_kernel = np.zeros((0,))
+    if len(cap_radius) and needs_table(lobes):
+        cap_kernel = cap_kernel_table(tuple(lobes), mus, float(np.max(cap_radius)), conductor)
+    return Baked(env=_level_stack(levels, h, w, rank), lut=lut, spread=spread, taps=taps, tap_l1=tap_l1,
+                 tap_ok=tap_ok, mus=np.asarray(mus, np.float64), b=b, fresnel_err=err,
+                 xyz_to_rgb=xyz_to_rgb_matrix(colourspace),
+                 transfer=transfer_table(colourspace if transfer is None else transfer), colourspace=colourspace,
+                 cap_dir=cap_dir, cap_radius=cap_radius, cap_q=cap_q, cap_kernel=cap_kernel, tail=tail), levels
+
+
+def _rows_environment(rows, b, grid, mus, split_sun):
+    """:func:`_bake_rows`'s environment: the prefiltered levels at the finest level's size, that size, and the
+    sun's caps ``(cap_dir, cap_radius, cap_q)``."""
     from jkatana.interactive.levels import TEXELS_PER_MU
     from jkatana.light.fresnel_basis import projection_matrix
     from jkatana.light.prefilter import level_shape
     from jkatana.light.sun import split_texels
     from jkatana.spectral.colorimetry import xyz_weights
 
-    grid, H, Wd = rows.grid, rows.height, rows.width
-    b, err, lut, spread = cached_material_tables(conductor, rank, mus, cache_dir, lobes)
+    H, Wd, rank = rows.height, rows.width, b.shape[0]
     M = projection_matrix(b, film_weights(grid), None, np).reshape(grid.size, rank * 3)
-    proj, y = np.empty((H, Wd, rank * 3), np.float32), np.empty((H, Wd), np.float32)
-    step = rows.block_rows()
-    for r0 in range(0, H, step):
-        ch = rows.project(r0, min(H, r0 + step), np.concatenate([M, xyz_weights(grid)[:, 1:2]], axis=1))
-        proj[r0:r0 + step], y[r0:r0 + step] = ch[..., :-1], ch[..., -1]
+    proj, y = rows.project_all(np.concatenate([M, xyz_weights(grid)[:, 1:2]], axis=1), (rank * 3, 0))
     cap_dir, cap_radius, cap_q = np.zeros((0, 3)), np.zeros((0,)), np.zeros((0, rank, 3))
     if split_sun:
         caps, changes = split_texels(y.astype(np.float64), rows.texels, grid, max_sources=MAX_CAPS)
@@ -253,20 +272,7 @@ def _bake_rows(rows, *, conductor, rank, mus, colourspace, transfer, cache_dir, 
     h, w = level_shape(float(np.min(mus)), (H, Wd), TEXELS_PER_MU)
     small = box_downsample(proj, H // h, rows.block_rows(H // h))
     del proj
-    levels = [prefilter_level(small, float(mu)) for mu in mus]
-    taps, tap_l1, tap_ok = cached_tap_fit(conductor, mus, lut.shape[2], cache_dir, lobes)
-    tail = np.zeros(taps.shape[:3] + (3,))
-    if any(family not in PAPER_LOBES for family in lobes):
-        taps, tail, _ = cached_tail_fit(conductor, mus, lut.shape[2], cache_dir, lobes)
-    taps, tail = resolved_taps(taps, spread, mus, h, tail)
-    cap_kernel = np.zeros((0,))
-    if len(cap_radius) and needs_table(lobes):
-        cap_kernel = cap_kernel_table(tuple(lobes), mus, float(np.max(cap_radius)), conductor)
-    return Baked(env=_level_stack(levels, h, w, rank), lut=lut, spread=spread, taps=taps, tap_l1=tap_l1,
-                 tap_ok=tap_ok, mus=np.asarray(mus, np.float64), b=b, fresnel_err=err,
-                 xyz_to_rgb=xyz_to_rgb_matrix(colourspace),
-                 transfer=transfer_table(colourspace if transfer is None else transfer), colourspace=colourspace,
-                 cap_dir=cap_dir, cap_radius=cap_radius, cap_q=cap_q, cap_kernel=cap_kernel, tail=tail), levels
+    return [prefilter_level(small, float(mu)) for mu in mus], h, w, cap_dir, cap_radius, cap_q
 
 
 def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor: Conductor | None = None,
@@ -305,7 +311,7 @@ def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_
     """:func:`bake`, also returning the prefiltered levels at their own resolutions (what the cache keeps)."""
     from tqdm import tqdm
 
-    b, err, lut, spread = cached_material_tables(conductor, rank, mus, cache_dir, lobes)
+    b, err, lut, spread, taps, tap_l1, tap_ok, tail = lobe_tables(conductor, rank, mus, cache_dir, lobes)
     W = film_weights(grid)            # (wl, 3); k = 1/∫ȳ dλ as jkatana.render: flat radiance 1 → Y = 1
     H, Wd = radiance.shape[:2]
     if split_sun:
@@ -318,10 +324,6 @@ def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_
     levels = [prefilter_level(proj, float(mu)) for mu in bar]
     env = np.stack([upsample(lv.astype(np.float32), H, Wd) for lv in levels])        # (n_mu, H, W, r*3)
     env = env.reshape(len(mus), H, Wd, rank, 3).transpose(0, 3, 1, 2, 4)
-    taps, tap_l1, tap_ok = cached_tap_fit(conductor, mus, lut.shape[2], cache_dir, lobes)
-    tail = np.zeros(taps.shape[:3] + (3,))
-    if any(family not in PAPER_LOBES for family in lobes):
-        taps, tail, _ = cached_tail_fit(conductor, mus, lut.shape[2], cache_dir, lobes)
     taps, tail = resolved_taps(taps, spread, mus, radiance.shape[0], tail)
     cap_kernel = np.zeros((0,))
     if len(cap_radius) and needs_table(lobes):

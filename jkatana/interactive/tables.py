@@ -175,6 +175,37 @@ def cached_material_tables(conductor: Conductor, rank: int, mus, cache_dir=None,
     return b, err, lut, spread
 
 
+def material_basis_of(conductor: Conductor, rank: int, mus, cache_dir=None) -> np.ndarray:
+    """The conductor's ``(rank, wl)`` Fresnel basis of :func:`cached_material_tables` (shipped or cached)."""
+    return _paper_material_tables(conductor, rank, mus, cache_dir)[0]
+
+
+def lobe_tables(conductor: Conductor, rank: int, mus, cache_dir=None, lobes: tuple = PAPER_LOBES, n_cos: int = 64):
+    """Every table of the bake that depends on the material but not on the environment:
+    ``(b, fresnel_err, lut, spread)`` of :func:`cached_material_tables` and ``(taps, tap_l1, tap_ok, tail)`` of
+    :func:`tap_tables`, the two built side by side (each is a JAX compilation for a lobe family met for the
+    first time, and XLA compiles on one core)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1) as pool:
+        tap_rows = pool.submit(tap_tables, conductor, mus, n_cos, cache_dir, lobes)
+        b, err, lut, spread = cached_material_tables(conductor, rank, mus, cache_dir, lobes)
+        taps, tap_l1, tap_ok, tail = tap_rows.result()
+    if lut.shape[2] != n_cos:
+        raise ValueError(f"the lobe table has {lut.shape[2]} cos θv rows, the taps {n_cos}")
+    return b, err, lut, spread, taps, tap_l1, tap_ok, tail
+
+
+def tap_tables(conductor: Conductor, mus, n_cos: int = 64, cache_dir=None, lobes: tuple = PAPER_LOBES):
+    """``(taps, tap_l1, tap_ok, tail)``: the taps of :func:`cached_tap_fit` and, where a region holds a lobe
+    other than the paper's, its tail tap (:func:`cached_tail_fit`; zeros otherwise)."""
+    taps, tap_l1, tap_ok = cached_tap_fit(conductor, mus, n_cos, cache_dir, lobes)
+    tail = np.zeros(taps.shape[:3] + (3,))
+    if any(family not in PAPER_LOBES for family in lobes):
+        taps, tail, _ = cached_tail_fit(conductor, mus, n_cos, cache_dir, lobes)
+    return taps, tap_l1, tap_ok, tail
+
+
 def _material_key(conductor: Conductor, rank: int, mus, lobes: tuple) -> str:
     import hashlib
     import inspect

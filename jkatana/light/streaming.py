@@ -54,6 +54,23 @@ class RowSource:
         without a pass over its spectra (for the spectral basis to represent a sun), else none."""
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
 
+    def project_all(self, P: np.ndarray, splits: tuple[int, ...]) -> list[np.ndarray]:
+        """The whole map's ``L @ P`` in one pass of row blocks, its columns cut into arrays of ``splits``
+        columns each (their sum is ``P``'s column count): ``(H, W, n)`` float32, or ``(H, W)`` where ``n`` is 0.
+        Only those arrays are held whole, never a block's spectra or the whole projection."""
+        P = np.asarray(P)
+        if sum(max(n, 1) for n in splits) != P.shape[1]:
+            raise ValueError(f"splits {splits} do not cover the projection's {P.shape[1]} columns")
+        outs = [np.empty((self.height, self.width) + ((n,) if n else ()), np.float32) for n in splits]
+        step = self.block_rows()
+        for r0 in range(0, self.height, step):
+            r1 = min(self.height, r0 + step)
+            block, c0 = self.project(r0, r1, P), 0
+            for out, n in zip(outs, splits):
+                out[r0:r1] = block[..., c0:c0 + n] if n else block[..., c0]
+                c0 += max(n, 1)
+        return outs
+
     def block_rows(self, multiple: int = 1) -> int:
         """Rows per block: about :data:`BLOCK_TEXELS` texels, a multiple of ``multiple``."""
         rows = max(1, BLOCK_TEXELS // max(self.width, 1))

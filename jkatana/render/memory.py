@@ -23,10 +23,11 @@ instead *streamed* (:mod:`jkatana.render.streamed`): read in row blocks and
 kept as a few hundred bytes a texel whatever its bands
 (:data:`STREAM_BYTES_PER_TEXEL`). :func:`environment_route` chooses the path
 (the whole spectra wherever they fit, so that such maps are prepared as
-before) and :func:`environment_bytes` estimates the one chosen; ``view``
-streams such a map through its bake (:func:`jkatana.interactive.bake.cached_bake`
-of a :class:`~jkatana.light.streaming.RowSource`, :data:`VIEW_STREAM_BYTES_PER_TEXEL`); a map is
-refused only when even the streamed path cannot fit.
+before) and :func:`environment_bytes` estimates the one chosen. ``view``
+streams every map read from a file through its bake (:func:`jkatana.interactive.bake.cached_bake`
+of a :class:`~jkatana.light.streaming.RowSource`, :data:`VIEW_STREAM_BYTES_PER_TEXEL`): the bake
+needs only linear projections of the spectra, so the whole spectra are never
+built for it. A map is refused only when even the streamed path cannot fit.
 
 The per-value costs and the base are the slope and intercept of the peak RSS of a
 first use on an empty cache against map size (the shared 1k HDR and its 2k resize,
@@ -118,12 +119,16 @@ def streamed_bytes(environment, *, interactive: bool = False) -> float | None:
 def environment_route(environment, bands: int, *, interactive: bool = False, max_memory=None,
                       extra: float = 0.0) -> str:
     """``"full"`` where the whole spectra fit the memory budget (:func:`jkatana.io.limits.memory_budget`) with
-    ``extra`` bytes beside them, or where the map cannot be streamed; ``"streamed"`` otherwise."""
+    ``extra`` bytes beside them, or where the map cannot be streamed; ``"streamed"`` otherwise. ``view``
+    (``interactive``) streams every map read from a file: its bake keeps only linear projections of the
+    spectra (on the Fresnel basis, a luminance), which the row source gives without the whole spectra."""
     from jkatana.io.limits import memory_budget
 
     stream = streamed_bytes(environment, interactive=interactive)
     if stream is None:
         return "full"
+    if interactive:
+        return "streamed"
     full = BASE_BYTES + extra + full_bytes(environment, bands, interactive=interactive)
     return "full" if full <= memory_budget(max_memory) or full <= BASE_BYTES + extra + stream else "streamed"
 

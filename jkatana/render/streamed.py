@@ -80,17 +80,10 @@ def _project_pass(source, basis: np.ndarray):
     """Per texel: the coefficients ``(H, W, J)`` float32, the CIE Y and the sampler's luminance ``(H, W)``."""
     from jkatana.spectral.colorimetry import xyz_weights
 
-    H, W, J = source.height, source.width, basis.shape[0]
+    J = basis.shape[0]
     sampler_w = EnvSampler.weights(source.grid)
     P = np.concatenate([basis.T, xyz_weights(source.grid)[:, 1:2], sampler_w[:, None]], axis=1)
-    coeffs = np.empty((H, W, J), np.float32)
-    y = np.empty((H, W), np.float32)
-    ys = np.empty((H, W), np.float32)
-    step = source.block_rows()
-    for r0 in range(0, H, step):
-        r1 = min(H, r0 + step)
-        ch = source.project(r0, r1, P)
-        coeffs[r0:r1], y[r0:r1], ys[r0:r1] = ch[..., :J], ch[..., J], ch[..., J + 1]
+    coeffs, y, ys = source.project_all(P, (J, 0, 0))
     return coeffs, y, ys
 
 
