@@ -20,7 +20,9 @@ carry the environment the frame reports (``env``: factored, channels, and ``rank
 error measured against exact spectra). Full run also: the 6000×3000 map as a 61-band spectral EXR (written in
 row blocks from the HDR's chromaticity-table spectra, :func:`jkatana.light.spectral_exr.write_spectral_exr_rows`)
 through ``render`` prefiltered (``BENCH_FIRST_USE_SPECTRAL_EXR``: such a file written before).
-``BENCH_FIRST_USE_MAPS`` (comma-separated labels, e.g. ``6000×3000``) keeps only those maps' cases.
+``BENCH_FIRST_USE_MAPS`` (comma-separated labels, e.g. ``6000×3000,families``) keeps only those maps' cases
+(``families``: the lobe families' and the new material's); ``BENCH_FIRST_USE_SPECTRAL_EXR=skip`` leaves the
+spectral EXR out.
 
 Quick mode (CI): the 1k map resized to 256×128 through ``render`` prefiltered at 160×120, the 6000×3000 map's
 refusal by ``render`` under ``--max-memory 2G``, and ``shape``. Every record carries the estimate beside the
@@ -268,13 +270,13 @@ def _run(quick: bool, work: Path) -> list[dict]:
                                                "--samples", "16"], scene)
         case("view", label, CLI + ["view", str(scene), "--offscreen", "--frames", "1", "-o", out + "-v"], scene,
              interactive=True)
-    if not quick and (not only or big[0] in only):
+    given = os.environ.get("BENCH_FIRST_USE_SPECTRAL_EXR")  # one written before (minutes), or "skip"
+    if not quick and (not only or big[0] in only) and given != "skip":
         label = "6000×3000"
-        given = os.environ.get("BENCH_FIRST_USE_SPECTRAL_EXR")  # one written before (minutes on a loaded machine)
         scene = scene_file("6000×3000-61", Path(given) if given else spectral_exr(big[1], work / "map6k-61.exr"))
         case("render prefiltered, 61-band spectral EXR", label,
              CLI + ["render", str(scene), "-o", str(work / "out-6k-exr-p"), "--mode", "prefiltered"], scene)
-    if not quick and not only:
+    if not quick and (not only or "families" in only):
         for model in FAMILIES:
             scene = scene_file("1k", hdr, material=f'[material]\nmap = "builtin"\nhiraji = "{model}.json"', tag=model)
             out = str(work / f"out-{model}")

@@ -160,6 +160,7 @@ def test_mitsuba_xml_holds_the_scene(tmp_path):
     assert summary["scene"] == "scene.xml"
 
 
+@pytest.mark.slow
 def test_exported_table_takes_the_camera_side_as_incident(tmp_path):
     """The paper's hiraji lobe is not reciprocal; its exported table returns f(ωi = V, ωo = L) — the lobe's
     value with V the camera — and not the swapped pair (by up to ×1.5 at 60° off normal here)."""

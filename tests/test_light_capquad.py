@@ -78,6 +78,7 @@ def test_cap_rule_error_vs_dense(mu, theta):
             assert np.abs(got - ref).max() / on <= (2e-2 if edge else 1e-3), (dd, axis)
 
 
+@pytest.mark.slow
 def test_mirror_limit():
     """μ → 0: the cap contributes F(θ)·[R inside the cap], ½ F on its edge."""
     mu = 1e-5
@@ -131,6 +132,7 @@ def test_cap_rule_jit_float32_and_finite_gradients():
         assert np.isfinite(float(gs)) and np.all(np.isfinite(np.asarray(gc)))
 
 
+@pytest.mark.slow
 def test_reflected_cap_radiance_matches_cap_integral_in_world_frame():
     mu = 0.01
     cap = split_sky_sun(40.0, 90.0, 3.0, 0.1, (32, 64), GRID)[1].cap

@@ -99,7 +99,8 @@ def _sun_map(H, W, seed=0):
     return img
 
 
-@pytest.mark.parametrize("name,mu", [("gaussian", 0.03), ("gaussian", 0.3), ("ggx", 0.05), ("mixture", 0.1),
+@pytest.mark.parametrize("name,mu", [("gaussian", 0.03), pytest.param("gaussian", 0.3, marks=pytest.mark.slow),
+                                     ("ggx", 0.05), pytest.param("mixture", 0.1, marks=pytest.mark.slow),
                                      ("gaussian-vcavity", 0.2)])
 def test_fft_convolution_equals_brute_force(name, mu):
     """At every texel centre of a 24×48 map with a sun, the FFT path (same subsampling) equals

@@ -95,7 +95,7 @@ def _cap_check(lobe, V, extent, n=50_000):
     return est, 2 * math.pi * (1 - math.cos(extent))
 
 
-@pytest.mark.parametrize("mu", [0.005, 0.05, 0.3])
+@pytest.mark.parametrize("mu", [pytest.param(0.005, marks=pytest.mark.slow), 0.05, 0.3])
 def test_gaussian_lobe_pdf_matches_sampler(mu):
     V = jnp.array([math.sin(0.7), 0.0, math.cos(0.7)])
     lobe = Gaussian(jnp.asarray(mu))

@@ -114,6 +114,7 @@ def test_streamed_environment_equals_the_full_one_within_its_measured_error(tmp_
     _compare(full, streamed, streamed[2])
 
 
+@pytest.mark.slow
 def test_tiny_budget_streams_the_map_and_the_frame_stays_within_the_error(tmp_path, monkeypatch):
     """``prepare`` under a budget the whole spectra exceed takes the streamed path (factored, its residual
     reported); the prefiltered frame equals the full path's to the measured error; under the machine's

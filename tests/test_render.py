@@ -69,7 +69,7 @@ def test_mirror_sphere_in_white_furnace_shows_fresnel():
     assert f.stats["pixels_shaded"] == gb.mask.sum() > 100
 
 
-@pytest.mark.parametrize("mode", ["reference", "paper", "prefiltered"])
+@pytest.mark.parametrize("mode", [pytest.param("reference", marks=pytest.mark.slow), "paper", "prefiltered"])
 def test_rough_lobe_in_furnace_is_close_to_fresnel(mode):
     """Normalised lobe (μ = 0.05) in a white furnace: ∫ f cos dω ≈ F(θv) (energy within a few %, never > 1)."""
     mat, c = _mat()

@@ -60,8 +60,8 @@ def test_fresnel_rank_meets_its_tolerance(source):
     assert np.max(np.abs(F - approx(r - 1))) > FRESNEL_RANK_TOL if r > 1 else True
 
 
-@pytest.mark.parametrize("mode,kw", [("reference", dict(hiraji=True, hamon=True)),
-                                     ("reference", dict(hiraji=False, hamon=True, hamon_lobe=LobeId.of({"lobe": "beckmann", "alpha": 1.0}))),
+@pytest.mark.parametrize("mode,kw", [pytest.param("reference", dict(hiraji=True, hamon=True), marks=pytest.mark.slow),
+                                     pytest.param("reference", dict(hiraji=False, hamon=True, hamon_lobe=LobeId.of({"lobe": "beckmann", "alpha": 1.0})), marks=pytest.mark.slow),
                                      ("paper", dict(hiraji=True, hamon=True)),
                                      ("reference", dict(hiraji=True, hamon=False, mirror=True)),
                                      ("prefiltered", dict(hiraji=True, hamon=True))])

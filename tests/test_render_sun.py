@@ -72,7 +72,7 @@ def sun_map():
 # ---------------------------------------------------------------- nothing to split
 
 
-@pytest.mark.parametrize("mode", ["prefiltered", "reference", "paper"])
+@pytest.mark.parametrize("mode", ["prefiltered", pytest.param("reference", marks=pytest.mark.slow), "paper"])
 def test_no_compact_source_the_program_and_the_frame_are_unchanged(mode):
     """A map without a compact source: ``split_sun=True`` finds nothing, builds the same environment
     (caps None, every array equal), compiles the same program and renders a bit-identical frame."""
