@@ -199,15 +199,18 @@ def _jakob(rgb, grid, colourspace, lut_size: int = 8, refine: bool = True):
     scale = 2.0 * m
     safe = np.where(scale > 0, scale, 1.0)
     q = np.clip(np.where(scale > 0, rgb / safe, 0.0), 0.0, 1.0)
-    coeffs = lut.RGB_to_coefficients(q.reshape(-1, 3)).reshape(rgb.shape[:-1] + (3,))
     if refine:
-        out = np.empty(rgb.shape[:-1] + (grid.size,))
-        flat_c, flat_q, flat_o = coeffs.reshape(-1, 3), q.reshape(-1, 3), out.reshape(-1, grid.size)
+        # the refined spectrum depends on the chromaticity q alone: solved once per distinct q (an RGBE map
+        # holds a few distinct mantissa triples per texel), in blocks of 2¹⁵
+        flat_q, inv = np.unique(q.reshape(-1, 3), axis=0, return_inverse=True)
+        flat_c = np.reshape(lut.RGB_to_coefficients(flat_q), (-1, 3))
+        flat_o = np.empty((flat_q.shape[0], grid.size))
         for s0 in range(0, flat_c.shape[0], 1 << 15):
             flat_o[s0:s0 + (1 << 15)] = _jakob_refine(flat_c[s0:s0 + (1 << 15)], flat_q[s0:s0 + (1 << 15)],
                                                       grid, colourspace)
-        R = out
+        R = flat_o[inv.reshape(-1)].reshape(rgb.shape[:-1] + (grid.size,))
     else:
+        coeffs = lut.RGB_to_coefficients(q.reshape(-1, 3)).reshape(rgb.shape[:-1] + (3,))
         wl = grid.wavelengths
         U = coeffs[..., 0:1] * wl**2 + coeffs[..., 1:2] * wl + coeffs[..., 2:3]
         R = 0.5 + U / (2.0 * np.sqrt(1.0 + U * U))
