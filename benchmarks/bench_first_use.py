@@ -71,7 +71,6 @@ name = "frame"
 FAMILIES = {"ggx": {"scale": 2000.0, "alpha": 0.06},
             "gtr": {"scale": 2000.0, "alpha": 0.06, "gamma": 1.5},
             "two-lobe": {"scale": 2000.0, "alpha": 0.06, "alpha_haze": 0.3, "weight": 0.9}}
-GGX = FAMILIES["ggx"]
 
 
 #: A small Python process that runs the command and reports its wall time and peak RSS (``os.wait4``). Linux

@@ -84,6 +84,14 @@ def xla_threads(threads: int | str | None) -> bool:
     return True
 
 
+def cache_home():
+    """jkatana's cache folder: ``$JKATANA_CACHE``, else ``~/.cache/jkatana`` (its disk caches and
+    :func:`compile_cache`'s programs live under it)."""
+    from pathlib import Path
+
+    return Path(os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana")
+
+
 #: Environment variable that switches JAX's persistent compilation cache off (:func:`compile_cache`).
 NO_CACHE_VAR = "JKATANA_NO_JAX_CACHE"
 
@@ -101,11 +109,9 @@ def compile_cache() -> str | None:
     command refused before any leaves nothing behind); where it cannot (a read-only home) every program is
     compiled. Does nothing with ``$JKATANA_NO_JAX_CACHE`` set. Returns the folder used.
     """
-    from pathlib import Path
-
     if os.environ.get(NO_CACHE_VAR):
         return None
-    root = Path(os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana") / "jax"
+    root = cache_home() / "jax"
     settings = {"jax_compilation_cache_dir": str(root), "jax_persistent_cache_min_compile_time_secs": 0.0}
     if "jax" not in sys.modules:
         for name, value in settings.items():

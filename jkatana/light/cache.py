@@ -67,7 +67,9 @@ CACHE_FOLDERS = ("environments", "interactive")
 
 def cache_base(cache_dir: str | Path | None = None) -> Path:
     """``cache_dir``, else ``$JKATANA_CACHE``, else ``~/.cache/jkatana``: the folder holding :data:`CACHE_FOLDERS`."""
-    return Path(cache_dir or os.environ.get("JKATANA_CACHE") or Path.home() / ".cache" / "jkatana")
+    from jkatana.runtime import cache_home
+
+    return Path(cache_dir) if cache_dir else cache_home()
 
 
 def cache_root(cache_dir: str | Path | None = None) -> Path:
