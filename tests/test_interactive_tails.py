@@ -90,18 +90,51 @@ def test_tail_fit_weights_and_the_paper_region():
     np.testing.assert_array_equal(none, 0.0)
 
 
-@pytest.mark.slow
-def test_resolved_taps_drop_the_tail_where_the_moments_are_used():
-    """Where the map does not resolve the fitted taps the moment pattern (the whole lobe's) is read, and the
-    tail's weight is 0 there."""
-    _, _, start, taps, tail, _ = _fit()
-    spread = np.zeros(taps.shape[:3] + (3,))
+def _patterns(seed: int = 0):
+    """Random tap tables ``(2, n_mu, n_cos, 1 + 2T)`` (offsets, positive weights summing to 1), lobe moments
+    ``(…, 3)`` and a tail table whose region 0 holds a tail (w_t > 0 somewhere) and region 1 none."""
+    rng = np.random.default_rng(seed)
+    T = TP.N_TAPS
+    shape = (2, len(MUS), N_COS)
+    w = rng.uniform(0.1, 1.0, shape + (T,))
+    taps = np.concatenate([rng.normal(0, 0.3, shape + (1,)), rng.normal(0, 0.05, shape + (T,)),
+                           w / w.sum(-1, keepdims=True)], -1)
+    spread = np.stack([rng.normal(0, 0.3, shape), rng.uniform(0, 0.05, shape), rng.normal(0, 0.02, shape)], -1)
+    tail = np.zeros(shape + (3,))
+    tail[0, ..., 0], tail[0, ..., 1], tail[0, ..., 2] = 1.0, 0.1, rng.uniform(0.0, 0.5, shape[1:])
+    return taps, spread, tail
+
+
+def test_fitted_moments_keep_a_patterns_first_and_second_moments():
+    """moment_taps(fitted_moments(taps)): the binomial pattern with the taps' filter width, weighted mean offset
+    and offset variance."""
+    taps, _, _ = _patterns(1)
+    T = TP.N_TAPS
+    m = moment_taps(TP.fitted_moments(taps))
+    for p in (taps, m):
+        assert np.allclose(p[..., 1 + T:].sum(-1), 1.0)
+    mean = lambda p: np.sum(p[..., 1:1 + T] * p[..., 1 + T:], -1)                      # noqa: E731
+    var = lambda p: np.sum((p[..., 1:1 + T] - mean(p)[..., None]) ** 2 * p[..., 1 + T:], -1)   # noqa: E731
+    np.testing.assert_allclose(mean(m), mean(taps), atol=1e-15)
+    np.testing.assert_allclose(var(m), var(taps), rtol=1e-12)
+    np.testing.assert_array_equal(m[..., 0], taps[..., 0])
+
+
+def test_resolved_taps_fall_back_to_the_cores_moments_where_a_tail_is_read():
+    """Where the map does not resolve the fitted taps: a region without a tail (the paper's lobe) reads the lobe's
+    moment pattern; a region with one (a long-tailed lobe) the moment pattern of its own three taps and keeps its
+    tail tap, since the lobe's moments count the tails that the tail tap reads. Where the map resolves them, the
+    fitted taps and the tail unchanged."""
+    taps, spread, tail = _patterns(2)
     coarse, tail_c = TP.resolved_taps(taps, spread, MUS, 8, tail)            # 8 rows: nothing resolved
-    np.testing.assert_array_equal(tail_c, 0.0)
-    np.testing.assert_array_equal(coarse, moment_taps(spread))
+    np.testing.assert_array_equal(coarse[1], moment_taps(spread)[1])
+    np.testing.assert_array_equal(tail_c[1], 0.0)
+    np.testing.assert_array_equal(coarse[0], moment_taps(TP.fitted_moments(taps))[0])
+    np.testing.assert_array_equal(tail_c[0], tail[0])
     fine, tail_f = TP.resolved_taps(taps, spread, MUS, 100000, tail)
     np.testing.assert_array_equal(fine, taps)
     np.testing.assert_array_equal(tail_f, tail)
+    np.testing.assert_array_equal(TP.resolved_taps(taps, spread, MUS, 8), moment_taps(spread))
 
 
 @pytest.mark.gl

@@ -365,15 +365,33 @@ def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int, tail: 
     shape, and a small bright source (a sun of ~2 texels) lands on whichever texel the fitted offsets
     happen to hit; the moment pattern, wider, averages over it (the sun-glint view of
     ``experiments/interactive_agreement.py`` compares both). So per table entry: fitted if
-    μ e^s ≥ MIN_FIT_TEXELS·π/height, else moments. With a ``tail`` table (:func:`tail_fit`) also returns it,
-    its weight 0 where the moments are used (their pattern is the whole lobe's).
+    μ e^s ≥ MIN_FIT_TEXELS·π/height, else moments.
+
+    With a ``tail`` table (:func:`tail_fit`) also returns it. A region whose tail tap is in use (a long-tailed
+    lobe, not the paper's) falls back to the moment pattern of its own three taps (their mean, spread and
+    filter width: :func:`fitted_moments`) and keeps its tail tap: the lobe's moments (``spread``) count its
+    tails, which the tail tap reads, so their pattern with the tail tap would count them twice, and without it
+    spreads the tails' light evenly over the core's reach.
     """
     mu_e = np.asarray(mus, np.float64)[None, :, None] * np.exp(taps[..., 0])
     use = mu_e >= MIN_FIT_TEXELS * np.pi / height
-    out = np.where(use[..., None], taps, moment_taps(spread))
+    fallback = moment_taps(spread)
     if tail is None:
-        return out
-    return out, np.where(use[..., None], tail, 0.0)
+        return np.where(use[..., None], taps, fallback)
+    long_tailed = np.any(tail[..., 2] > 0, axis=(1, 2))[:, None, None, None]
+    fallback = np.where(long_tailed, moment_taps(fitted_moments(taps)), fallback)
+    return np.where(use[..., None], taps, fallback), np.where(use[..., None] | long_tailed, tail, 0.0)
+
+
+def fitted_moments(taps: np.ndarray) -> np.ndarray:
+    """The moments of a tap pattern ``(..., 1 + 2T)`` (:func:`tap_fit`'s layout, weights summing to 1) in
+    :func:`~jkatana.interactive.lobe_tables.lobe_lut`'s ``spread`` layout ``(..., 3)``: its filter width's
+    log ratio s, the spread √(Σ w (o − m)²) of its offsets about their mean m = Σ w o, and m, so that
+    :func:`~jkatana.interactive.lobe_tables.moment_taps` of them has the pattern's first and second moments."""
+    o, w = taps[..., 1:1 + N_TAPS], taps[..., 1 + N_TAPS:]
+    mean = np.sum(w * o, -1)
+    sd = np.sqrt(np.maximum(np.sum(w * (o - mean[..., None]) ** 2, -1), 0.0))
+    return np.stack([taps[..., 0], sd, mean], -1)
 
 
 #: The functions whose source text keys the tap table (:func:`jkatana.interactive.tables.tap_fit_key`).
