@@ -153,16 +153,10 @@ def frame_environment(out: str | Path) -> dict | None:
 
 def family_file(path: Path, model: str = "ggx") -> Path:
     """A hiraji parameter file of a ``model`` lobe (:data:`FAMILIES`), its ``lobe`` built by the fit model as
-    ``jkatana fit`` does."""
-    import jax.numpy as jnp
+    ``jkatana fit`` does (:func:`validation.gl_agreement.params_file`)."""
+    from validation.gl_agreement import params_file
 
-    from jkatana.models.fitted import FIT_MODELS
-
-    fm, values = FIT_MODELS[model], FAMILIES[model]
-    lobe = fm.build(jnp.asarray(fm.shape_from_natural(values))).to_params()
-    path.write_text(json.dumps({"format": "jkatana-params/1", "region": "hiraji", "model": model, "lobe": lobe,
-                                "values": values, "optical_constants": "Fe-Johnson", "converged": True}))
-    return path
+    return Path(params_file(path, model, "hiraji", FAMILIES[model]))
 
 
 def bench_budget() -> int:

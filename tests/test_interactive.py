@@ -362,28 +362,8 @@ def test_sun_glint_under_a_real_hdr_agrees_only_with_the_sun_split(glr):
 def _files_prepared(tmp_path, view, rad):
     """The demo scene at ``view`` under ``rad`` (256 spp) with parameter files holding a GGX hiraji (α 0.05) and
     a Beckmann hamon (α 0.12), prepared for jkatana.render."""
-    from jkatana.render.renderer import prepare
-    from jkatana.render.scene import scene_from_dict
-
-    d = A.render_scene(view, samples=256)
-    d["material"]["hiraji"] = _params_file(tmp_path / "hiraji.json", "ggx", "hiraji",
-                                           {"scale": 2000.0, "alpha": 0.05})
-    d["material"]["hamon"] = _params_file(tmp_path / "hamon.json", "beckmann", "hamon",
-                                          {"scale": 2000.0, "alpha": 0.12})
-    return prepare(scene_from_dict(d), env_radiance=np.asarray(rad, np.float32))
-
-
-def _params_file(path, model: str, region: str, values: dict) -> str:
-    """A parameter file as ``jkatana fit`` writes it for ``model`` (its ``lobe`` from the fit model's ``build``)."""
-    import json
-
-    from jkatana.fit._model import FIT_MODELS
-
-    fm = FIT_MODELS[model]
-    lobe = fm.build(jnp.asarray(fm.shape_from_natural(values))).to_params()
-    path.write_text(json.dumps({"format": "jkatana-params/1", "region": region, "model": model, "lobe": lobe,
-                                "values": values, "optical_constants": "Fe-Johnson", "converged": True}))
-    return str(path)
+    return A.files_prepared(tmp_path, view, rad, {"hiraji": ("ggx", {"scale": 2000.0, "alpha": 0.05}),
+                                                  "hamon": ("beckmann", {"scale": 2000.0, "alpha": 0.12})})
 
 
 @pytest.mark.gl

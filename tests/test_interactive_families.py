@@ -102,74 +102,30 @@ def test_core_taps_scale_the_base_pattern():
     np.testing.assert_allclose(up[-1, :, 1:1 + TP.N_TAPS], np.sqrt(2.0) * base[-1, :, 1:1 + TP.N_TAPS], rtol=1e-12)
 
 
-def _prepared(tmp_path, view, rad, files: dict):
-    """The demo scene at ``view`` under ``rad`` (256 spp) with the parameter files ``{region: (model, values)}``,
-    prepared for jkatana.render."""
-    from jkatana.render.renderer import prepare
-    from jkatana.render.scene import scene_from_dict
-    from tests.test_interactive import _params_file
-    from validation import gl_agreement as A
-
-    d = A.render_scene(view, samples=256)
-    for region, (model, values) in files.items():
-        d["material"][region] = _params_file(tmp_path / f"{region}.json", model, region, values)
-    return prepare(scene_from_dict(d), env_radiance=np.asarray(rad, np.float32))
+#: The lobe of each family case of the agreement tests (the demo map's hiraji width, μ ≈ 0.05).
+AGREEMENT_FILES = {"ggx": {"scale": 2000.0, "alpha": 0.05},
+                   "gtr": {"scale": 2000.0, "alpha": 0.05, "gamma": 1.5},
+                   "two-lobe": {"scale": 2000.0, "alpha": 0.05, "alpha_haze": 0.3, "weight": 0.9}}
 
 
 @pytest.mark.gl
-@pytest.mark.slow          # a 256-spp reference; the GGX rows read from the shipped table
-def test_gl_frame_renders_a_shipped_family_within_the_bar(glr, tmp_path):
-    """A GGX hiraji from a parameter file over the paper's hamon, both regions' rows read from the shipped tables
-    (no fit, no tail fit): the GL frame agrees with jkatana.render (reference mode, the same file) within the
-    paper's lobe's bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5) on the studio demo view."""
-    from jkatana.interactive import bake as B
+@pytest.mark.slow          # a 256-spp reference each, and the built families' tables on first use
+@pytest.mark.parametrize("model, environment", [("ggx", "studio"), ("gtr", "sun"), ("two-lobe", "sun")])
+def test_gl_frame_renders_a_lobe_family_within_the_bar(glr, tmp_path, model, environment):
+    """A hiraji from a parameter file over the paper's hamon: GGX from the shipped tables (no fit, no tail fit);
+    GTR built on first use from GGX's shipped taps at its equal-half-maximum width, a two-lobe mixture from its
+    narrower part's, each with its tail tap. The GL frame agrees with jkatana.render (reference mode, the same
+    file) within the paper's lobe's bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5) on the demo view: GGX under the studio
+    light, the built families under the sun sky (its sun split off as a cap)."""
     from jkatana.interactive import scene as S
-    from jkatana.render.film import auto_exposure
-    from jkatana.render.renderer import render_view
     from validation import gl_agreement as A
 
-    view = S.demo_view(120, 90)
-    rad = S.environment("studio")
-    prep = _prepared(tmp_path, view, rad, {"hiraji": ("ggx", {"scale": 2000.0, "alpha": 0.05})})
-    keys = {"hiraji": prep.plan.hiraji_lobe, "hamon": prep.plan.hamon_lobe}
-    fr = render_view(prep)
-    exposure = auto_exposure(fr.xyz, fr.mask, key=0.6, percentile=75.0)
-    ref = A.display255(fr.xyz, exposure)
-    baked = B.cached_bake(rad, rank=3, lobes=region_lobes(keys), cache_dir=tmp_path / "cache")
-    st = glr.ShadingState(baked, np.asarray(prep.maps, np.float64), exposure=exposure)
-    img, gl_mask = A.gl_frame(st, view, S.blade(), return_mask=True)
-    stats = A.compare(img, ref, fr.mask & gl_mask)[0]
-    assert stats["pixels"] > 500
-    assert stats["mean"] <= 1.0 and stats["p95"] <= 2.5, stats
-
-
-@pytest.mark.gl
-@pytest.mark.slow          # a 256-spp reference and a family's tables built on first use
-@pytest.mark.parametrize("model, values", [
-    ("gtr", {"scale": 2000.0, "alpha": 0.05, "gamma": 1.5}),
-    ("two-lobe", {"scale": 2000.0, "alpha": 0.05, "alpha_haze": 0.3, "weight": 0.9})])
-def test_gl_frame_renders_a_built_family_within_the_bar(glr, tmp_path, model, values):
-    """A hiraji whose family is built on first use (GTR's core from GGX's shipped taps, a two-lobe mixture's from
-    its narrower part) with its tail tap, under the sun sky (the sun split off as a cap): the GL frame agrees with
-    jkatana.render (reference mode, the same file) within the paper's lobe's bar (ΔE2000 mean ≤ 1, p95 ≤ 2.5)."""
-    from jkatana.interactive import bake as B
-    from jkatana.interactive import scene as S
-    from jkatana.render.film import auto_exposure
-    from jkatana.render.renderer import render_view
-    from validation import gl_agreement as A
-
-    view = S.demo_view(120, 90)
-    rad = S.environment("sun")
-    prep = _prepared(tmp_path, view, rad, {"hiraji": (model, values)})
-    keys = {"hiraji": prep.plan.hiraji_lobe, "hamon": prep.plan.hamon_lobe}
-    lobes = region_lobes(keys)
-    assert lobes[0] not in FITTED_FAMILIES and lobes[0] not in PAPER_LOBES
-    fr = render_view(prep)
-    exposure = auto_exposure(fr.xyz, fr.mask, key=0.6, percentile=75.0)
-    baked = B.cached_bake(rad, rank=3, lobes=lobes, cache_dir=tmp_path / "cache")
-    assert np.any(baked.tail[0, ..., 2] > 0)
-    st = glr.ShadingState(baked, np.asarray(prep.maps, np.float64), exposure=exposure)
-    img, gl_mask = A.gl_frame(st, view, S.blade(), return_mask=True)
-    stats = A.compare(img, A.display255(fr.xyz, exposure), fr.mask & gl_mask)[0]
+    before = set(T.SHIPPED_TAPS.iterdir())
+    stats = A.files_agreement(tmp_path, S.demo_view(120, 90), S.environment(environment),
+                              {"hiraji": (model, AGREEMENT_FILES[model])})
+    assert set(T.SHIPPED_TAPS.iterdir()) == before
+    built = list((tmp_path / "cache").rglob("family-*.npz"))
+    assert (model == "ggx") == (not built), built          # GGX's rows ship; the others are built and cached
+    assert stats["tail"]
     assert stats["pixels"] > 500
     assert stats["mean"] <= 1.0 and stats["p95"] <= 2.5, stats

@@ -126,3 +126,67 @@ def gl_frame(state, view: View, mesh, *, return_mask: bool = False):
     mask = r.last_mask.copy() if return_mask else None
     r.delete()
     return (img, mask) if return_mask else img
+
+
+def params_file(path, model: str, region: str, values: dict) -> str:
+    """A parameter file as ``jkatana fit`` writes it for ``model`` (a :data:`jkatana.models.fitted.FIT_MODELS`
+    name), its ``lobe`` built by the fit model from the natural ``values``; returns its path."""
+    import json
+    from pathlib import Path
+
+    import jax.numpy as jnp
+
+    from jkatana.models.fitted import FIT_MODELS
+
+    fm = FIT_MODELS[model]
+    lobe = fm.build(jnp.asarray(fm.shape_from_natural(values))).to_params()
+    Path(path).write_text(json.dumps({"format": "jkatana-params/1", "region": region, "model": model, "lobe": lobe,
+                                      "values": values, "optical_constants": "Fe-Johnson", "converged": True}))
+    return str(path)
+
+
+def files_prepared(folder, view: View, radiance: np.ndarray, files: dict, *, samples: int = 256):
+    """:func:`jkatana.render.renderer.prepare` of the built-in blade and map at ``view`` under ``radiance``
+    (reference mode, ``samples`` per pixel), its regions' lobes from parameter files ``{region: (model, values)}``
+    written into ``folder`` (:func:`params_file`)."""
+    from pathlib import Path
+
+    from jkatana.render.renderer import prepare
+    from jkatana.render.scenefile import scene_from_dict
+
+    d = render_scene(view, samples=samples)
+    for region, (model, values) in files.items():
+        d["material"][region] = params_file(Path(folder) / f"{region}.json", model, region, values)
+    return prepare(scene_from_dict(d), env_radiance=np.asarray(radiance, np.float32))
+
+
+def files_agreement(folder, view: View, radiance: np.ndarray, files: dict, *, samples: int = 256) -> dict:
+    """The GL frame of :func:`files_prepared`'s scene against its :mod:`jkatana.render` frame (reference mode,
+    the same parameter files; exposure :func:`jkatana.render.film.auto_exposure`'s): :func:`compare`'s ΔE2000
+    statistics, and the wall times of the reference frame, of the bake (its lobe tables built or read in
+    ``folder``/cache, as on a first use) and of the GL frame (``reference_s``, ``bake_s``, ``gl_s``), and the
+    bake's ``tail`` (whether a region reads a tail tap)."""
+    import time
+    from pathlib import Path
+
+    from jkatana.interactive import bake as B
+    from jkatana.interactive import glrender as G
+    from jkatana.interactive import scene as S
+    from jkatana.interactive.lobe_tables import region_lobes
+    from jkatana.render.film import auto_exposure
+    from jkatana.render.renderer import render_view
+
+    prep = files_prepared(folder, view, radiance, files, samples=samples)
+    t0 = time.perf_counter()
+    fr = render_view(prep)
+    t1 = time.perf_counter()
+    exposure = auto_exposure(fr.xyz, fr.mask, key=0.6, percentile=75.0)
+    lobes = region_lobes({"hiraji": prep.plan.hiraji_lobe, "hamon": prep.plan.hamon_lobe})
+    baked = B.cached_bake(radiance, rank=3, lobes=lobes, cache_dir=Path(folder) / "cache")
+    t2 = time.perf_counter()
+    st = G.ShadingState(baked, np.asarray(prep.maps, np.float64), exposure=exposure)
+    img, gl_mask = gl_frame(st, view, S.blade(), return_mask=True)
+    t3 = time.perf_counter()
+    stats = compare(img, display255(fr.xyz, exposure), fr.mask & gl_mask)[0]
+    return {**stats, "reference_s": t1 - t0, "bake_s": t2 - t1, "gl_s": t3 - t2,
+            "tail": bool(np.any(baked.tail[..., 2] > 0))}
