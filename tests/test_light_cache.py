@@ -92,6 +92,36 @@ def test_second_prepare_reads_the_cache_and_renders_the_same(tmp_path, monkeypat
         renderer.prepare(_scene(tmp_path, other))
 
 
+def test_only_a_sampling_mode_builds_the_sampling_tables(tmp_path, monkeypatch):
+    """A mode that never samples the map (prefiltered, paper) gets an environment without sampling tables, in
+    a cache entry of its own; every other array is the one the tables' build gives, and so is the frame."""
+    import dataclasses
+
+    import jax
+
+    from jkatana.render import renderer
+    from jkatana.render.integrators import integrator_for
+
+    monkeypatch.setenv("JKATANA_CACHE", str(tmp_path / "cache"))
+    path = _env_file(tmp_path)
+    assert renderer.prepare(_scene(tmp_path, path)).env.sampler is not None          # reference: MIS
+    prep = renderer.prepare(_scene(tmp_path, path, mode="prefiltered"))
+    assert prep.env.sampler is None and not integrator_for("prefiltered").sampled
+    entries = sorted(p.name for p in (tmp_path / "cache").rglob("environment-*"))
+    sampled = dataclasses.replace(integrator_for("prefiltered"), sampled=True)
+    env, *_ = renderer._environment(prep.scene, prep.grid, prep.dtype, sampled, prep.maps,
+                                    {"hiraji": None, "hamon": None}, rank=None, env_radiance=None, split_sun=None,
+                                    max_memory=None)
+    assert env.sampler is not None
+    assert len(sorted(p.name for p in (tmp_path / "cache").rglob("environment-*"))) == len(entries) + 1
+    leaves = jax.tree_util.tree_leaves(dataclasses.replace(env, sampler=None))
+    assert len(leaves) == len(jax.tree_util.tree_leaves(prep.env))
+    for a, b in zip(leaves, jax.tree_util.tree_leaves(prep.env)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    np.testing.assert_array_equal(renderer.render_view(dataclasses.replace(prep, env=env)).xyz,
+                                  renderer.render_view(prep).xyz)
+
+
 def test_key_follows_content_and_method(tmp_path):
     from jkatana.render.scene import EnvironmentSpec
     from jkatana.spectral.grid import WavelengthGrid

@@ -108,7 +108,8 @@ class Environment(eqx.Module):
     - `basis`: ``(J, wl)`` spectra such that radiance = channels @ basis.
     - `rotation`: ``(3, 3)`` world → map rotation applied to every lookup.
     - `sampler`: :class:`jkatana.light.sampling.EnvSampler` of the map (luminance ×
-      solid angle, bilinear-safe), in map coordinates.
+      solid angle, bilinear-safe), in map coordinates; None where the environment was built for a mode that
+      does not sample it (:attr:`Integrator.sampled <jkatana.render.integrators.Integrator.sampled>`).
     - `prefiltered`: ``M`` lobe-convolved maps ``(H_m, W_m, J)`` for ``prefilter_mus``
       (:func:`jkatana.light.prefilter.prefilter`, projected on ``basis``), or ``()``.
     - `prefilter_mus`: ``(M,)`` μ of each prefiltered level (increasing).
@@ -125,7 +126,7 @@ class Environment(eqx.Module):
     channels: Float[Array, "H W J"]
     basis: Float[Array, "J wl"]
     rotation: Float[Array, "3 3"]
-    sampler: EnvSampler
+    sampler: EnvSampler | None
     prefiltered: tuple
     prefilter_mus: Float[Array, "M"]
     caps: Caps | None = None
@@ -174,7 +175,8 @@ def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5
 
 def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation=None,
                       prefilter_mus=(), prefilter_resolution: int = 128, dtype=jnp.float32, grid=None,
-                      env_density="max", split_sun: bool | SunSplit = False, prefilter_lobes=(None, None)):
+                      env_density="max", split_sun: bool | SunSplit = False, prefilter_lobes=(None, None),
+                      sampler: bool = True):
     """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
 
     Environment sampling is :class:`jkatana.light.sampling.EnvSampler` (the light
@@ -208,6 +210,9 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     split sum carries the lobe's energy (Karis 2013) as the normalised paper's lobe
     carries 1.
 
+    ``sampler``: build the sampling tables (False: `Environment.sampler` is None, for a mode that never samples
+    the map; they are a few floats per texel and a pass over the map).
+
     **Returns:** ``(environment, factored, rel_residual)``.
     """
     from jkatana.spectral import DEFAULT_GRID
@@ -228,7 +233,7 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
                 coeffs = (radiance.reshape(-1, nwl) @ basis.T.astype(np.float64)).reshape(H, W, -1).astype(np.float32)
             else:
                 coeffs = radiance.astype(np.float32)
-    sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=env_density)
+    sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=env_density) if sampler else None
     rot = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
     mus = tuple(sorted(float(m) for m in prefilter_mus))
     pre, lobe_pre = (), ()

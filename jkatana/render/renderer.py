@@ -317,8 +317,9 @@ def _environment(scene: Scene, grid: WavelengthGrid, dtype, integrator, maps, lo
                  split_sun, max_memory) -> tuple[Environment, bool, float, int | None]:
     """``(environment, factored, rank residual, rank or None)``: the scene's environment as ``integrator`` shades
     it (projected on ``rank`` principal spectra for a low-rank one; prefiltered levels for the maps' widths and the
-    regions' lobes; the sun split off or not), built once per content (:mod:`jkatana.light.cache`), streamed when
-    a map file's whole spectra do not fit ``max_memory`` (:func:`jkatana.render.streamed.streams`), and rotated."""
+    regions' lobes; the sun split off or not; sampling tables only for a mode that samples the map), built once
+    per content (:mod:`jkatana.light.cache`), streamed when a map file's whole spectra do not fit ``max_memory``
+    (:func:`jkatana.render.streamed.streams`), and rotated."""
     from jkatana.light.cache import cached_tree, environment_key, radiance_key
 
     env_rank = (scene.render.rank if rank is None else rank) if integrator.low_rank else None
@@ -333,9 +334,10 @@ def _environment(scene: Scene, grid: WavelengthGrid, dtype, integrator, maps, lo
     if integrator.whole_map and split:
         raise InputError(f"the {integrator.name} mode shades the whole map: no sun split (render.split_sun)",
                          field="mode")
+    kw = dict(rank=env_rank, prefilter_mus=mus, prefilter_resolution=128, dtype=dtype, split_sun=split,
+              sampler=integrator.sampled)
     rad_key = radiance_key(scene.environment, grid) if env_radiance is None else None
-    env_key = None if rad_key is None else environment_key(rad_key, rank=env_rank, prefilter_mus=mus,
-                                                           prefilter_resolution=128, dtype=dtype, split_sun=split)
+    env_key = None if rad_key is None else environment_key(rad_key, **kw)
     if env_key is not None and pre_lobes != (None, None):
         env_key += "-" + hashlib.sha256(repr(pre_lobes).encode()).hexdigest()[:16]
 
@@ -346,11 +348,9 @@ def _environment(scene: Scene, grid: WavelengthGrid, dtype, integrator, maps, lo
 
     def build():
         if streamed:
-            return build_scene_streamed(scene, grid, rank=env_rank, prefilter_mus=mus, prefilter_resolution=128,
-                                        dtype=dtype, split_sun=split, prefilter_lobes=pre_lobes)
+            return build_scene_streamed(scene, grid, prefilter_lobes=pre_lobes, **kw)
         radiance = load_environment(scene, grid) if env_radiance is None else env_radiance
-        return build_environment(radiance, rank=env_rank, prefilter_mus=mus, prefilter_resolution=128,
-                                 dtype=dtype, grid=grid, split_sun=split, prefilter_lobes=pre_lobes)
+        return build_environment(radiance, grid=grid, prefilter_lobes=pre_lobes, **kw)
 
     env, factored, resid = cached_tree(env_key, build)
     env = eqx.tree_at(lambda e: e.rotation, env, jnp.asarray(rotation_y(scene.environment.rotation_deg), dtype))
