@@ -169,10 +169,13 @@ def convolve(image: Float[np.ndarray, "H W C"], table: tuple[np.ndarray, np.ndar
     convolutions in longitude (real FFTs): exact on the grid. The kernel is integrated over each
     source texel with ``sub × sub`` midpoint subsamples (``sub = 1``: sampled at texel centres). Output
     rows go in chunks of ``chunk``, and only the columns within the support are evaluated, so memory and
-    time scale with rows × support instead of rows² × width.
+    time scale with rows × support instead of rows² × width. The kernel is even in longitude (its
+    subsamples are symmetric), so only offsets 0…W/2 are evaluated and its spectrum, real, is their
+    type-I discrete cosine transform (Britanak, Yip & Rao 2007, "Discrete Cosine and Sine Transforms", §2.4).
     """
     L = np.asarray(image, np.float64)
     H, W = L.shape[:2]
+    C = L.shape[2]
     tx, tk = table
     psi_max = 2.0 * math.asin(math.sqrt(min(float(tx[-1]), 1.0)))
     dth, dph = math.pi / H, 2.0 * math.pi / W
@@ -183,32 +186,37 @@ def convolve(image: Float[np.ndarray, "H W C"], table: tuple[np.ndarray, np.ndar
     sin_sub = np.sin(th_sub)
     row_w = (np.cos(edges[:-1]) - np.cos(edges[1:])) / sin_sub.mean(axis=1)            # texel Ω / mean sin θ
     reach = int(math.ceil(psi_max / dth)) + 2
-    hav_p = np.sin(((np.arange(W)[:, None] + t[None, :]) - 0.5) * (dph / 2)) ** 2      # (W, sub): offsets 0..W−1
+    half = W // 2 + 1                                                                   # offsets 0..W/2
+    hav_p = np.sin(((np.arange(half)[:, None] + t[None, :]) - 0.5) * (dph / 2)) ** 2   # (half, sub)
+    mult = np.full(half, 2.0)                                                           # offset ±Δ: twice
+    mult[0] = 1.0
+    if W % 2 == 0:
+        mult[-1] = 1.0                                                                  # W/2 is its own mirror
     spec = sfft.rfft(L, axis=1, workers=-1).transpose(1, 0, 2)                          # (F, H, C)
-    spec_re, spec_im = np.ascontiguousarray(spec.real), np.ascontiguousarray(spec.imag)
+    spec_ri = np.ascontiguousarray(np.concatenate([spec.real, spec.imag], axis=-1))     # (F, H, 2C)
     out = np.empty(L.shape, np.float64)
     for o0 in range(0, H, chunk):
         o1 = min(H, o0 + chunk)
         i0, i1 = max(0, o0 - reach), min(H, o1 + reach)
-        K = np.zeros((o1 - o0, i1 - i0, W))
+        K = np.zeros((half, o1 - o0, i1 - i0))                                         # (Δ, out, in)
         for j in range(o0, o1):
             r0, r1 = max(0, j - reach), min(H, j + reach + 1)
             # columns within reach: sin²(ψ/2) ≥ sin θ sin θ' sin²(Δφ/2)
             s2 = float(math.sin(theta[j]) * sin_sub[r0:r1].min())  # the subsamples are all that is evaluated
             ratio = math.sin(psi_max / 2) / math.sqrt(s2) if s2 > 0 else 2.0
-            c = W if ratio >= 1.0 else int(math.ceil(2 * math.asin(ratio) / dph)) + 2
-            cols = np.arange(W) if 2 * c + 1 >= W else np.arange(-c, c + 1)
+            c = half if ratio >= 1.0 else min(int(math.ceil(2 * math.asin(ratio) / dph)) + 3, half)
             ti, si = th_sub[r0:r1], sin_sub[r0:r1]                                       # (r, sub)
             x = ((np.sin((theta[j] - ti) / 2) ** 2)[:, :, None, None]
-                 + (math.sin(theta[j]) * si)[:, :, None, None] * hav_p[np.mod(cols, W)][None, None])  # (r, s, c, s)
+                 + (math.sin(theta[j]) * si)[:, :, None, None] * hav_p[:c][None, None])  # (r, s, c, s)
             k = (kernel_at(x, table) * si[:, :, None, None]).sum(axis=(1, 3))
-            K[j - o0, r0 - i0:r1 - i0][:, np.mod(cols, W)] = k * row_w[r0:r1, None]
-        K /= K.sum(axis=(1, 2), keepdims=True)
-        # out[o, φ] = Σ_i Σ_Δ K[o, i, Δ] L[i, φ + Δ]  (circular correlation in longitude); K is even in Δ
-        # (symmetric subsamples), so its spectrum is real: two real matrix products per frequency
-        Kf = np.ascontiguousarray(sfft.rfft(K, axis=-1, workers=-1).real.transpose(2, 0, 1))  # (F, no, ni)
-        r = np.matmul(Kf, spec_re[:, i0:i1]) + 1j * np.matmul(Kf, spec_im[:, i0:i1])    # (F, no, C)
-        out[o0:o1] = sfft.irfft(r.transpose(1, 0, 2), n=W, axis=1, workers=-1)
+            K[:c, j - o0, r0 - i0:r1 - i0] = (k * row_w[r0:r1, None]).T
+        K /= np.einsum("d,doi->o", mult, K)[None, :, None]
+        # out[o, φ] = Σ_i Σ_Δ K[o, i, Δ] L[i, φ + Δ]  (circular correlation in longitude); K even in Δ, so its
+        # spectrum is real: the DCT-I of offsets 0..W/2 (an odd W: the real FFT of the mirrored kernel)
+        Kf = sfft.dct(K, type=1, axis=0, workers=-1) if W % 2 == 0 else \
+            sfft.rfft(np.concatenate([K, K[:0:-1]], 0), axis=0, workers=-1).real           # (F, out, in)
+        r = np.matmul(Kf, spec_ri[:, i0:i1])                                             # (F, out, 2C)
+        out[o0:o1] = sfft.irfft((r[..., :C] + 1j * r[..., C:]).transpose(1, 0, 2), n=W, axis=1, workers=-1)
     return out
 
 
