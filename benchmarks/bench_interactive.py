@@ -63,6 +63,14 @@ while the mouse is held; full resolution returns on release); ``viewer_drag_auto
 Where the close-up's time goes (the cost of each part of the shading, the benchmark's one-process
 sequence) is recorded in ``benchmarks/reports/interactive-2026-12-02-margin/NOTES.md``.
 
+``families`` (view ``demo_family``): the demo view at 120×90 with the hiraji from a parameter file of each fit
+model (GGX, GTR, two-lobe; :data:`validation.gl_agreement.FAMILY_FILES`) over the paper's hamon, under the
+built-in studio light and sun sky (quick mode: GTR under the sun only), by
+:func:`validation.gl_agreement.files_agreement`: ΔE2000 against the reference renderer (the same file,
+``REF_SAMPLES`` samples per pixel) beside the three times a user meets: the reference frame, the bake (the
+family's tables built in a new folder, as on its first use; XLA's programs may come from the compile cache)
+and the GL frame (context, upload and draw: a first frame, not the steady rate above).
+
 Error: ΔE2000 (mean, p95) over the blade's pixels of the GL frame against the reference renderer
 (:func:`validation.gl_agreement.reference_frame`: jkatana.render's reference mode, exact Fresnel,
 61 bands, ``REF_SAMPLES`` samples per pixel of the unfiltered environment) at a reduced resolution
@@ -215,6 +223,32 @@ def defaults_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _families(quick: bool) -> list[dict]:
+    """The ``families`` cases (module docstring): one row per (lobe family, light)."""
+    import tempfile
+
+    from jkatana.interactive import scene as S
+
+    cases = [("gtr", "sun")] if quick else [(m, e) for m in A.FAMILY_FILES for e in ("studio", "sun")]
+    rows = []
+    for model, light in cases:
+        with tempfile.TemporaryDirectory() as tmp:
+            r = A.files_agreement(tmp, S.demo_view(120, 90), S.environment(light),
+                                  {"hiraji": (model, A.FAMILY_FILES[model])}, samples=REF_SAMPLES)
+        err = {"dE00_mean": r["mean"], "dE00_p95": r["p95"], "dE00_max": r["max"]}
+        within = r["mean"] <= BAR[0] and r["p95"] <= BAR[1]
+        _log(f"family {model:8s} {light:6s} ΔE mean {r['mean']:.2f} p95 {r['p95']:.2f} "
+             f"({'within' if within else 'OVER'} the bar)  reference {r['reference_s']:.1f} s, bake "
+             f"{r['bake_s']:.1f} s, first GL frame {r['gl_s']:.2f} s")
+        rows.append(record("bench_interactive", {"view": "demo_family", "config": "default", "family": model,
+                                                 "light": light, "width": 120, "height": 90},
+                           time_s={"median": r["gl_s"]}, error=err, within_bar=within,
+                           reference=f"jkatana.render reference mode, {REF_SAMPLES} samples, the same parameter file",
+                           reference_s=r["reference_s"], bake_s=r["bake_s"], blade_pixels=r["pixels"],
+                           tail_tap=r["tail"], loadavg_1min=os.getloadavg()[0]))
+    return rows
+
+
 def run(quick: bool = False, defaults_only: bool = False) -> list[dict]:
     from jkatana.interactive import glrender as G      # first: it chooses the GL platform (EGL)
     from jkatana.interactive import scene as S
@@ -300,6 +334,8 @@ def run(quick: bool = False, defaults_only: bool = False) -> list[dict]:
                 _log(f"{vname:8s} {cname:11s} stages (glFinish after each): "
                      + ", ".join(f"{k[:-2]} {1e3 * v:.2f} ms" for k, v in stages.items()))
     _log("the defaults per view (800×600; ΔE2000 at " + f"{err_res[0]}×{err_res[1]}):\n" + defaults_table(rows))
+    if not defaults_only:
+        rows += _families(quick)
     if defaults_only:
         rows.append(record("bench_interactive", {"machine": True}, **machine_facts()))
         return rows

@@ -102,12 +102,6 @@ def test_core_taps_scale_the_base_pattern():
     np.testing.assert_allclose(up[-1, :, 1:1 + TP.N_TAPS], np.sqrt(2.0) * base[-1, :, 1:1 + TP.N_TAPS], rtol=1e-12)
 
 
-#: The lobe of each family case of the agreement tests (the demo map's hiraji width, μ ≈ 0.05).
-AGREEMENT_FILES = {"ggx": {"scale": 2000.0, "alpha": 0.05},
-                   "gtr": {"scale": 2000.0, "alpha": 0.05, "gamma": 1.5},
-                   "two-lobe": {"scale": 2000.0, "alpha": 0.05, "alpha_haze": 0.3, "weight": 0.9}}
-
-
 @pytest.mark.gl
 @pytest.mark.slow          # a 256-spp reference each, and the built families' tables on first use
 @pytest.mark.parametrize("model, environment", [("ggx", "studio"), ("gtr", "sun"), ("two-lobe", "sun")])
@@ -122,7 +116,7 @@ def test_gl_frame_renders_a_lobe_family_within_the_bar(glr, tmp_path, model, env
 
     before = set(T.SHIPPED_TAPS.iterdir())
     stats = A.files_agreement(tmp_path, S.demo_view(120, 90), S.environment(environment),
-                              {"hiraji": (model, AGREEMENT_FILES[model])})
+                              {"hiraji": (model, A.FAMILY_FILES[model])})
     assert set(T.SHIPPED_TAPS.iterdir()) == before
     built = list((tmp_path / "cache").rglob("family-*.npz"))
     assert (model == "ggx") == (not built), built          # GGX's rows ship; the others are built and cached

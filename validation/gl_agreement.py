@@ -128,6 +128,13 @@ def gl_frame(state, view: View, mesh, *, return_mask: bool = False):
     return (img, mask) if return_mask else img
 
 
+#: The hiraji lobe of each family case of the agreement checks (``tests/test_interactive_families.py``,
+#: ``benchmarks/bench_interactive.py``): the demo map's hiraji width (μ ≈ 0.05) in each fit model's values.
+FAMILY_FILES = {"ggx": {"scale": 2000.0, "alpha": 0.05},
+                "gtr": {"scale": 2000.0, "alpha": 0.05, "gamma": 1.5},
+                "two-lobe": {"scale": 2000.0, "alpha": 0.05, "alpha_haze": 0.3, "weight": 0.9}}
+
+
 def params_file(path, model: str, region: str, values: dict) -> str:
     """A parameter file as ``jkatana fit`` writes it for ``model`` (a :data:`jkatana.models.fitted.FIT_MODELS`
     name), its ``lobe`` built by the fit model from the natural ``values``; returns its path."""
