@@ -97,8 +97,9 @@ def light_add_arguments(p: argparse.ArgumentParser) -> None:
     """``jkatana light``'s arguments (:mod:`jkatana.light.commands`)."""
     from jkatana.light.commands import light_add_arguments as add
 
-    f = add(p).add_parser("prefilter", help="build a scene's environment (spectra, sampler, prefiltered levels) "
-                                            "into the render cache; later renders of the scene load it at once")
+    f = add(p).add_parser("prefilter", help="build a scene's environment (spectra, prefiltered levels, and the "
+                                            "sampling tables for a mode that samples it) into the render cache; "
+                                            "later renders of the scene load it at once")
     f.add_argument("scene", help="scene TOML")
     f.add_argument("--mode", default="prefiltered", choices=tuple(INTEGRATORS),
                    help="the render mode to prepare for (default prefiltered: also builds the prefiltered levels)")
