@@ -334,11 +334,10 @@ def run(quick: bool = False, defaults_only: bool = False) -> list[dict]:
                 _log(f"{vname:8s} {cname:11s} stages (glFinish after each): "
                      + ", ".join(f"{k[:-2]} {1e3 * v:.2f} ms" for k, v in stages.items()))
     _log("the defaults per view (800×600; ΔE2000 at " + f"{err_res[0]}×{err_res[1]}):\n" + defaults_table(rows))
-    if not defaults_only:
-        rows += _families(quick)
     if defaults_only:
         rows.append(record("bench_interactive", {"machine": True}, **machine_facts()))
         return rows
+    rows += _families(quick)
     # what the CPU time per blade pixel says about the texture fetches: rank 4 − rank 1 is 9 more
     # trilinear environment fetches per pixel (3 taps × 3 ranks)
     by = {(r_["case"]["view"], r_["case"]["config"]): r_ for r_ in rows}

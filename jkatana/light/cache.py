@@ -112,13 +112,13 @@ def radiance_key(env, grid) -> str | None:
 
 
 def environment_key(rad_key: str, *, rank, prefilter_mus, prefilter_resolution: int, dtype,
-                    split_sun: bool = False, sampler: bool = True) -> str:
+                    split_sun: bool = False, sampling: bool = True) -> str:
     """Key of :func:`jkatana.render.environment.build_environment`'s result for radiance ``rad_key``
-    (``split_sun``: compact sources split off as caps, :mod:`jkatana.light.sun`; ``sampler``: with its
+    (``split_sun``: compact sources split off as caps, :mod:`jkatana.light.sun`; ``sampling``: with its
     sampling tables)."""
     mus = tuple(round(float(m), 12) for m in prefilter_mus)
     return _key("environment", rad_key, rank, mus, int(prefilter_resolution), np.dtype(dtype).name, bool(split_sun),
-                *(() if sampler else ("no-sampler",)),
+                *(() if sampling else ("no-sampler",)),
                 _source_digest("jkatana.render.environment", "jkatana.render.streamed", "jkatana.light.sampling",
                                "jkatana.light.prefilter", "jkatana.light.sun", "jkatana.light.envmap",
                                "jkatana.light.streaming", "jkatana.models.lobes", "jkatana.models.lobe_id"))

@@ -176,7 +176,7 @@ def env_basis(radiance: np.ndarray, rank: int | None, *, grey_rtol: float = 1e-5
 def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation=None,
                       prefilter_mus=(), prefilter_resolution: int = 128, dtype=jnp.float32, grid=None,
                       env_density="max", split_sun: bool | SunSplit = False, prefilter_lobes=(None, None),
-                      sampler: bool = True):
+                      sampling: bool = True):
     """An :class:`Environment` (sampling tables, optional basis and prefiltering) from ``(H, W, wl)`` radiance.
 
     Environment sampling is :class:`jkatana.light.sampling.EnvSampler` (the light
@@ -210,7 +210,7 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
     split sum carries the lobe's energy (Karis 2013) as the normalised paper's lobe
     carries 1.
 
-    ``sampler``: build the sampling tables (False: `Environment.sampler` is None, for a mode that never samples
+    ``sampling``: build the sampling tables (False: `Environment.sampler` is None, for a mode that never samples
     the map; they are a few floats per texel and a pass over the map).
 
     **Returns:** ``(environment, factored, rel_residual)``.
@@ -233,7 +233,7 @@ def build_environment(radiance: np.ndarray, *, rank: int | None = None, rotation
                 coeffs = (radiance.reshape(-1, nwl) @ basis.T.astype(np.float64)).reshape(H, W, -1).astype(np.float32)
             else:
                 coeffs = radiance.astype(np.float32)
-    sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=env_density) if sampler else None
+    sampler = EnvSampler.build(EnvMap(jnp.asarray(radiance, dtype), grid), bilinear=env_density) if sampling else None
     rot = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
     mus = tuple(sorted(float(m) for m in prefilter_mus))
     pre, lobe_pre = (), ()

@@ -335,7 +335,7 @@ def _environment(scene: Scene, grid: WavelengthGrid, dtype, integrator, maps, lo
         raise InputError(f"the {integrator.name} mode shades the whole map: no sun split (render.split_sun)",
                          field="mode")
     kw = dict(rank=env_rank, prefilter_mus=mus, prefilter_resolution=128, dtype=dtype, split_sun=split,
-              sampler=integrator.sampled)
+              sampling=integrator.sampled)
     rad_key = radiance_key(scene.environment, grid) if env_radiance is None else None
     env_key = None if rad_key is None else environment_key(rad_key, **kw)
     if env_key is not None and pre_lobes != (None, None):

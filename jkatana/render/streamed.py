@@ -110,7 +110,7 @@ def measured_residual(source, coeffs: np.ndarray, basis: np.ndarray, skip: np.nd
 
 def build_streamed_environment(source, *, rank: int | None = None, rotation=None, prefilter_mus=(),
                                prefilter_resolution: int = 128, dtype=jnp.float32, env_density="max",
-                               split_sun: bool = False, prefilter_lobes=(None, None), sampler: bool = True):
+                               split_sun: bool = False, prefilter_lobes=(None, None), sampling: bool = True):
     """An :class:`~jkatana.render.environment.Environment` of a :class:`~jkatana.light.streaming.RowSource`,
     factored on a low-rank basis (module docstring); arguments as
     :func:`~jkatana.render.environment.build_environment`'s (``rank``: the basis's, None: chosen).
@@ -131,7 +131,7 @@ def build_streamed_environment(source, *, rank: int | None = None, rotation=None
                 flat_y[texels] = after @ EnvSampler.weights(source.grid)
             changed = np.concatenate([t for t, _, _ in changes])
     resid = measured_residual(source, coeffs, basis, changed)
-    sampler = EnvSampler.from_luminance(ys, dtype, bilinear=env_density) if sampler else None
+    sampler = EnvSampler.from_luminance(ys, dtype, bilinear=env_density) if sampling else None
     del ys
     mus = tuple(sorted(float(m) for m in prefilter_mus))
     pre, lobe_pre = (), ()
