@@ -147,6 +147,18 @@ def jakob2019_lut(colourspace: str = "sRGB", size: int = 8, path: str | None = N
     return lut
 
 
+def _solve3(J, b):
+    """``x`` with ``J x = b`` for stacks of 3×3 systems ``J (N, 3, 3)``, ``b (N, 3)``, by Cramer's rule (one
+    vectorised pass; a batched LAPACK call pays its per-matrix overhead N times); singular rows give
+    non-finite steps, which :func:`_jakob_refine` rejects."""
+    c0, c1, c2 = J[:, :, 0], J[:, :, 1], J[:, :, 2]
+    x12 = np.cross(c1, c2)
+    det = np.sum(c0 * x12, -1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.stack([np.sum(b * x12, -1), np.sum(c0 * np.cross(b, c2), -1),
+                         np.sum(c0 * np.cross(c1, b), -1)], -1) / det[:, None]
+
+
 def _jakob_refine(coeffs, q, grid, colourspace, iters: int = 4):
     """Newton steps on the sigmoid-polynomial coefficients so that the spectrum reproduces ``q``
     exactly on ``grid`` (trilinear interpolation of the LUT's coefficients only approximates it).
@@ -163,6 +175,7 @@ def _jakob_refine(coeffs, q, grid, colourspace, iters: int = 4):
     white = _white(grid, colourspace)
     A = (white[:, None] * equal_energy_xyz_weights(grid)) @ xyz_to_rgb_matrix(colourspace).T  # (wl, 3): R → rgb
     T = np.stack([t * t, t, np.ones_like(t)], axis=1)  # (wl, 3)
+    AT = (A[:, :, None] * T[:, None, :]).reshape(len(wl), 9)  # J = dR @ AT: one matmul, not N small ones
 
     def model(p):
         U = p @ T.T
@@ -175,11 +188,8 @@ def _jakob_refine(coeffs, q, grid, colourspace, iters: int = 4):
     for _ in range(iters):
         if not np.any(err > 1e-9):
             break
-        J = np.matmul(A.T, dR[:, :, None] * T[None])  # (N, 3, 3): d rgb_c / d p_k
-        try:
-            step = np.linalg.solve(J + 1e-12 * np.eye(3), res[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            break
+        J = (dR @ AT).reshape(-1, 3, 3) + 1e-12 * np.eye(3)  # (N, 3, 3): d rgb_c / d p_k
+        step = _solve3(J, res)
         p_new = p - step
         R_new, dR_new = model(p_new)
         res_new = R_new @ A - q
