@@ -318,3 +318,23 @@ def test_gamma_eq8_and_srgb_curve():
     np.testing.assert_array_equal(encode(v, "linear"), v)
     with pytest.raises(InputError):
         encode(v, 0.0)
+
+
+def test_colour_plotting_is_imported_on_its_first_use_only():
+    """jkatana's colorimetry imports colour-science without its plotting subpackage (and Matplotlib) in a fresh
+    interpreter; the first attribute read from ``colour.plotting`` imports the real one, in sys.modules and on
+    ``colour``, and colour's tables are those of a plain ``import colour``."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, types\n"
+        "import jkatana.spectral.colorimetry as C\n"
+        "import colour\n"
+        "print('matplotlib' in sys.modules, C.cmfs().shape == (61, 3))\n"
+        "from colour.plotting import plot_single_sd\n"
+        "print(callable(plot_single_sd), type(sys.modules['colour.plotting']) is types.ModuleType,\n"
+        "      colour.plotting is sys.modules['colour.plotting'], 'matplotlib' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["False", "True", "True", "True", "True", "True"], out

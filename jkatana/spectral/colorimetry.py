@@ -24,9 +24,40 @@ jitted function; the transfer is applied once per frame on the host.
 from __future__ import annotations
 
 import functools
+import sys
+import types
 
-import colour
 import numpy as np
+
+
+class _DeferredModule(types.ModuleType):
+    """A placeholder in ``sys.modules`` for a subpackage that imports its real self on first attribute use."""
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        import importlib
+
+        del sys.modules[self.__name__]
+        return getattr(importlib.import_module(self.__name__), name)
+
+
+def _import_colour():
+    """``import colour``, with ``colour.plotting`` imported on its first use rather than with the package.
+
+    colour-science 0.4.7's ``colour/__init__.py`` imports ``colour.plotting``, and with it Matplotlib's pyplot,
+    whenever Matplotlib is installed (upstream colour-science/colour#1416): about 0.4 s of the start of every
+    command that reads a colour table, for a subpackage jkatana never calls. While colour imports, a placeholder
+    (:class:`_DeferredModule`) stands for it in ``sys.modules``; reading an attribute of ``colour.plotting``
+    imports the real subpackage, which then replaces it there and on ``colour``."""
+    if "colour" not in sys.modules and "colour.plotting" not in sys.modules:
+        sys.modules["colour.plotting"] = _DeferredModule("colour.plotting")
+    import colour
+
+    return colour
+
+
+colour = _import_colour()
 
 from jkatana.errors import InputError
 from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
