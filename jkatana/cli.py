@@ -157,12 +157,12 @@ def main(argv: list[str] | None = None, *, handle_signals: bool | None = None) -
               "jkatana/); there is none beside this installation", file=sys.stderr)
         return 2
     _one_line_scene_warnings()
+    compile_cache()  # before the command's module imports JAX, which reads its cache settings then (jkatana.runtime)
     parser = build_parser(command)
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return 0
-    compile_cache()  # before the command's module imports JAX (jkatana.runtime)
     module, prefix = _load(args.command)
     if module is None:
         print(f"jkatana: the command {args.command!r} is not available in this build", file=sys.stderr)

@@ -102,13 +102,32 @@ def test_compile_cache_keeps_programs_for_the_next_process(tmp_path, off):
         assert not runs[0]["saved"] and runs[1]["saved"]
 
 
-def test_the_command_line_sets_the_compile_cache_before_jax_starts(tmp_path):
+@pytest.mark.parametrize("own", [False, True], ids=["default", "JAX_COMPILATION_CACHE_DIR"])
+def test_the_command_line_sets_the_compile_cache_before_jax_starts(tmp_path, own):
     """``jkatana`` points JAX at the cache before the command's module imports it (so its worker processes
-    inherit the folder too)."""
+    inherit the folder too), keeping every program however quick to compile; a folder the caller names in
+    ``JAX_COMPILATION_CACHE_DIR`` is used as it is, with the same setting."""
     env = cli_env()
     env["JKATANA_CACHE"] = str(tmp_path)
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env.pop("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", None)
+    folder = tmp_path / ("own" if own else "jax")
+    if own:
+        env["JAX_COMPILATION_CACHE_DIR"] = str(folder)
     code = ("from jkatana.cli import main; main(['light', 'cache']); import jax; "
             "print(jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
-    assert out.stdout.strip().splitlines()[-1] == f"{tmp_path / 'jax'} 0.0"
+    assert out.stdout.strip().splitlines()[-1] == f"{folder} 0.0"
+
+
+def test_render_devices_reach_xla():
+    """Building ``jkatana render``'s and ``demo``'s parser leaves JAX unimported, so the host devices the command
+    then asks for (``--devices``, default one per core: :func:`jkatana.render.commands._setup_devices`) are the
+    ones XLA starts with."""
+    env = cli_env()
+    env.pop("XLA_FLAGS", None)
+    code = ("import sys\nfrom jkatana.cli import build_parser\nbuild_parser('render'); build_parser('demo')\n"
+            "print('jax' in sys.modules)\nfrom jkatana.render.commands import _setup_devices\n_setup_devices(3)\n"
+            "import jax\nprint(jax.device_count())\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert out.stdout.split() == ["False", "3"], out.stdout

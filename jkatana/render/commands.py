@@ -13,7 +13,6 @@ import sys
 import time
 from pathlib import Path
 
-from jkatana.light.commands import LIGHT_HELP  # noqa: F401 (``jkatana light`` runs from here: light_run)
 from jkatana.render.integrators import INTEGRATORS, mode_help
 
 DEMO_HELP = "Render the built-in blade under the built-in sky (reference mode, PNG + EXR)."
@@ -91,6 +90,17 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=tuple(INTEGRATORS), default=None, help=mode_help())
     p.add_argument("--samples", type=int, default=None, help="samples per pixel (default: the scene's)")
     p.add_argument("--devices", type=int, default=None, help="host devices to split pixels over (default: cores)")
+
+
+def __getattr__(name: str):
+    """``LIGHT_HELP``, the help of ``jkatana light`` (which runs from here: :func:`light_run`), read from
+    :mod:`jkatana.light.commands` when asked for: importing the light stage imports JAX, which must wait until
+    :func:`_setup_devices` has set ``XLA_FLAGS`` (PEP 562)."""
+    if name == "LIGHT_HELP":
+        from jkatana.light.commands import LIGHT_HELP
+
+        return LIGHT_HELP
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def light_add_arguments(p: argparse.ArgumentParser) -> None:
