@@ -102,6 +102,8 @@ def measure(argv: list[str], cache: Path, log: Path, timeout: float = 1800.0) ->
     env = dict(os.environ, JKATANA_CACHE=str(cache), JAX_COMPILATION_CACHE_DIR=str(cache / "jax"),
                PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     env.pop("JKATANA_MAX_MEMORY", None)
+    # Python writes and reads the package's bytecode as it does for a user (a first use writes it)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
     r = subprocess.run([sys.executable, "-S", "-c", _WRAPPER, json.dumps([argv, str(log), timeout])],
                        capture_output=True, text=True, env=env, cwd=log.parent)
     res = json.loads(r.stdout.strip().splitlines()[-1])
