@@ -1,8 +1,8 @@
 """CLI commands of the render stage: ``jkatana demo`` and ``jkatana render``.
 
-JAX is imported only inside the commands, after ``XLA_FLAGS`` asks for one
-host device per core (``--xla_force_host_platform_device_count``), so that a
-frame's pixels are split across the cores (:mod:`jkatana.render.frame`).
+JAX is imported only inside the commands, after ``XLA_FLAGS`` asks for the
+host devices a frame's pixels are split over (``--devices``, default one:
+``--xla_force_host_platform_device_count``; :mod:`jkatana.render.frame`).
 """
 
 from __future__ import annotations
@@ -20,18 +20,15 @@ RENDER_HELP = "Render a scene TOML: one frame, or a batch of views × lightings 
 
 
 def _setup_devices(n: int | None = None) -> None:
-    """Ask XLA for one CPU device per core (must run before JAX is imported)."""
+    """Ask XLA for ``n`` host devices (default 1) to split a frame's pixels over; must run before JAX is
+    imported. One device already shades on every core (XLA's own thread pool); each further device holds its own
+    copy of the environment (0.55 GB more for the streamed 6000×3000 map's second ``render``, and no faster on
+    2 cores), so more are asked for only with ``--devices``."""
     if "jax" in sys.modules:
         return
-    if not n:
-        n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    # persistent XLA cache: a second `jkatana demo`/`render` (and Dask workers) skip recompilation
-    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR",
-                          os.path.join(os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")),
-                                       "jkatana", "jax"))
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in flags:
-        os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={max(1, n)}").strip()
+        os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={max(1, int(n or 1))}").strip()
 
 
 def _cores() -> int:
@@ -53,7 +50,8 @@ def render_memory(scene, *, samples=None, devices=None, max_memory=None) -> tupl
     The estimate counts the arrays a frame allocates: the G-buffer and film (per pixel ~40 float64
     values, XYZ and, for spectral output, one float32 per band), the environment's preparation (its
     size read from the file's header: the upsampled map, its float64 copies, the sun split, the
-    sampling tables and levels; :mod:`jkatana.render.memory`), and one shading call (``devices × chunk``
+    sampling tables and levels; :mod:`jkatana.render.memory`; once per host device, each holding its
+    copy), and one shading call (``devices × chunk``
     pixels × bands, ~16 float32 temporaries, plus ~32 bytes per sample), on top of the process itself
     (:data:`jkatana.render.memory.BASE_BYTES`).
     """
@@ -62,12 +60,13 @@ def render_memory(scene, *, samples=None, devices=None, max_memory=None) -> tupl
     w, h = scene.camera.resolution
     bands = scene.spectral.grid.size
     samples = int(samples or scene.render.samples)
-    devices = int(devices or _cores())
+    devices = int(devices or 1)
+    env_bytes = environment_bytes(scene.environment, bands, max_memory=max_memory)
     parts = {
         "camera.resolution": (w * h * (40 * 8 + 3 * 8 + (4 * bands if scene.output.spectral else 0)),
                               f"a {w}×{h} frame"),
-        environment_field(scene.environment): (environment_bytes(scene.environment, bands, max_memory=max_memory),
-                                               describe(scene.environment, bands)),
+        environment_field(scene.environment): (devices * env_bytes, describe(scene.environment, bands)
+                                               + (f" on each of {devices} devices" if devices > 1 else "")),
         "render.chunk": (devices * min(scene.render.chunk, w * h) * bands * 4 * 16,
                          f"{devices} × {scene.render.chunk} pixels per shading call"),
         "--samples": (devices * samples * 32, f"{samples} samples per pixel"),
@@ -89,7 +88,8 @@ def check_render_memory(scene, *, samples=None, devices=None, max_memory=None) -
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=tuple(INTEGRATORS), default=None, help=mode_help())
     p.add_argument("--samples", type=int, default=None, help="samples per pixel (default: the scene's)")
-    p.add_argument("--devices", type=int, default=None, help="host devices to split pixels over (default: cores)")
+    p.add_argument("--devices", type=int, default=None, help="host devices to split a frame's pixels over (default 1: it shades on every core already; each "
+                        "further device holds its own copy of the environment)")
 
 
 def __getattr__(name: str):
