@@ -88,8 +88,9 @@ def check_render_memory(scene, *, samples=None, devices=None, max_memory=None) -
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=tuple(INTEGRATORS), default=None, help=mode_help())
     p.add_argument("--samples", type=int, default=None, help="samples per pixel (default: the scene's)")
-    p.add_argument("--devices", type=int, default=None, help="host devices to split a frame's pixels over (default 1: it shades on every core already; each "
-                        "further device holds its own copy of the environment)")
+    p.add_argument("--devices", type=int, default=None,
+                   help="host devices to split a frame's pixels over (default 1: it shades on every core already; "
+                        "each further device holds its own copy of the environment)")
 
 
 def __getattr__(name: str):

@@ -29,6 +29,9 @@ import types
 
 import numpy as np
 
+from jkatana.errors import InputError
+from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
+
 
 class _DeferredModule(types.ModuleType):
     """A placeholder in ``sys.modules`` for a subpackage that imports its real self on first attribute use."""
@@ -38,7 +41,8 @@ class _DeferredModule(types.ModuleType):
             raise AttributeError(name)
         import importlib
 
-        del sys.modules[self.__name__]
+        if sys.modules.get(self.__name__) is self:
+            del sys.modules[self.__name__]
         return getattr(importlib.import_module(self.__name__), name)
 
 
@@ -58,9 +62,6 @@ def _import_colour():
 
 
 colour = _import_colour()
-
-from jkatana.errors import InputError
-from jkatana.spectral.grid import DEFAULT_GRID, WavelengthGrid
 
 CMFS_NAME = "CIE 1931 2 Degree Standard Observer"
 
