@@ -122,7 +122,7 @@ def test_the_command_line_sets_the_compile_cache_before_jax_starts(tmp_path, own
 
 def test_render_devices_reach_xla():
     """Building ``jkatana render``'s and ``demo``'s parser leaves JAX unimported, so the host devices the command
-    then asks for (``--devices``, default one per core: :func:`jkatana.render.commands._setup_devices`) are the
+    then asks for (``--devices``, default one: :func:`jkatana.render.commands._setup_devices`) are the
     ones XLA starts with."""
     env = cli_env()
     env.pop("XLA_FLAGS", None)
