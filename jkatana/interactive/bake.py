@@ -26,7 +26,7 @@ one module per table:
    reads the levels with (:mod:`jkatana.interactive.taps`); these do not depend
    on the environment and are cached and shipped
    (:mod:`jkatana.interactive.tables`); for a region holding a long-tailed lobe
-   (not the paper's) a fourth, wider tail tap beside the three taps
+   (not the paper's) up to two wider tail taps beside the three taps
    (:func:`jkatana.interactive.taps.tail_fit`);
 4. compact bright sources (suns) split off the map as caps, each a shader
    uniform integrated against the lobe in closed form
@@ -86,8 +86,8 @@ class Baked:
     - ``cap_kernel`` ``(2, n_mu, n_cos, n_v, n_u)``: the caps' kernel table of the regions' lobes
       (:func:`~jkatana.interactive.captable.cap_kernel_table`) where a region holds a lobe other than the
       paper's and the map has a cap; ``(0,)`` otherwise (the shader's closed-form cap rule).
-    - ``tail`` ``(2, n_mu, n_cos, 3)``: the tail tap (s_t, o_t, w_t) of regions holding a lobe other than the
-      paper's (:func:`~jkatana.interactive.taps.tail_fit`, read beside their three ``taps``); w_t = 0 elsewhere,
+    - ``tail`` ``(2, n_mu, n_cos, N_TAIL, 3)``: the tail taps (s_t, o_t, w_t) of regions holding a lobe other
+      than the paper's (:func:`~jkatana.interactive.taps.tail_fit`, read beside their three ``taps``); w_t = 0 elsewhere,
       and all zero for the paper's lobes (the shader has no tail code then).
     """
 

@@ -82,15 +82,16 @@ def _rgba(x: np.ndarray) -> np.ndarray:
 
 
 def lut_layers(b: Baked, rank: int) -> np.ndarray:
-    """The lobe table and tap patterns as the shader's 2-D array texture ``(8, n_mu, n_cos, 4)`` (10 layers
-    with a tail tap: 8, 9 hold hiraji's, hamon's (s_t, o_t, w_t), :func:`~jkatana.interactive.taps.tail_fit`):
-    layers 0, 1
+    """The lobe table and tap patterns as the shader's 2-D array texture ``(8 + 2 n_t, n_mu, n_cos, 4)`` (n_t =
+    :func:`tail_taps`: with tail taps, layers 8 + 2t, 9 + 2t hold hiraji's, hamon's tail tap t (s_t, o_t, w_t),
+    :func:`~jkatana.interactive.taps.tail_fit`): layers 0, 1
     the lobe tables A of hiraji, hamon (:func:`~jkatana.interactive.lobe_tables.lobe_lut`); 2, 3 their lobe
     shapes; 4, 5 the fitted taps' log(μ_e/μ) and offsets; 6, 7 their weights
     (:func:`~jkatana.interactive.taps.tap_fit`). At ``rank`` ≤ 2 layers 0, 1 have room: the first and last tap weight ride there in place of A_2, A_3 and
     the middle one is 1 − their sum (tap_fit normalises the weights), so the shader reads two layers fewer
     per pixel (``JK_RANK`` ≤ 2 in ``shade.glsl``)."""
-    lut = np.zeros((10 if has_tail(b) else 8,) + b.lut.shape[1:-1] + (MAX_RANK,))
+    n_t = tail_taps(b)
+    lut = np.zeros((8 + 2 * n_t,) + b.lut.shape[1:-1] + (MAX_RANK,))
     lut[:2, ..., :b.rank] = b.lut
     lut[2, ..., :3] = b.spread[0]
     lut[3, ..., :3] = b.spread[1]
@@ -99,14 +100,16 @@ def lut_layers(b: Baked, rank: int) -> np.ndarray:
     lut[6:8, ..., :T] = b.taps[:, ..., 1 + T:]
     if rank <= 2 and T == 3:
         lut[:2, ..., 2:4] = b.taps[:, ..., [1 + T, 2 * T]]
-    if has_tail(b):
-        lut[8:10, ..., :3] = b.tail
+    for t in range(n_t):
+        lut[8 + 2 * t:10 + 2 * t, ..., :3] = b.tail[..., t, :]
     return lut
 
 
-def has_tail(b: Baked) -> bool:
-    """Whether the bake has a tail tap anywhere (a region holding a long-tailed lobe, ``Baked.tail``)."""
-    return bool(np.any(b.tail[..., 2] > 0))
+def tail_taps(b: Baked) -> int:
+    """How many tail taps the bake's regions read (0: none holds a long-tailed lobe; ``Baked.tail``): the shader
+    reads no more than the widest-reaching region needs."""
+    used = np.nonzero(np.any(b.tail[..., 2] > 0, axis=(0, 1, 2)))[0]
+    return int(used[-1]) + 1 if used.size else 0
 
 
 class ShadingState:
@@ -123,8 +126,9 @@ class ShadingState:
       are a static switch too (``JK_CAPS``, their number; 0: no cap code), and so is their kernel table
       (``JK_CAP_TABLE``: rough shading of a bake with a cap whose regions hold lobes other than the paper's,
       :mod:`jkatana.interactive.captable`; a 3-D texture (û, v̂, (region, μ level, cos θv)) after the
-      environment textures). With the fitted taps, a bake whose regions hold a long-tailed lobe adds a tail
-      tap (``JK_TAIL``: a fourth environment read at a wider level, :func:`jkatana.interactive.taps.tail_fit`).
+      environment textures). With the fitted taps, a bake whose regions hold a long-tailed lobe adds tail
+      taps (``JK_TAIL``: their number, :func:`tail_taps`; further environment reads at wider levels,
+      :func:`jkatana.interactive.taps.tail_fit`).
     - `env_format`: GL internal format of the environment textures (:data:`ENV_FORMAT`).
     """
 
@@ -157,7 +161,7 @@ class ShadingState:
                 "JK_CAPS": self.baked.n_caps, "JK_CAP_TABLE": int(self.cap_table),
                 "JK_TWO_TAP": int(self.two_tap and self.rough), "JK_TAPS": self.taps,
                 "JK_TAP_FIT": int(self.fit and self.two_tap and self.rough and self.taps == 3),
-                "JK_TAIL": int(self.fit and self.two_tap and self.rough and self.taps == 3 and has_tail(self.baked))}
+                "JK_TAIL": tail_taps(self.baked) if self.fit and self.two_tap and self.rough and self.taps == 3 else 0}
 
     @property
     def cap_table(self) -> bool:

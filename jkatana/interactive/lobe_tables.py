@@ -63,7 +63,7 @@ def family_core(family) -> tuple:
     """``(base, c)``: the family whose fitted taps hold the core of ``family``'s lobe, ``base(c μ)`` standing for
     ``family(μ)`` near the mirror direction: the paper's lobes and :data:`FITTED_FAMILIES` themselves (c = 1, or
     a width ratio inside a mixture); GTR the GGX of equal half maximum (:func:`gtr_core_factor`); a
-    :class:`~jkatana.models.lobes.Mixture` its narrower part's core (the wider part's light is the tail tap's,
+    :class:`~jkatana.models.lobes.Mixture` its narrower part's core (the wider part's light is the tail taps',
     :func:`jkatana.interactive.taps.tail_fit`). Other families: ``(family, 1.0)``, fitted themselves."""
     if family in PAPER_LOBES:
         return family, 1.0

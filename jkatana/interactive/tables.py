@@ -23,7 +23,7 @@ import numpy as np
 from jkatana.interactive.levels import MU_LEVELS
 from jkatana.interactive.lobe_tables import FITTED_FAMILIES, LUT_SOURCES, PAPER_LOBES, family_core, family_names
 from jkatana.interactive.lobe_tables import gtr_core_factor, lobe_lut
-from jkatana.interactive.taps import FIT_SOURCES, N_TAPS, TAIL_SOURCES, core_taps, tail_fit, tap_fit
+from jkatana.interactive.taps import FIT_SOURCES, N_TAIL, N_TAPS, TAIL_SOURCES, core_taps, tail_fit, tap_fit
 from jkatana.light.fresnel_basis import basis_of_table, fresnel_basis
 from jkatana.models import Conductor
 from jkatana.spectral import DEFAULT_GRID, WavelengthGrid
@@ -148,10 +148,10 @@ def _paper_tap_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None):
 
 def cached_tail_fit(conductor: Conductor, mus, n_cos: int, cache_dir=None, lobes: tuple = PAPER_LOBES):
     """``(taps, tail, l1)``: :func:`cached_tap_fit`'s taps and, for the regions holding a lobe other than the
-    paper's, the tail tap of :func:`~jkatana.interactive.taps.tail_fit` and its ∫ |K − mix| dω, from
+    paper's, the tail taps of :func:`~jkatana.interactive.taps.tail_fit` and their ∫ |K − mix| dω, from
     :func:`family_tables`; regions holding the paper's lobes keep the three-tap table (w_t = 0, l1 0)."""
     taps, _, _ = cached_tap_fit(conductor, mus, n_cos, cache_dir, lobes)
-    tail, l1 = np.zeros(taps.shape[:3] + (3,)), np.zeros(taps.shape[:3])
+    tail, l1 = np.zeros(taps.shape[:3] + (N_TAIL, 3)), np.zeros(taps.shape[:3])
     for i, family in enumerate(lobes):
         if family is not PAPER_LOBES[i]:
             entry = family_tables(conductor, mus, n_cos, family, cache_dir)
@@ -198,9 +198,9 @@ def lobe_tables(conductor: Conductor, rank: int, mus, cache_dir=None, lobes: tup
 
 def tap_tables(conductor: Conductor, mus, n_cos: int = 64, cache_dir=None, lobes: tuple = PAPER_LOBES):
     """``(taps, tap_l1, tap_ok, tail)``: the taps of :func:`cached_tap_fit` and, where a region holds a lobe
-    other than the paper's, its tail tap (:func:`cached_tail_fit`; zeros otherwise)."""
+    other than the paper's, its tail taps (:func:`cached_tail_fit`; zeros otherwise)."""
     taps, tap_l1, tap_ok = cached_tap_fit(conductor, mus, n_cos, cache_dir, lobes)
-    tail = np.zeros(taps.shape[:3] + (3,))
+    tail = np.zeros(taps.shape[:3] + (N_TAIL, 3))
     if any(family not in PAPER_LOBES for family in lobes):
         taps, tail, _ = cached_tail_fit(conductor, mus, n_cos, cache_dir, lobes)
     return taps, tap_l1, tap_ok, tail
@@ -269,7 +269,7 @@ def family_tables(conductor: Conductor, mus, n_cos: int, family, cache_dir=None,
     levels pay it; ``fitted``: that fit's ``(taps, l1, ok)`` rows when the caller has them); every other
     family's are its core's (:func:`~jkatana.interactive.lobe_tables.family_core`: GTR's equal-half-maximum
     GGX, a mixture's narrower part) scaled to its width (:func:`~jkatana.interactive.taps.core_taps`, no fit;
-    ``l1``/``ok`` those of the core's fit at the level it is read from). The tail tap is then fitted to the
+    ``l1``/``ok`` those of the core's fit at the level it is read from). The tail taps are then fitted to the
     family's own lobe (:func:`~jkatana.interactive.taps.tail_fit`, no iteration: seconds)."""
     name = f"family-{family_key(conductor, mus, n_cos, family)}.npz"
     for path in (SHIPPED_TAPS / name, cache_folder(cache_dir) / name):

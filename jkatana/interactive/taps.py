@@ -8,8 +8,8 @@ each at a fitted level width, with fitted weights (:func:`tap_fit`): filtered
 importance sampling (Křivánek & Colbert 2008) with a pattern fitted to the
 lobe instead of drawn from it. Where the map cannot resolve a fitted level
 the moment-matched pattern is used instead (:func:`resolved_taps`). For a
-region holding a long-tailed lobe (GGX, GTR, …: not the paper's) a fourth,
-wider read — the tail tap (:func:`tail_fit`) — puts the light of the lobe's
+region holding a long-tailed lobe (GGX, GTR, …: not the paper's) up to two
+wider reads — the tail taps (:func:`tail_fit`) — put the light of the lobe's
 tails, which the three taps miss, back where the lobe has it.
 """
 
@@ -199,9 +199,11 @@ def tap_fit(conductor: Conductor, mus=MU_LEVELS, n_cos: int = 64, n: int = 32, l
 #: Reach of :func:`polar_lobe_kernel`'s grid in widths μ: GGX keeps 1/(1 + 24²) ≈ 0.2 % of its facet
 #: distribution's mass beyond a half-angle of 24 α (Walter et al. 2007, eq. 33).
 TAIL_REACH = 48.0
-#: Radius (in μ) beyond which :func:`tail_fit` puts the lobe's energy back with the tail tap.
+#: Tail taps a region may read (:func:`tail_fit`): a nearer and a farther part of a long-tailed lobe's tails.
+N_TAIL = 2
+#: Radius (in μ) beyond which :func:`tail_fit` puts the lobe's energy back with the tail taps.
 TAIL_FROM = 4.0
-#: Edges (in μ) of the rings around R whose energies :func:`tail_fit`'s choice of level matches.
+#: Edges (in μ) of the rings around R whose energies :func:`tail_fit`'s choice of levels matches.
 TAIL_RINGS = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 48.0)
 
 
@@ -235,32 +237,34 @@ def polar_lobe_kernel(model, conductor: Conductor, cos_v, n_psi: int = 48, n_chi
     return K, a_par, a_perp, dw, psi
 
 
-def tail_kernel(params, mu, ap, aq, mu_min: Float[ArrayLike, ""], mu_max: Float[ArrayLike, ""]):
-    """The shader's kernel with a tail tap, for ``(s, o_1..o_3, s_t, o_t, l_1..l_3, l_t)``: the three taps of
-    :func:`tap_kernel` (width μ e^s, offsets o_j, weights ∝ e^{l_j}) and a fourth, the tail tap, at offset o_t
-    read at its own width μ_t = μ e^{s_t} clamped to [mu_min, mu_max] (the widest prefiltered level); the four
-    weights are softmax(l), the tail's w_t = softmax(l)_4."""
+def tail_kernel(taps, tail, mu, ap, aq, mu_min: Float[ArrayLike, ""], mu_max: Float[ArrayLike, ""]):
+    """The shader's kernel with tail taps: the three taps ``taps (1 + 2T)`` (:func:`tap_fit`'s layout, width
+    μ e^s, offsets o_j, weights w_j summing to 1) and the tail taps ``tail (N, 3)`` (:func:`tail_fit`'s rows
+    (s_t, o_t, w_t)), each read at its own width μ e^{s_t} clamped to [mu_min, mu_max] (the widest prefiltered
+    level) at offset o_t: (1 − Σ_t w_t) Σ_j w_j K_j + Σ_t w_t K_t."""
     T = N_TAPS
-    core = jnp.concatenate([params[:1 + T], params[3 + T:3 + 2 * T]])
-    w = jax.nn.softmax(params[3 + T:])
-    s_t, o_t = params[1 + T], params[2 + T]
-    mu_t = jnp.clip(mu * jnp.exp(s_t), mu_min, mu_max)
-    x = jnp.sin(aq / 2) ** 2 + jnp.cos(aq) * jnp.sin((ap - o_t) / 2) ** 2
-    return (1.0 - w[T]) * tap_kernel(core, mu, ap, aq, mu_min) + w[T] * prefilter_kernel(x, mu_t)
+    core = tap_kernel(jnp.concatenate([taps[:1 + T], jnp.log(jnp.maximum(taps[1 + T:], 1e-300))]), mu, ap, aq, mu_min)
+    out = (1.0 - jnp.sum(tail[:, 2])) * core
+    for s_t, o_t, w_t in tail:
+        x = jnp.sin(aq / 2) ** 2 + jnp.cos(aq) * jnp.sin((ap - o_t) / 2) ** 2
+        out = out + w_t * prefilter_kernel(x, jnp.clip(mu * jnp.exp(s_t), mu_min, mu_max))
+    return out
 
 
 def _ring_energy(Kdw, psi, mu):
-    """Σ K dω per ring of ψ/μ between :data:`TAIL_RINGS` (the energies the tail tap matches)."""
+    """Σ K dω per ring of ψ/μ between :data:`TAIL_RINGS` (the energies the tail taps match)."""
     ring = jnp.searchsorted(jnp.asarray(TAIL_RINGS[1:-1], psi.dtype), psi / mu)
     return jnp.zeros(len(TAIL_RINGS) - 1, Kdw.dtype).at[ring.ravel()].add(Kdw.ravel())
 
 
 @functools.partial(jax.jit, static_argnames=("family", "n_psi", "n_chi"))
 def _tail_rows(family, mu, conductor, cos_v, taps, levels, mu_min, n_psi: int, n_chi: int):
-    """The tail tap ``(s_t, o_t, w_t)`` per cos θv for the lobe ``family(mu)`` read by the three taps ``taps
-    (C, 1 + 2T)`` (weights, not logits), candidates the prefiltered ``levels``; see :func:`tail_fit`. Rows
-    ``(s_t, o_t, w_t, ∫ |K − mix| dω)``."""
+    """The tail taps per cos θv for the lobe ``family(mu)`` read by the three taps ``taps (C, 1 + 2T)``
+    (weights, not logits), candidates the prefiltered ``levels``; see :func:`tail_fit`. Rows ``(C, 3 N_TAIL + 1)``:
+    ``(s, o, w)`` of each tail tap, narrower first, then ∫ |K − mix| dω."""
     T = N_TAPS
+    n_lv = levels.shape[0]
+    i, j = (jnp.asarray(a) for a in np.triu_indices(n_lv))       # level pairs, i ≤ j (i = j: one tail tap)
 
     def one(cv, t):
         K, ap, aq, dw, psi = polar_lobe_kernel(family(mu), conductor, cv, n_psi, n_chi, width=mu)
@@ -268,49 +272,75 @@ def _tail_rows(family, mu, conductor, cos_v, taps, levels, mu_min, n_psi: int, n
         far = psi > TAIL_FROM * mu
         Kd = K * dw
         e_lobe = jnp.sum(jnp.where(far, Kd, 0.0))
-        e_taps = jnp.sum(jnp.where(far, F3 * dw, 0.0))
         o_t = jnp.sum(jnp.where(far, Kd * ap, 0.0)) / jnp.maximum(e_lobe, 1e-30)
         x = jnp.sin(aq / 2) ** 2 + jnp.cos(aq) * jnp.sin((ap - o_t) / 2) ** 2
-        rings = _ring_energy(Kd, psi, mu)
+        Ft = jax.vmap(lambda mt: prefilter_kernel(x, mt))(levels)                  # (L, n_psi, n_chi)
+        # the cells whose energies the mix matches: the rings around R, and below the horizon (L·N ≤ 0, N = z),
+        # where the lobe has none but a wide read, symmetric about its direction, reaches (a bright floor seen
+        # through the surface); the mix (1 − Σw) F3 + Σ w_l F_l has cell energies r3 + Σ w_l D_l, linear in w
+        _, R, tv, yv = view_frame(cv)
+        below = jnp.cos(aq) * (jnp.cos(ap) * R[2] + jnp.sin(ap) * tv[2]) + jnp.sin(aq) * yv[2] <= 0.0
 
-        def candidate(mt):
-            Ft = prefilter_kernel(x, mt)
-            e_t = jnp.sum(jnp.where(far, Ft * dw, 0.0))
-            gain = e_t - e_taps
-            w = jnp.clip((e_lobe - e_taps) / jnp.where(gain > 1e-6, gain, 1.0), 0.0, 0.9)
-            w = jnp.where((gain > 1e-6) & (mt > mu), w, 0.0)
-            err = jnp.sum((_ring_energy(((1.0 - w) * F3 + w * Ft) * dw, psi, mu) - rings) ** 2)
-            return w, err
-        ws, errs = jax.vmap(candidate)(levels)
-        i = jnp.argmin(errs)
-        l1 = jnp.sum(jnp.abs((1.0 - ws[i]) * F3 + ws[i] * prefilter_kernel(x, levels[i]) - K) * dw)
-        return jnp.stack([jnp.log(levels[i] / mu), o_t, ws[i], l1])
+        def cells(f):
+            return jnp.concatenate([_ring_energy(f * dw, psi, mu), jnp.sum(jnp.where(below, f * dw, 0.0))[None]])
+        r3 = cells(F3)
+        D = jax.vmap(cells)(Ft) - r3                                               # (L, cells)
+        b = cells(K) - r3                                                          # the lobe: 0 below
+        # the weights put the lobe's energy beyond TAIL_FROM μ back exactly (Σ_t w_t d_t = e, d_t the energy
+        # there that level t's read adds over the three taps'); a pair splits it between its two levels by least
+        # squares along that line, a single level takes it alone; weights ≥ 0, Σ ≤ 0.9
+        e_far = e_lobe - jnp.sum(jnp.where(far, F3 * dw, 0.0))
+        d = jax.vmap(lambda f: jnp.sum(jnp.where(far, f * dw, 0.0)))(Ft) - (e_lobe - e_far)      # (L,)
+        di, dj = d[i], d[j]
+        pair = i != j
+        ok_d = (di > 1e-6) & (dj > 1e-6)
+        u = D[i] - (di / jnp.where(ok_d, dj, 1.0))[:, None] * D[j]
+        v = b[None] - (e_far / jnp.where(ok_d, dj, 1.0))[:, None] * D[j]
+        uu = jnp.sum(u * u, -1)
+        wi2 = jnp.sum(u * v, -1) / jnp.where(uu > 1e-30, uu, 1.0)
+        wj2 = (e_far - wi2 * di) / jnp.where(ok_d, dj, 1.0)
+        both = pair & ok_d & (uu > 1e-30) & (wi2 > 0) & (wj2 > 0) & (wi2 + wj2 <= 0.9)
+        w1 = jnp.clip(e_far / jnp.where(di > 1e-6, di, 1.0), 0.0, 0.9)
+        wi = jnp.where(both, wi2, jnp.where(di > 1e-6, w1, 0.0))
+        wj = jnp.where(both, wj2, 0.0)
+        r = b[None] - wi[:, None] * D[i] - wj[:, None] * D[j]
+        wide = (levels[i] > mu) & (levels[j] > mu)
+        err = jnp.where(wide & (wi > 0), jnp.sum(r * r, -1), jnp.inf)
+        k = jnp.argmin(err)
+        usable = jnp.isfinite(err[k]) & (e_far > 1e-6)
+        wi, wj = jnp.where(usable, wi[k], 0.0), jnp.where(usable & pair[k], wj[k], 0.0)
+        Fi, Fj = Ft[i[k]], Ft[j[k]]
+        l1 = jnp.sum(jnp.abs((1.0 - wi - wj) * F3 + wi * Fi + wj * Fj - K) * dw)
+        s_i = jnp.where(wi > 0, jnp.log(levels[i[k]] / mu), 0.0)
+        s_j = jnp.where(wj > 0, jnp.log(levels[j[k]] / mu), 0.0)
+        return jnp.stack([s_i, o_t, wi, s_j, o_t, wj, l1])
     return jax.vmap(one)(cos_v, taps)
 
 
 def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int = 64, lobes: tuple = PAPER_LOBES,
              n_psi: int = 48, n_chi: int = 32):
-    """A tail tap per (cos θv, μ) for the regions' lobes ``lobes`` that are not the paper's.
+    """Tail taps per (cos θv, μ) for the regions' lobes ``lobes`` that are not the paper's.
 
     Three taps prefiltered with the paper's Gaussian (:func:`tap_fit`) hold a long-tailed lobe's core but not
     its tails: GGX (Walter et al. 2007) keeps 1/(1 + k²) of its facet mass beyond a half-angle of k α, so
     12–21 % of the reflected light lies beyond 4 μ from R, where the taps' Gaussian kernels hold almost
-    nothing, and an environment brighter there than near R (the sky around a sun) comes out too dark. The
-    tail tap is a fourth read of the environment at a wider prefiltered level: the shader reads
-    (1 − w_t) Σ_j w_j L̃_j + w_t L̃_t. On the polar grid of :func:`polar_lobe_kernel` (which reaches the
-    tails), its offset o_t is the in-plane mean angle of the lobe's light beyond :data:`TAIL_FROM` μ from R,
-    its weight w_t puts the lobe's energy beyond that radius back (energy of (1 − w_t) taps + w_t tail there
-    = the lobe's; w_t ≤ 0.9), and its level is, among the prefiltered levels wider than μ (``mus``), the one
-    whose mix best matches the lobe's energy in the rings :data:`TAIL_RINGS` around R (least squares). No
-    iteration: a choice among the levels the shader can read.
+    nothing, and an environment brighter there than near R (the sky around a sun, a softbox) comes out too
+    dark. GTR at γ < 2 (Burley 2012) and a two-lobe mixture's haze reach further still: a power law spans
+    more radii than one prefiltered level holds. The tail taps are up to :data:`N_TAIL` further reads of the
+    environment at wider prefiltered levels: the shader reads (1 − Σ_t w_t) Σ_j w_j L̃_j + Σ_t w_t L̃_t. On the
+    polar grid of :func:`polar_lobe_kernel` (which reaches the tails) their offset is the in-plane mean angle
+    of the lobe's light beyond :data:`TAIL_FROM` μ from R, and their levels (a pair among the prefiltered levels
+    wider than μ, ``mus``, or one) and weights (≥ 0, Σ ≤ 0.9) are those whose mix best matches the lobe's
+    energy in the rings :data:`TAIL_RINGS` around R: linear least squares in the weights for every pair, the
+    best pair kept. No iteration: a choice among the levels the shader can read.
 
-    **Returns** ``(taps, tail (2, n_mu, n_cos, 3), l1 (2, n_mu, n_cos))``: ``taps`` unchanged (:func:`tap_fit`'s
-    layout), the tail tap (s_t = log(μ_t/μ), offset o_t towards N, weight w_t) and ∫ |K − mix| dω on the polar
-    grid; regions holding the paper's lobe get w_t = 0 (and l1 0: not evaluated there).
+    **Returns** ``(taps, tail (2, n_mu, n_cos, N_TAIL, 3), l1 (2, n_mu, n_cos))``: ``taps`` unchanged
+    (:func:`tap_fit`'s layout), the tail taps (s_t = log(μ_t/μ), offset o_t towards N, weight w_t; narrower
+    first, s_t = 0 where w_t = 0) and ∫ |K − mix| dω on the polar grid; regions holding the paper's lobe get
+    w_t = 0 (and l1 0: not evaluated there).
     """
-    T = N_TAPS
     taps = np.array(taps, np.float64)
-    tail = np.zeros(taps.shape[:3] + (3,))
+    tail = np.zeros(taps.shape[:3] + (N_TAIL, 3))
     l1 = np.zeros(taps.shape[:3])
     dt = conductor.n.dtype
     cos_c = jnp.asarray(np.maximum(np.linspace(0.0, 1.0, n_cos), 1e-3), dt)
@@ -322,8 +352,7 @@ def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int =
         for k, mu in enumerate(mus):
             rows = np.array(_tail_rows(family, jnp.asarray(mu, dt), conductor, cos_c,
                                         jnp.asarray(taps[m, k], dt), levels, mu_min, n_psi, n_chi), np.float64)
-            rows[:, 0] = np.where(rows[:, 2] > 0, rows[:, 0], 0.0)     # no wider level: no tail, s_t = 0
-            tail[m, k], l1[m, k] = rows[:, :3], rows[:, 3]
+            tail[m, k], l1[m, k] = rows[:, :3 * N_TAIL].reshape(-1, N_TAIL, 3), rows[:, -1]
     return taps, tail, l1
 
 
@@ -367,20 +396,21 @@ def resolved_taps(taps: np.ndarray, spread: np.ndarray, mus, height: int, tail: 
     ``experiments/interactive_agreement.py`` compares both). So per table entry: fitted if
     μ e^s ≥ MIN_FIT_TEXELS·π/height, else moments.
 
-    With a ``tail`` table (:func:`tail_fit`) also returns it. A region whose tail tap is in use (a long-tailed
-    lobe, not the paper's) falls back to the moment pattern of its own three taps (their mean, spread and
-    filter width: :func:`fitted_moments`) and keeps its tail tap: the lobe's moments (``spread``) count its
-    tails, which the tail tap reads, so their pattern with the tail tap would count them twice, and without it
-    spreads the tails' light evenly over the core's reach.
+    With a ``tail`` table (:func:`tail_fit`'s ``(2, n_mu, n_cos, N_TAIL, 3)``) also returns it. A region whose
+    tail taps are in use (a long-tailed lobe, not the paper's) falls back to the moment pattern of its own three
+    taps (their mean, spread and filter width: :func:`fitted_moments`) and keeps its tail taps: the lobe's
+    moments (``spread``) count its tails, which the tail taps read, so their pattern with the tail taps would
+    count them twice, and without them spreads the tails' light evenly over the core's reach.
     """
     mu_e = np.asarray(mus, np.float64)[None, :, None] * np.exp(taps[..., 0])
     use = mu_e >= MIN_FIT_TEXELS * np.pi / height
     fallback = moment_taps(spread)
     if tail is None:
         return np.where(use[..., None], taps, fallback)
-    long_tailed = np.any(tail[..., 2] > 0, axis=(1, 2))[:, None, None, None]
+    long_tailed = np.any(tail[..., 2] > 0, axis=(1, 2, 3))[:, None, None, None]
     fallback = np.where(long_tailed, moment_taps(fitted_moments(taps)), fallback)
-    return np.where(use[..., None], taps, fallback), np.where(use[..., None] | long_tailed, tail, 0.0)
+    keep_tail = (use[..., None] | long_tailed)[..., None]
+    return np.where(use[..., None], taps, fallback), np.where(keep_tail, tail, 0.0)
 
 
 def fitted_moments(taps: np.ndarray) -> np.ndarray:

@@ -31,8 +31,8 @@
 // validation.shader_cap_rule.cap_response is tested against jkatana.light.capquad.cap_integral of the models),
 // JK_CAP_TABLE (where a region holds a lobe other than the paper's: the caps through the bake's table of the
 // cap integrated against each region's lobe, jkatana.interactive.captable, instead of the moments' Gaussian),
-// JK_TAIL (with JK_TAP_FIT, where a region holds a long-tailed lobe: a fourth read, the tail tap, at a wider
-// level, putting back the light of the lobe's tails that the three taps miss, jkatana.interactive.taps.tail_fit).
+// JK_TAIL (with JK_TAP_FIT, where a region holds a long-tailed lobe: the number of tail taps, further reads at
+// wider levels putting back the light of the lobe's tails that the three taps miss, jkatana.interactive.taps.tail_fit).
 
 uniform vec3 cam_pos;
 uniform sampler3D jk_env0;          // (u, v, level) → XYZ of basis function 0
@@ -294,12 +294,20 @@ vec4 jk_shade(vec3 N, vec3 Vd, vec2 uv)
         vec3 core = tw.x * textureLod(jk_env0, env_coord(cos(tp.y) * R + sin(tp.y) * tn, lz), 0.0).rgb
                     + tw.y * textureLod(jk_env0, p1, 0.0).rgb
                     + tw.z * textureLod(jk_env0, env_coord(cos(tp.w) * R + sin(tp.w) * tn, lz), 0.0).rgb;
-#if JK_TAIL
-        // the tail tap of long-tailed lobes (jkatana.interactive.taps.tail_fit; layers 8, 9: log(μ_t/μ), offset,
-        // weight w_t): the first basis function read once more, at the tail's own, wider level
-        vec3 tt = w * lobe(8.0, cv, lf).rgb + (1.0 - w) * lobe(9.0, cv, lt).rgb;
-        float lzt = (clamp(mix(lt, lf, w) + tt.x / jk_log_mu_step, 0.0, jk_n_levels - 1.0) + 0.5) / jk_n_levels;
-        core = mix(core, textureLod(jk_env0, env_coord(cos(tt.y) * R + sin(tt.y) * tn, lzt), 0.0).rgb, tt.z);
+#if JK_TAIL > 0
+        // the tail taps of long-tailed lobes (jkatana.interactive.taps.tail_fit; layers 8 + 2t, 9 + 2t: log(μ_t/μ),
+        // offset, weight w_t): the first basis function read once more per tail tap, at the tap's own, wider
+        // level; (1 − Σ w_t) core + Σ w_t tail_t
+        vec3 tails = vec3(0.0);
+        float wt = 0.0;
+        for (int t = 0; t < JK_TAIL; ++t) {
+            float layer = 8.0 + 2.0 * float(t);
+            vec3 tt = w * lobe(layer, cv, lf).rgb + (1.0 - w) * lobe(layer + 1.0, cv, lt).rgb;
+            float lzt = (clamp(mix(lt, lf, w) + tt.x / jk_log_mu_step, 0.0, jk_n_levels - 1.0) + 0.5) / jk_n_levels;
+            tails += tt.z * textureLod(jk_env0, env_coord(cos(tt.y) * R + sin(tt.y) * tn, lzt), 0.0).rgb;
+            wt += tt.z;
+        }
+        core = (1.0 - wt) * core + tails;
 #endif
         xyz = a.x * core + env_rest(p1, a);
 #elif JK_TWO_TAP && JK_TAPS == 5
