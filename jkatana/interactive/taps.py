@@ -287,28 +287,34 @@ def _tail_rows(family, mu, conductor, cos_v, taps, levels, mu_min, n_psi: int, n
         D = jax.vmap(cells)(Ft) - r3                                               # (L, cells)
         b = cells(K) - r3                                                          # the lobe: 0 below
         # the weights put the lobe's energy beyond TAIL_FROM μ back exactly (Σ_t w_t d_t = e, d_t the energy
-        # there that level t's read adds over the three taps'); a pair splits it between its two levels by least
-        # squares along that line, a single level takes it alone; weights ≥ 0, Σ ≤ 0.9
+        # there that level t's read adds over the three taps'; weights ≥ 0, Σ ≤ 0.9). Along that line a pair's
+        # cell residuals are v − w_i u, and their L1 norm (what the mix misplaces, bounding its error under any
+        # environment of bounded radiance) is convex and piecewise linear in w_i: its minimum lies where a
+        # residual vanishes (w_i = v_c/u_c) or at an end of the feasible interval (either level alone)
         e_far = e_lobe - jnp.sum(jnp.where(far, F3 * dw, 0.0))
         d = jax.vmap(lambda f: jnp.sum(jnp.where(far, f * dw, 0.0)))(Ft) - (e_lobe - e_far)      # (L,)
         di, dj = d[i], d[j]
+        ok = (di > 1e-6) & (dj > 1e-6) & (levels[i] > mu) & (levels[j] > mu)
+        dj_ = jnp.where(ok, dj, 1.0)
+        u = D[i] - (di / dj_)[:, None] * D[j]                                    # (pairs, cells)
+        v = b[None] - (e_far / dj_)[:, None] * D[j]
+        # feasible w_i: w_j = (e − w_i d_i)/d_j ≥ 0, w_i ≥ 0, w_i + w_j ≤ 0.9
+        hi = jnp.minimum(e_far / jnp.where(ok, di, 1.0),
+                         jnp.where(dj > di, (0.9 - e_far / dj_) / jnp.where(dj > di, 1.0 - di / dj_, 1.0), jnp.inf))
+        lo = jnp.where(dj > di, 0.0, jnp.maximum(0.0, (0.9 - e_far / dj_) / jnp.where(dj < di, 1.0 - di / dj_, -1.0)))
+        ok = ok & (hi >= lo)
+        cand = jnp.concatenate([v / jnp.where(jnp.abs(u) > 1e-30, u, 1e-30), lo[:, None], hi[:, None]], -1)
+        cand = jnp.clip(cand, lo[:, None], hi[:, None])                         # (pairs, cells + 2)
+        l1c = jnp.sum(jnp.abs(v[:, None, :] - cand[..., None] * u[:, None, :]), -1)
+        best = jnp.argmin(l1c, -1)
+        wi = jnp.take_along_axis(cand, best[:, None], -1)[:, 0]
+        wj = (e_far - wi * di) / dj_
+        err = jnp.where(ok, jnp.take_along_axis(l1c, best[:, None], -1)[:, 0], jnp.inf)
         pair = i != j
-        ok_d = (di > 1e-6) & (dj > 1e-6)
-        u = D[i] - (di / jnp.where(ok_d, dj, 1.0))[:, None] * D[j]
-        v = b[None] - (e_far / jnp.where(ok_d, dj, 1.0))[:, None] * D[j]
-        uu = jnp.sum(u * u, -1)
-        wi2 = jnp.sum(u * v, -1) / jnp.where(uu > 1e-30, uu, 1.0)
-        wj2 = (e_far - wi2 * di) / jnp.where(ok_d, dj, 1.0)
-        both = pair & ok_d & (uu > 1e-30) & (wi2 > 0) & (wj2 > 0) & (wi2 + wj2 <= 0.9)
-        w1 = jnp.clip(e_far / jnp.where(di > 1e-6, di, 1.0), 0.0, 0.9)
-        wi = jnp.where(both, wi2, jnp.where(di > 1e-6, w1, 0.0))
-        wj = jnp.where(both, wj2, 0.0)
-        r = b[None] - wi[:, None] * D[i] - wj[:, None] * D[j]
-        wide = (levels[i] > mu) & (levels[j] > mu)
-        err = jnp.where(wide & (wi > 0), jnp.sum(r * r, -1), jnp.inf)
+        wi, wj = jnp.where(pair, wi, jnp.minimum(e_far / jnp.where(ok, di, 1.0), 0.9)), jnp.where(pair, wj, 0.0)
         k = jnp.argmin(err)
         usable = jnp.isfinite(err[k]) & (e_far > 1e-6)
-        wi, wj = jnp.where(usable, wi[k], 0.0), jnp.where(usable & pair[k], wj[k], 0.0)
+        wi, wj = jnp.where(usable, wi[k], 0.0), jnp.where(usable, wj[k], 0.0)
         Fi, Fj = Ft[i[k]], Ft[j[k]]
         l1 = jnp.sum(jnp.abs((1.0 - wi - wj) * F3 + wi * Fi + wj * Fj - K) * dw)
         s_i = jnp.where(wi > 0, jnp.log(levels[i[k]] / mu), 0.0)
@@ -329,10 +335,13 @@ def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int =
     more radii than one prefiltered level holds. The tail taps are up to :data:`N_TAIL` further reads of the
     environment at wider prefiltered levels: the shader reads (1 − Σ_t w_t) Σ_j w_j L̃_j + Σ_t w_t L̃_t. On the
     polar grid of :func:`polar_lobe_kernel` (which reaches the tails) their offset is the in-plane mean angle
-    of the lobe's light beyond :data:`TAIL_FROM` μ from R, and their levels (a pair among the prefiltered levels
-    wider than μ, ``mus``, or one) and weights (≥ 0, Σ ≤ 0.9) are those whose mix best matches the lobe's
-    energy in the rings :data:`TAIL_RINGS` around R: linear least squares in the weights for every pair, the
-    best pair kept. No iteration: a choice among the levels the shader can read.
+    of the lobe's light beyond :data:`TAIL_FROM` μ from R; their weights (≥ 0, Σ ≤ 0.9) put the lobe's energy
+    beyond that radius back; their levels (a pair among the prefiltered levels wider than μ, ``mus``, or one)
+    and the split between them are those whose mix misplaces the least light (L1) over the rings
+    :data:`TAIL_RINGS` around R and one more cell, below the horizon: the lobe has no light there, but a wide
+    read, symmetric about its direction, reaches across it (a bright floor seen through the surface). No
+    iteration: each pair's optimum is at one of a few breakpoints, a choice among the levels the shader can
+    read.
 
     **Returns** ``(taps, tail (2, n_mu, n_cos, N_TAIL, 3), l1 (2, n_mu, n_cos))``: ``taps`` unchanged
     (:func:`tap_fit`'s layout), the tail taps (s_t = log(μ_t/μ), offset o_t towards N, weight w_t; narrower
