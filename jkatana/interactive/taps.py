@@ -237,14 +237,19 @@ def polar_lobe_kernel(model, conductor: Conductor, cos_v, n_psi: int = 48, n_chi
     return K, a_par, a_perp, dw, psi
 
 
+def weighted_tap_kernel(taps, mu, ap, aq, mu_min: Float[ArrayLike, ""] = 0.0):
+    """:func:`tap_kernel` of a pattern in :func:`tap_fit`'s returned layout ``(s, o_1..o_T, w_1..w_T)``: weights,
+    not logits (floored at 1e-30 before their logarithm, so that a zero weight stays finite in float32)."""
+    T = (taps.shape[-1] - 1) // 2
+    return tap_kernel(jnp.concatenate([taps[:1 + T], jnp.log(jnp.maximum(taps[1 + T:], 1e-30))]), mu, ap, aq, mu_min)
+
+
 def tail_kernel(taps, tail, mu, ap, aq, mu_min: Float[ArrayLike, ""], mu_max: Float[ArrayLike, ""]):
     """The shader's kernel with tail taps: the three taps ``taps (1 + 2T)`` (:func:`tap_fit`'s layout, width
     μ e^s, offsets o_j, weights w_j summing to 1) and the tail taps ``tail (N, 3)`` (:func:`tail_fit`'s rows
     (s_t, o_t, w_t)), each read at its own width μ e^{s_t} clamped to [mu_min, mu_max] (the widest prefiltered
     level) at offset o_t: (1 − Σ_t w_t) Σ_j w_j K_j + Σ_t w_t K_t."""
-    T = N_TAPS
-    core = tap_kernel(jnp.concatenate([taps[:1 + T], jnp.log(jnp.maximum(taps[1 + T:], 1e-300))]), mu, ap, aq, mu_min)
-    out = (1.0 - jnp.sum(tail[:, 2])) * core
+    out = (1.0 - jnp.sum(tail[:, 2])) * weighted_tap_kernel(taps, mu, ap, aq, mu_min)
     for s_t, o_t, w_t in tail:
         x = jnp.sin(aq / 2) ** 2 + jnp.cos(aq) * jnp.sin((ap - o_t) / 2) ** 2
         out = out + w_t * prefilter_kernel(x, jnp.clip(mu * jnp.exp(s_t), mu_min, mu_max))
@@ -262,13 +267,12 @@ def _tail_rows(family, mu, conductor, cos_v, taps, levels, mu_min, n_psi: int, n
     """The tail taps per cos θv for the lobe ``family(mu)`` read by the three taps ``taps (C, 1 + 2T)``
     (weights, not logits), candidates the prefiltered ``levels``; see :func:`tail_fit`. Rows ``(C, 3 N_TAIL + 1)``:
     ``(s, o, w)`` of each tail tap, narrower first, then ∫ |K − mix| dω."""
-    T = N_TAPS
     n_lv = levels.shape[0]
     i, j = (jnp.asarray(a) for a in np.triu_indices(n_lv))       # level pairs, i ≤ j (i = j: one tail tap)
 
     def one(cv, t):
         K, ap, aq, dw, psi = polar_lobe_kernel(family(mu), conductor, cv, n_psi, n_chi, width=mu)
-        F3 = tap_kernel(jnp.concatenate([t[:1 + T], jnp.log(jnp.maximum(t[1 + T:], 1e-30))]), mu, ap, aq, mu_min)
+        F3 = weighted_tap_kernel(t, mu, ap, aq, mu_min)
         far = psi > TAIL_FROM * mu
         Kd = K * dw
         e_lobe = jnp.sum(jnp.where(far, Kd, 0.0))
@@ -387,7 +391,8 @@ def core_taps(base: np.ndarray, mus, c: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: The functions whose source text keys the tail table (:func:`jkatana.interactive.tables.cached_tail_fit`).
-TAIL_SOURCES = (view_frame, polar_lobe_kernel, tail_kernel, _ring_energy, _tail_rows, tail_fit)
+TAIL_SOURCES = (view_frame, polar_lobe_kernel, weighted_tap_kernel, tail_kernel, _ring_energy, _tail_rows,
+                tail_fit)
 
 
 #: The fitted pattern is used where its filter width μ_e spans at least this many texels of the map.
