@@ -19,16 +19,21 @@ DEMO_HELP = "Render the built-in blade under the built-in sky (reference mode, P
 RENDER_HELP = "Render a scene TOML: one frame, or a batch of views × lightings (resumable, optional Dask)."
 
 
+#: Host devices a frame's pixels are split over unless ``--devices`` asks for more (see :func:`_setup_devices`).
+DEFAULT_DEVICES = 1
+
+
 def _setup_devices(n: int | None = None) -> None:
-    """Ask XLA for ``n`` host devices (default 1) to split a frame's pixels over; must run before JAX is
-    imported. One device already shades on every core (XLA's own thread pool); each further device holds its own
-    copy of the environment (0.55 GB more for the streamed 6000×3000 map's second ``render``, and no faster on
-    2 cores), so more are asked for only with ``--devices``."""
+    """Ask XLA for ``n`` host devices (default :data:`DEFAULT_DEVICES`) to split a frame's pixels over; must run
+    before JAX is imported. One device already shades on every core (XLA's own thread pool); each further device
+    holds its own copy of the environment (0.55 GB more for the streamed 6000×3000 map's second ``render``, and
+    no faster on 2 cores), so more are asked for only with ``--devices``."""
     if "jax" in sys.modules:
         return
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in flags:
-        os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={max(1, int(n or 1))}").strip()
+        n = max(1, int(n or DEFAULT_DEVICES))
+        os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={n}").strip()
 
 
 def _cores() -> int:
@@ -60,7 +65,7 @@ def render_memory(scene, *, samples=None, devices=None, max_memory=None) -> tupl
     w, h = scene.camera.resolution
     bands = scene.spectral.grid.size
     samples = int(samples or scene.render.samples)
-    devices = int(devices or 1)
+    devices = int(devices or DEFAULT_DEVICES)
     env_bytes = environment_bytes(scene.environment, bands, max_memory=max_memory)
     parts = {
         "camera.resolution": (w * h * (40 * 8 + 3 * 8 + (4 * bands if scene.output.spectral else 0)),
