@@ -41,6 +41,25 @@ def test_level_convolution_matches_the_full_resolution_one():
         assert np.abs(coarse - ref).max() < 0.05 * np.abs(ref).max()
 
 
+def test_level_stack_resamples_each_level_into_one_contiguous_block_per_basis_function():
+    """Baked.env is every level upsampled to the finest size, (n_mu, rank, H, W, 3), and each basis function's
+    stack env[:, r] is one C-contiguous float32 block: the GL upload passes it as it is, with no copy."""
+    from jkatana.light.prefilter import level_shape
+
+    rng = np.random.default_rng(2)
+    H, W, rank = 64, 128, 3
+    levels = [rng.random(level_shape(mu, (H, W), LV.TEXELS_PER_MU) + (3 * rank,)) for mu in LV.MU_LEVELS]
+    assert len({lv.shape for lv in levels}) > 2                     # full-size and coarser levels
+    env = B._level_stack(levels, H, W, rank)
+    assert env.shape == (len(levels), rank, H, W, 3) and env.dtype == np.float32
+    for k, lv in enumerate(levels):
+        want = LV.upsample(lv.astype(np.float32), H, W).reshape(H, W, rank, 3)
+        for r in range(rank):
+            np.testing.assert_array_equal(env[k, r], want[:, :, r])
+    for r in range(rank):
+        assert env[:, r].flags.c_contiguous and np.shares_memory(np.ascontiguousarray(env[:, r]), env)
+
+
 def test_cached_bake_is_small_and_reads_back(tmp_path):
     from jkatana.spectral import DEFAULT_GRID as grid  # the shipped tap and material tables apply
 

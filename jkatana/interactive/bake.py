@@ -162,8 +162,7 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
     found = load_entry(path, read)
     if found is not None:
         fields, levels = found
-        env = np.stack([upsample(lv, H, W) for lv in levels]).reshape(len(mus), H, W, rank, 3)
-        return Baked(**{**fields, "env": env.transpose(0, 3, 1, 2, 4), "fresnel_err": float(fields["fresnel_err"]),
+        return Baked(**{**fields, "env": _level_stack(levels, H, W, rank), "fresnel_err": float(fields["fresnel_err"]),
                         "colourspace": str(fields["colourspace"])})
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     baked, levels = _bake(np.asarray(radiance, np.float64), grid,
@@ -213,9 +212,20 @@ def _cached_bake_rows(rows, *, rank, mus, colourspace, transfer, source, cache_d
 
 
 def _level_stack(levels, height: int, width: int, rank: int) -> np.ndarray:
-    """``(n_mu, rank, height, width, 3)``: the levels resampled to one size (:func:`upsample`), as `Baked.env`."""
-    env = np.stack([upsample(lv.astype(np.float32), int(height), int(width)) for lv in levels])
-    return env.reshape(len(levels), int(height), int(width), rank, 3).transpose(0, 3, 1, 2, 4)
+    """``(n_mu, rank, height, width, 3)`` float32: the levels ``(h_k, w_k, rank·3)`` resampled to one size
+    (:func:`upsample`), as `Baked.env`.
+
+    Laid out rank-major in memory (a view of a C-ordered ``(rank, n_mu, height, width, 3)``): each basis
+    function's stack is then the one contiguous block its 3-D texture is uploaded from, as it is. Each level is
+    written into its place, so no full-size intermediate is made: at the paper's scale the stack is hundreds of
+    MB, and the page faults of fresh memory were what building it cost."""
+    out = np.empty((rank, len(levels), int(height), int(width), 3), np.float32)
+    for k, lv in enumerate(levels):
+        lv = np.asarray(lv, np.float32)
+        lv = lv.reshape(lv.shape[:2] + (rank, 3))
+        for r in range(rank):
+            out[r, k] = upsample(lv[:, :, r], int(height), int(width))
+    return out.transpose(1, 0, 2, 3, 4)
 
 
 def _bake_rows(rows, *, conductor, rank, mus, colourspace, transfer, cache_dir, split_sun, lobes):
@@ -322,8 +332,7 @@ def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_
     bar = tqdm(mus, desc="baking the environment (μ levels)", unit="level", disable=not progress,
                file=__import__("sys").stderr)
     levels = [prefilter_level(proj, float(mu)) for mu in bar]
-    env = np.stack([upsample(lv.astype(np.float32), H, Wd) for lv in levels])        # (n_mu, H, W, r*3)
-    env = env.reshape(len(mus), H, Wd, rank, 3).transpose(0, 3, 1, 2, 4)
+    env = _level_stack(levels, H, Wd, rank)
     taps, tail = resolved_taps(taps, spread, mus, radiance.shape[0], tail)
     cap_kernel = np.zeros((0,))
     if len(cap_radius) and needs_table(lobes):

@@ -26,14 +26,15 @@ from jkatana.interactive.bake import MAX_RANK, Baked  # noqa: E402
 
 
 def _tex_layered(target: int, data: np.ndarray, wraps: tuple[int, ...], internal: int | None = None) -> int:
-    """Upload ``(layers, H, W, 4)`` float32 to ``target`` as ``internal`` (default RGBA32F) (bilinear; s repeats,
-    ``wraps`` clamp)."""
+    """Upload ``(layers, H, W, 3 or 4)`` float32 to ``target`` as ``internal`` (default RGBA32F) (bilinear;
+    s repeats, ``wraps`` clamp). Three channels are uploaded as RGB (GL sets alpha to 1): a contiguous float32
+    array is passed as it is, without a padded copy."""
     data = np.ascontiguousarray(data, np.float32)
-    layers, h, w, _ = data.shape
+    layers, h, w, c = data.shape
     tex = GL.glGenTextures(1)
     GL.glBindTexture(target, tex)
-    GL.glTexImage3D(target, 0, GL.GL_RGBA32F if internal is None else internal, w, h, layers, 0, GL.GL_RGBA,
-                    GL.GL_FLOAT, data)
+    GL.glTexImage3D(target, 0, GL.GL_RGBA32F if internal is None else internal, w, h, layers, 0,
+                    {3: GL.GL_RGB, 4: GL.GL_RGBA}[c], GL.GL_FLOAT, data)
     params = [(GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
               (GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT)] + [(wrap, GL.GL_CLAMP_TO_EDGE) for wrap in wraps]
     for p, v in params:
@@ -187,7 +188,7 @@ class ShadingState:
                 _tex_array(lut),                                         # (8 or 10, n_mu, n_cos, 4)
                 _tex_2d(_rgba(self.refl_map)),
                 _tex_2d(_rgba(np.asarray(b.transfer, np.float64)[None, :, None])),
-                *(_tex_3d(_rgba(b.env[:, r]), self.env_format) for r in range(rank)),     # (n_mu, H, W, 4) each
+                *(_tex_3d(b.env[:, r], self.env_format) for r in range(rank)),     # (n_mu, H, W, 3) each
             )
             if b.cap_kernel.size:                        # (2 n_mu n_cos, n_v, n_u, 4), clamped on every axis
                 k = b.cap_kernel
