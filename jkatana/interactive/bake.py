@@ -169,10 +169,7 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
                           conductor=Conductor.from_table(source, grid, dtype=dt), rank=rank, mus=mus,
                           colourspace=colourspace, transfer=transfer, cache_dir=cache_dir, progress=progress,
                           split_sun=split_sun, lobes=lobes)
-    scale = np.array([max(float(np.abs(lv).max()), 1e-30) / 60000.0 for lv in levels])
-    small = {f"level{k}": (lv / scale[k]).astype(np.float16) for k, lv in enumerate(levels)}
-    save_entry(path, cache_dir, level_scale=scale, **small,
-               **{k: np.asarray(v) for k, v in dataclasses.asdict(baked).items() if k != "env"})
+    _save_baked(path, cache_dir, baked, levels)
     return baked
 
 
@@ -204,11 +201,19 @@ def _cached_bake_rows(rows, *, rank, mus, colourspace, transfer, source, cache_d
     baked, levels = _bake_rows(rows, conductor=Conductor.from_table(source, rows.grid, dtype=dt), rank=rank,
                                mus=mus, colourspace=colourspace, transfer=transfer, cache_dir=cache_dir,
                                split_sun=split_sun, lobes=lobes)
+    _save_baked(path, cache_dir, baked, levels, env_shape=np.asarray(baked.env.shape[2:4]))
+    return baked
+
+
+def _save_baked(path, cache_dir, baked: Baked, levels, **extra) -> None:
+    """Write ``baked``'s cache entry: the prefiltered ``levels`` at their own resolutions as float16 (each scaled
+    to its maximum), ``extra`` and every other field of ``baked`` but ``env`` (rebuilt from the levels by
+    :func:`_level_stack`). The fields are read one by one: ``dataclasses.asdict`` deep-copies every field, the
+    environment stack too (hundreds of MB of fresh memory, to be dropped)."""
     scale = np.array([max(float(np.abs(lv).max()), 1e-30) / 60000.0 for lv in levels])
     small = {f"level{k}": (lv / scale[k]).astype(np.float16) for k, lv in enumerate(levels)}
-    save_entry(path, cache_dir, level_scale=scale, env_shape=np.asarray(baked.env.shape[2:4]), **small,
-               **{k: np.asarray(v) for k, v in dataclasses.asdict(baked).items() if k != "env"})
-    return baked
+    fields = {f.name: np.asarray(getattr(baked, f.name)) for f in dataclasses.fields(Baked) if f.name != "env"}
+    save_entry(path, cache_dir, level_scale=scale, **extra, **small, **fields)
 
 
 def _level_stack(levels, height: int, width: int, rank: int) -> np.ndarray:
