@@ -147,6 +147,27 @@ def test_rank_2_lobe_table_carries_the_tap_weights(glr, sky_scene):
 
 
 @pytest.mark.gl
+def test_a_state_uploads_the_environment_stacks_of_its_own_rank(glr, sky_scene):
+    """Each basis function's environment stack is n_mu × H × W texels: a state shading at rank r < the bake's
+    uploads r of them, not the bake's 3, and its frame is the one it would make with all of them there (the
+    shader reads jk_env0..jk_env{r-1} only)."""
+    from OpenGL import GL
+
+    b = B.cached_bake(sky_scene.radiance, sky_scene.grid, rank=3)
+    assert b.rank == 3
+    frames = {}
+    for rank in (1, 2, 3):
+        st = glr.ShadingState(b, sky_scene.refl_map, rank=rank)
+        r = glr.BakedOffscreenRenderer(st, sky_scene.view.width, sky_scene.view.height)
+        frames[rank] = r.render(glr.build_scene(sky_scene.mesh, sky_scene.view))
+        ids = next(iter(st._textures.values()))
+        is_3d = [t for t in ids if GL.glIsTexture(t)]
+        assert len(is_3d) == len(ids) == 3 + rank + int(b.cap_kernel.size > 0), (rank, ids)
+        r.delete()
+    assert not np.array_equal(frames[1], frames[2])          # the second basis function is read at rank 2
+
+
+@pytest.mark.gl
 @pytest.mark.slow          # a 256-spp reference frame; test_gl_frame_agrees_with_jkatana_render is the everyday one
 def test_gl_frame_agrees_with_the_reference_renderer_under_the_sky(glr, sky_scene, tmp_path):
     """The built-in sky from an orbit view, against jkatana.render (reference mode, 256 samples)."""

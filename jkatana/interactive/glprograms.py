@@ -150,7 +150,7 @@ class BakedProgram(ShaderProgram):
         st, b = self.state, self.state.baked
         pid = self._program_id
         names, targets = self._samplers()
-        textures = (st.textures()[:3 + st.rank] + (st.textures()[3 + b.rank:4 + b.rank] if st.cap_table else ())
+        textures = (st.textures()[:3 + st.rank + int(st.cap_table)]
                     + tuple((self.gbuffer or {}).values()))
         for i, (name, tex, target) in enumerate(zip(names, textures, targets)):
             GL.glActiveTexture(GL.GL_TEXTURE0 + _UNIT0 + i)

@@ -176,19 +176,20 @@ class ShadingState:
         return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
     def textures(self) -> tuple[int, ...]:
-        """GL texture ids in the current context (uploaded on first use)."""
+        """GL texture ids in the current context (uploaded on first use): the lobe table, the map, the transfer
+        row, the environment stacks of the basis functions the shading reads (``rank`` of them, not the bake's:
+        each is n_mu × H × W texels) and, with a cap table, the caps' kernels."""
         import OpenGL.contextdata
 
         key = OpenGL.contextdata.getContext()
         if key not in self._textures:
             b = self.baked
-            n_mu, rank, H, W, _ = b.env.shape
             lut = lut_layers(b, self.rank)
             self._textures[key] = (
                 _tex_array(lut),                                         # (8 or 10, n_mu, n_cos, 4)
                 _tex_2d(_rgba(self.refl_map)),
                 _tex_2d(_rgba(np.asarray(b.transfer, np.float64)[None, :, None])),
-                *(_tex_3d(b.env[:, r], self.env_format) for r in range(rank)),     # (n_mu, H, W, 3) each
+                *(_tex_3d(b.env[:, r], self.env_format) for r in range(self.rank)),     # (n_mu, H, W, 3) each
             )
             if b.cap_kernel.size:                        # (2 n_mu n_cos, n_v, n_u, 4), clamped on every axis
                 k = b.cap_kernel
