@@ -178,7 +178,7 @@ class ShadingState:
     def textures(self) -> tuple[int, ...]:
         """GL texture ids in the current context (uploaded on first use): the lobe table, the map, the transfer
         row, the environment stacks of the basis functions the shading reads (``rank`` of them, not the bake's:
-        each is n_mu × H × W texels) and, with a cap table, the caps' kernels."""
+        each is n_mu × H × W texels) and, where the bake has one, the caps' kernel table."""
         import OpenGL.contextdata
 
         key = OpenGL.contextdata.getContext()
