@@ -165,6 +165,16 @@ def test_a_state_uploads_the_environment_stacks_of_its_own_rank(glr, sky_scene):
         assert len(is_3d) == len(ids) == 3 + rank + int(b.cap_kernel.size > 0), (rank, ids)
         r.delete()
     assert not np.array_equal(frames[1], frames[2])          # the second basis function is read at rank 2
+    # view bakes only the stacks it shades with: the same frame, and a higher rank is refused
+    few = B.cached_bake(sky_scene.radiance, sky_scene.grid, rank=3, stack_rank=2)
+    assert few.env.shape[1] == 2 and few.rank == 3
+    np.testing.assert_array_equal(few.env, b.env[:, :2])
+    st = glr.ShadingState(few, sky_scene.refl_map, rank=2)
+    r = glr.BakedOffscreenRenderer(st, sky_scene.view.width, sky_scene.view.height)
+    np.testing.assert_array_equal(r.render(glr.build_scene(sky_scene.mesh, sky_scene.view)), frames[2])
+    r.delete()
+    with pytest.raises(ValueError, match="environment stacks"):
+        glr.ShadingState(few, sky_scene.refl_map, rank=3)
 
 
 @pytest.mark.gl

@@ -58,6 +58,9 @@ def test_level_stack_resamples_each_level_into_one_contiguous_block_per_basis_fu
             np.testing.assert_array_equal(env[k, r], want[:, :, r])
     for r in range(rank):
         assert env[:, r].flags.c_contiguous and np.shares_memory(np.ascontiguousarray(env[:, r]), env)
+    two = B._level_stack(levels, H, W, rank, stack_rank=2)        # a rank-2 shading's stacks only
+    assert two.shape == (len(levels), 2, H, W, 3)
+    np.testing.assert_array_equal(two, env[:, :2])
 
 
 def test_cached_bake_is_small_and_reads_back(tmp_path):

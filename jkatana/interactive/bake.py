@@ -73,7 +73,8 @@ BAKE_MODULES = ("jkatana.interactive.bake", "jkatana.interactive.levels", "jkata
 class Baked:
     """Everything the shaders read, as NumPy arrays (float32 on upload).
 
-    - ``env`` ``(n_mu, rank, H, W, 3)``: P_{r,c}(ω; μ) (XYZ per basis function).
+    - ``env`` ``(n_mu, n, H, W, 3)``: P_{r,c}(ω; μ) (XYZ per basis function) of the first n ≤ rank basis
+      functions (all of them unless the bake was asked for fewer: ``stack_rank`` of :func:`cached_bake`).
     - ``lut`` ``(2, n_mu, n_cos, rank)``: A_r for hiraji (0) and hamon (1).
     - ``spread`` ``(2, n_mu, n_cos, 3)``: lobe shape moments (:func:`~jkatana.interactive.lobe_tables.lobe_lut`).
     - ``taps`` ``(2, n_mu, n_cos, 1 + 2T)``: the tap pattern the shader reads, fitted where the map
@@ -126,7 +127,8 @@ def transfer_table(transfer="sRGB", n: int = 2048) -> np.ndarray:
 
 def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, rank: int = 3, mus=MU_LEVELS,
                 colourspace: str = "sRGB", transfer=None, source: str = "Fe-Johnson", cache_dir=None,
-                progress: bool = False, split_sun: bool = True, lobes: tuple = PAPER_LOBES) -> Baked:
+                progress: bool = False, split_sun: bool = True, lobes: tuple = PAPER_LOBES,
+                stack_rank: int | None = None) -> Baked:
     """:func:`bake` with an on-disk cache (``$JKATANA_CACHE`` or ``~/.cache/jkatana``/interactive).
 
     The key hashes every input (radiance bytes, grid, rank, μ levels, display
@@ -136,6 +138,8 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
     level's largest magnitude (relative precision 2⁻¹¹), resampled to the
     source's size on load: tens of MB for a 1k map instead of hundreds.
     `progress` shows a progress bar over the μ levels while baking; `split_sun` and `lobes` as :func:`bake`.
+    `stack_rank`: how many basis functions' environment stacks ``Baked.env`` holds (default ``rank``): a shading
+    at a lower rank reads no more (the cache entry keeps every level whatever it is).
     """
     import hashlib
     import importlib
@@ -145,7 +149,8 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
 
     if isinstance(radiance, RowSource):
         return _cached_bake_rows(radiance, rank=rank, mus=mus, colourspace=colourspace, transfer=transfer,
-                                 source=source, cache_dir=cache_dir, split_sun=split_sun, lobes=lobes)
+                                 source=source, cache_dir=cache_dir, split_sun=split_sun, lobes=lobes,
+                                 stack_rank=stack_rank)
     h = hashlib.sha256()
     for part in (np.ascontiguousarray(radiance, np.float64).tobytes(), repr((grid.start, grid.stop, grid.step,
                  rank, list(np.round(mus, 12)), colourspace, transfer, source, radiance.shape,
@@ -162,18 +167,20 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
     found = load_entry(path, read)
     if found is not None:
         fields, levels = found
-        return Baked(**{**fields, "env": _level_stack(levels, H, W, rank), "fresnel_err": float(fields["fresnel_err"]),
+        return Baked(**{**fields, "env": _level_stack(levels, H, W, rank, stack_rank),
+                        "fresnel_err": float(fields["fresnel_err"]),
                         "colourspace": str(fields["colourspace"])})
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     baked, levels = _bake(np.asarray(radiance, np.float64), grid,
                           conductor=Conductor.from_table(source, grid, dtype=dt), rank=rank, mus=mus,
                           colourspace=colourspace, transfer=transfer, cache_dir=cache_dir, progress=progress,
-                          split_sun=split_sun, lobes=lobes)
+                          split_sun=split_sun, lobes=lobes, stack_rank=stack_rank)
     _save_baked(path, cache_dir, baked, levels)
     return baked
 
 
-def _cached_bake_rows(rows, *, rank, mus, colourspace, transfer, source, cache_dir, split_sun, lobes) -> Baked:
+def _cached_bake_rows(rows, *, rank, mus, colourspace, transfer, source, cache_dir, split_sun, lobes,
+                      stack_rank=None) -> Baked:
     """:func:`cached_bake` of a map read in row blocks (:class:`~jkatana.light.streaming.RowSource`, a map whose
     spectra do not fit in memory whole): :func:`_bake_rows`, keyed by the file's content and the same inputs."""
     import hashlib
@@ -195,12 +202,12 @@ def _cached_bake_rows(rows, *, rank, mus, colourspace, transfer, source, cache_d
     if found is not None:
         levels = [found[f"level{k}"].astype(np.float32) * np.float32(found["level_scale"][k]) for k in range(len(mus))]
         fields = {f.name: found[f.name] for f in dataclasses.fields(Baked) if f.name != "env"}
-        return Baked(**{**fields, "env": _level_stack(levels, *found["env_shape"], rank),
+        return Baked(**{**fields, "env": _level_stack(levels, *found["env_shape"], rank, stack_rank),
                         "fresnel_err": float(fields["fresnel_err"]), "colourspace": str(fields["colourspace"])})
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     baked, levels = _bake_rows(rows, conductor=Conductor.from_table(source, rows.grid, dtype=dt), rank=rank,
                                mus=mus, colourspace=colourspace, transfer=transfer, cache_dir=cache_dir,
-                               split_sun=split_sun, lobes=lobes)
+                               split_sun=split_sun, lobes=lobes, stack_rank=stack_rank)
     _save_baked(path, cache_dir, baked, levels, env_shape=np.asarray(baked.env.shape[2:4]))
     return baked
 
@@ -216,24 +223,26 @@ def _save_baked(path, cache_dir, baked: Baked, levels, **extra) -> None:
     save_entry(path, cache_dir, level_scale=scale, **extra, **small, **fields)
 
 
-def _level_stack(levels, height: int, width: int, rank: int) -> np.ndarray:
-    """``(n_mu, rank, height, width, 3)`` float32: the levels ``(h_k, w_k, rank·3)`` resampled to one size
-    (:func:`upsample`), as `Baked.env`.
+def _level_stack(levels, height: int, width: int, rank: int, stack_rank: int | None = None) -> np.ndarray:
+    """``(n_mu, n, height, width, 3)`` float32: the levels ``(h_k, w_k, rank·3)`` resampled to one size
+    (:func:`upsample`), as `Baked.env`, for the first n = ``stack_rank`` (default all ``rank``) basis functions:
+    a shading at a lower rank than the bake's reads only those, and each stack is n_mu × height × width texels.
 
     Laid out rank-major in memory (a view of a C-ordered ``(rank, n_mu, height, width, 3)``): each basis
     function's stack is then the one contiguous block its 3-D texture is uploaded from, as it is. Each level is
     written into its place, so no full-size intermediate is made: the stack is hundreds of MB (a 1k map's finest
     level is 512 × 1024), and every byte of fresh memory is paid for in page faults."""
-    out = np.empty((rank, len(levels), int(height), int(width), 3), np.float32)
+    n = rank if stack_rank is None else min(int(stack_rank), rank)
+    out = np.empty((n, len(levels), int(height), int(width), 3), np.float32)
     for k, lv in enumerate(levels):
         lv = np.asarray(lv, np.float32)
         lv = lv.reshape(lv.shape[:2] + (rank, 3))
-        for r in range(rank):
+        for r in range(n):
             out[r, k] = upsample(lv[:, :, r], int(height), int(width))
     return out.transpose(1, 0, 2, 3, 4)
 
 
-def _bake_rows(rows, *, conductor, rank, mus, colourspace, transfer, cache_dir, split_sun, lobes):
+def _bake_rows(rows, *, conductor, rank, mus, colourspace, transfer, cache_dir, split_sun, lobes, stack_rank=None):
     """:func:`_bake` of a :class:`~jkatana.light.streaming.RowSource`: the map projected on the Fresnel basis
     × CIE weights as it streams (a linear projection per texel,
     :func:`~jkatana.light.fresnel_basis.projection_matrix`),
@@ -254,7 +263,7 @@ def _bake_rows(rows, *, conductor, rank, mus, colourspace, transfer, cache_dir, 
     cap_kernel = np.zeros((0,))
     if len(cap_radius) and needs_table(lobes):
         cap_kernel = cap_kernel_table(tuple(lobes), mus, float(np.max(cap_radius)), conductor)
-    return Baked(env=_level_stack(levels, h, w, rank), lut=lut, spread=spread, taps=taps, tap_l1=tap_l1,
+    return Baked(env=_level_stack(levels, h, w, rank, stack_rank), lut=lut, spread=spread, taps=taps, tap_l1=tap_l1,
                  tap_ok=tap_ok, mus=np.asarray(mus, np.float64), b=b, fresnel_err=err,
                  xyz_to_rgb=xyz_to_rgb_matrix(colourspace),
                  transfer=transfer_table(colourspace if transfer is None else transfer), colourspace=colourspace,
@@ -322,7 +331,7 @@ def bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, conductor
 
 
 def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_dir, progress: bool = False,
-          split_sun: bool = True, lobes: tuple = PAPER_LOBES):
+          split_sun: bool = True, lobes: tuple = PAPER_LOBES, stack_rank: int | None = None):
     """:func:`bake`, also returning the prefiltered levels at their own resolutions (what the cache keeps)."""
     from tqdm import tqdm
 
@@ -337,7 +346,7 @@ def _bake(radiance, grid, *, conductor, rank, mus, colourspace, transfer, cache_
     bar = tqdm(mus, desc="baking the environment (μ levels)", unit="level", disable=not progress,
                file=__import__("sys").stderr)
     levels = [prefilter_level(proj, float(mu)) for mu in bar]
-    env = _level_stack(levels, H, Wd, rank)
+    env = _level_stack(levels, H, Wd, rank, stack_rank)
     taps, tail = resolved_taps(taps, spread, mus, radiance.shape[0], tail)
     cap_kernel = np.zeros((0,))
     if len(cap_radius) and needs_table(lobes):

@@ -82,7 +82,7 @@ def _state(sc, args, glrender):
     t = time.perf_counter()
     baked = cached_bake(sc.radiance if sc.env_rows is None else sc.env_rows, sc.grid, rank=max(args.rank, 3),
                         colourspace=sc.colourspace,
-                        transfer=sc.transfer, source=sc.source, progress=True, lobes=sc.lobes)
+                        transfer=sc.transfer, source=sc.source, progress=True, lobes=sc.lobes, stack_rank=args.rank)
     print(f"[view] tables baked/loaded in {time.perf_counter() - t:.1f} s (rank {baked.rank}, "
           f"{len(baked.mus)} μ levels, Fresnel rank-{baked.rank} max rel. error {baked.fresnel_err:.1e})",
           file=sys.stderr)

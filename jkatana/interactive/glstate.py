@@ -145,8 +145,8 @@ class ShadingState:
         self.exposure = float(exposure)
         self.env_rotation = 0.0
         self.rank = min(DEFAULT_RANK, baked.rank) if rank is None else int(rank)
-        if not 1 <= self.rank <= baked.rank:
-            raise ValueError(f"rank must be 1..{baked.rank} (baked), got {self.rank}")
+        if not 1 <= self.rank <= baked.env.shape[1]:
+            raise ValueError(f"rank must be 1..{baked.env.shape[1]} (the bake's environment stacks), got {self.rank}")
         self.rough = bool(rough)
         self.blend = bool(blend)
         self.two_tap = bool(two_tap)
