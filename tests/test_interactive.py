@@ -161,8 +161,8 @@ def test_a_state_uploads_the_environment_stacks_of_its_own_rank(glr, sky_scene):
         r = glr.BakedOffscreenRenderer(st, sky_scene.view.width, sky_scene.view.height)
         frames[rank] = r.render(glr.build_scene(sky_scene.mesh, sky_scene.view))
         ids = next(iter(st._textures.values()))
-        is_3d = [t for t in ids if GL.glIsTexture(t)]
-        assert len(is_3d) == len(ids) == 3 + rank + int(b.cap_kernel.size > 0), (rank, ids)
+        live = [t for t in ids if GL.glIsTexture(t)]
+        assert len(live) == len(ids) == 3 + rank + int(b.cap_kernel.size > 0), (rank, ids)
         r.delete()
     assert not np.array_equal(frames[1], frames[2])          # the second basis function is read at rank 2
     # view bakes only the stacks it shades with: the same frame, and a higher rank is refused
@@ -175,6 +175,8 @@ def test_a_state_uploads_the_environment_stacks_of_its_own_rank(glr, sky_scene):
     r.delete()
     with pytest.raises(ValueError, match="environment stacks"):
         glr.ShadingState(few, sky_scene.refl_map, rank=3)
+    assert glr.ShadingState(B.cached_bake(sky_scene.radiance, sky_scene.grid, rank=3, stack_rank=1),
+                            sky_scene.refl_map).rank == 1      # the default rank is capped at the stacks there
 
 
 @pytest.mark.gl

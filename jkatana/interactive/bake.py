@@ -158,18 +158,9 @@ def cached_bake(radiance: np.ndarray, grid: WavelengthGrid = DEFAULT_GRID, *, ra
                  *(inspect.getsource(importlib.import_module(m)).encode() for m in BAKE_MODULES)):
         h.update(part)
     path = cache_folder(cache_dir) / f"baked-{h.hexdigest()[:24]}.npz"
-    H, W = radiance.shape[:2]
-
-    def read(z):
-        return ({f.name: z[f.name] for f in dataclasses.fields(Baked) if f.name != "env"},
-                [z[f"level{k}"].astype(np.float32) * np.float32(z["level_scale"][k]) for k in range(len(mus))])
-
-    found = load_entry(path, read)
+    found = _load_baked(path, rank, stack_rank, radiance.shape[:2])
     if found is not None:
-        fields, levels = found
-        return Baked(**{**fields, "env": _level_stack(levels, H, W, rank, stack_rank),
-                        "fresnel_err": float(fields["fresnel_err"]),
-                        "colourspace": str(fields["colourspace"])})
+        return found
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     baked, levels = _bake(np.asarray(radiance, np.float64), grid,
                           conductor=Conductor.from_table(source, grid, dtype=dt), rank=rank, mus=mus,
@@ -198,12 +189,9 @@ def _cached_bake_rows(rows, *, rank, mus, colourspace, transfer, source, cache_d
                    for m in (*BAKE_MODULES, "jkatana.light.streaming", "jkatana.render.streamed"))):
         h.update(part)
     path = cache_folder(cache_dir) / f"baked-rows-{h.hexdigest()[:24]}.npz"
-    found = load_entry(path, lambda z: {k: z[k] for k in z.files})
+    found = _load_baked(path, rank, stack_rank)
     if found is not None:
-        levels = [found[f"level{k}"].astype(np.float32) * np.float32(found["level_scale"][k]) for k in range(len(mus))]
-        fields = {f.name: found[f.name] for f in dataclasses.fields(Baked) if f.name != "env"}
-        return Baked(**{**fields, "env": _level_stack(levels, *found["env_shape"], rank, stack_rank),
-                        "fresnel_err": float(fields["fresnel_err"]), "colourspace": str(fields["colourspace"])})
+        return found
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     baked, levels = _bake_rows(rows, conductor=Conductor.from_table(source, rows.grid, dtype=dt), rank=rank,
                                mus=mus, colourspace=colourspace, transfer=transfer, cache_dir=cache_dir,
@@ -221,6 +209,23 @@ def _save_baked(path, cache_dir, baked: Baked, levels, **extra) -> None:
     small = {f"level{k}": (lv / scale[k]).astype(np.float16) for k, lv in enumerate(levels)}
     fields = {f.name: np.asarray(getattr(baked, f.name)) for f in dataclasses.fields(Baked) if f.name != "env"}
     save_entry(path, cache_dir, level_scale=scale, **extra, **small, **fields)
+
+
+def _load_baked(path, rank: int, stack_rank: int | None, shape=None) -> Baked | None:
+    """The :class:`Baked` of a cache entry written by :func:`_save_baked` (None when there is none): its levels
+    read back to float32 and stacked at ``shape`` ``(H, W)`` (default the entry's ``env_shape``) by
+    :func:`_level_stack`, its other fields as stored."""
+    def read(z):
+        levels = [z[f"level{k}"].astype(np.float32) * np.float32(z["level_scale"][k]) for k in range(len(z["mus"]))]
+        fields = {f.name: z[f.name] for f in dataclasses.fields(Baked) if f.name != "env"}
+        return fields, levels, (z["env_shape"] if shape is None else shape)
+
+    found = load_entry(path, read)
+    if found is None:
+        return None
+    fields, levels, (H, W) = found
+    return Baked(**{**fields, "env": _level_stack(levels, int(H), int(W), rank, stack_rank),
+                    "fresnel_err": float(fields["fresnel_err"]), "colourspace": str(fields["colourspace"])})
 
 
 def _level_stack(levels, height: int, width: int, rank: int, stack_rank: int | None = None) -> np.ndarray:

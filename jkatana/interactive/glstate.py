@@ -144,7 +144,7 @@ class ShadingState:
         self.refl_map = np.asarray(refl_map, np.float64)
         self.exposure = float(exposure)
         self.env_rotation = 0.0
-        self.rank = min(DEFAULT_RANK, baked.rank) if rank is None else int(rank)
+        self.rank = min(DEFAULT_RANK, baked.env.shape[1]) if rank is None else int(rank)
         if not 1 <= self.rank <= baked.env.shape[1]:
             raise ValueError(f"rank must be 1..{baked.env.shape[1]} (the bake's environment stacks), got {self.rank}")
         self.rough = bool(rough)
