@@ -142,7 +142,7 @@ def test_correct_model_not_flagged_and_intervals_agree(geometry):
         assert 0.7 < (rhi - rlo) / (hi - lo) < 1.4  # without misfit the sandwich is the Laplace interval
 
 
-@pytest.mark.parametrize("mu_deg", [pytest.param(0.2, marks=pytest.mark.slow), 0.5, 1.5])
+@pytest.mark.parametrize("mu_deg", [pytest.param(0.2, marks=pytest.mark.slow), pytest.param(0.5, marks=pytest.mark.slow), 1.5])
 def test_instrument_response_recovers_mu_below_at_above_the_aperture(geometry, mu_deg):
     """Aperture radius 0.5°: a lobe narrower than, equal to and wider than it is recovered with the response."""
     inst = (math.radians(0.25), math.radians(0.5), 8)
@@ -413,7 +413,7 @@ def test_green_with_the_precomputed_geometry_is_the_direct_evaluation(geometry, 
 
 
 @pytest.mark.parametrize("model, solver", [("hamon", "gn"), pytest.param("gtr", "dogleg", marks=pytest.mark.slow),
-                                           ("two-lobe", "lm")])
+                                           pytest.param("two-lobe", "lm", marks=pytest.mark.slow)])
 def test_convergence_check_is_evaluated_at_the_returned_point(geometry, model, solver):
     """solve's cost, gradient and JᵀJ (taken from the solver's last linearisation) are those of a fresh
     evaluation of the residuals and their Jacobian at the parameters it returns."""

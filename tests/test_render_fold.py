@@ -106,7 +106,9 @@ def test_sampled_modes_default_to_the_sampled_tolerance_rank(source):
 
 
 @pytest.mark.parametrize("kw", [dict(hiraji=True, hamon=True),
-                                dict(hiraji=False, hamon=True, hamon_lobe=LobeId.of({"lobe": "beckmann", "alpha": 1.0}))])
+                                pytest.param(dict(hiraji=False, hamon=True,
+                                                  hamon_lobe=LobeId.of({"lobe": "beckmann", "alpha": 1.0})),
+                                             marks=pytest.mark.slow)])
 def test_sampled_default_rank_bias_is_bounded_by_the_table_residual(kw):
     """Same samples at the default (rank-3) fold and at full spectra: every sample's weight and radiance are
     non-negative, so per pixel and channel |XYZ_R − XYZ| ≤ max|F − F_R| / min F · XYZ. The difference is
