@@ -122,6 +122,33 @@ def test_tail_fit_keeps_a_heavy_tail_above_the_horizon(iron):
         w = (_energy_beyond(K, dw, psi, 0.2) - e3) / (ew - e3)
         assert _below_horizon(K, dw, ap, aq, cv) == 0.0
         assert _below_horizon(F, dw, ap, aq, cv) < 0.5 * w * _below_horizon(Fw, dw, ap, aq, cv), cv
+        # each read is turned towards N as far as its width needs: at most TAIL_BELOW of it beneath the horizon
+        # (at cos θv 0.6 the widest level read at the far light's mean angle took 12 % of its light from there)
+        for s_t, o_t, _ in tail:
+            mu_t = 0.05 * np.exp(s_t)
+            height = 0.5 * np.pi - np.arccos(cv) + o_t
+            got = float(TP.below_fraction(jnp.asarray(mu_t, jnp.float32), jnp.asarray(height, jnp.float32)))
+            assert got <= TP.TAIL_BELOW + 2e-3, (cv, mu_t, got)
+        assert tail[1, 1] > tail[0, 1] or cv > 0.7, tail                 # the wider read turned further
+
+
+@pytest.mark.parametrize("mu_e", [0.05, 0.2, 0.4])
+def test_below_fraction_is_the_kernels_light_from_beneath_a_horizon(mu_e):
+    """below_fraction's ring formula against the prefilter kernel summed over a 512 × 1024 sphere grid, its centre at
+    elevations 0 (half of it beneath), 0.3 and 0.9 rad above the plane z = 0; horizon_clearance is the elevation
+    where that fraction reaches TAIL_BELOW, higher for a wider level."""
+    from jkatana.light.envmap import texel_directions_np, texel_solid_angles_np
+
+    D, dw = texel_directions_np(512, 1024), texel_solid_angles_np(512, 1024)
+    for h in (0.0, 0.3, 0.9):
+        c = np.array([np.cos(h), 0.0, np.sin(h)])
+        k = np.asarray(TP.prefilter_kernel(jnp.asarray((1.0 - D @ c) / 2.0), jnp.asarray(mu_e)), np.float64) * dw
+        want = k[D[..., 2] < 0].sum() / k.sum()
+        got = float(TP.below_fraction(jnp.asarray(mu_e), h))
+        assert abs(got - want) < 2e-3, (mu_e, h, got, want)
+    clear = float(TP.horizon_clearance(jnp.asarray(mu_e)))
+    assert abs(float(TP.below_fraction(jnp.asarray(mu_e), clear)) - TP.TAIL_BELOW) < 2e-3
+    assert clear > 2.0 * mu_e and float(TP.horizon_clearance(jnp.asarray(1.4 * mu_e))) > clear
 
 
 @pytest.mark.slow

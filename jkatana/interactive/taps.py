@@ -205,6 +205,37 @@ N_TAIL = 2
 TAIL_FROM = 4.0
 #: Edges (in μ) of the rings around R whose energies :func:`tail_fit`'s choice of levels matches.
 TAIL_RINGS = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 48.0)
+#: Largest fraction of a tail tap's read that may lie below the surface's horizon (:func:`tail_fit` turns the
+#: tap towards N until it does: :func:`horizon_clearance`).
+TAIL_BELOW = 0.05
+
+
+def below_fraction(mu_e, h, n_psi: int = 2048):
+    """The fraction of the prefilter kernel of width ``mu_e`` (a scalar; :func:`prefilter_kernel`) that lies beyond a
+    great circle at angular distance ``h`` (radians, 0 ≤ h < π/2, any shape) from its centre: the part of a read
+    centred at elevation h above a surface's horizon that comes from below it. The ring of radius ψ about the
+    centre lies beyond the circle over acos(tan h / tan ψ)/π of its length (0 for ψ ≤ h, all of it for ψ ≥ π − h);
+    the rings are summed with the kernel's weight 2π k(ψ) sin ψ (trapezoid rule on ψ = π t², dense at the peak)."""
+    mu_e, h = jnp.asarray(mu_e), jnp.asarray(h)
+    t = jnp.linspace(0.0, 1.0, n_psi, dtype=mu_e.dtype)
+    psi = jnp.pi * t * t
+    w = prefilter_kernel(jnp.sin(0.5 * psi) ** 2, mu_e) * jnp.sin(psi) * (2.0 * jnp.pi * t)
+    psi_, w_, t_ = (a.reshape((n_psi,) + (1,) * h.ndim) for a in (psi, w, t))
+    b = jnp.sin(h) * jnp.cos(psi_) / jnp.maximum(jnp.cos(h) * jnp.sin(psi_), 1e-30)
+    part = jnp.arccos(jnp.clip(b, -1.0, 1.0)) / jnp.pi
+    return jnp.trapezoid(w_ * part, t_, axis=0) / jnp.trapezoid(w, t)
+
+
+def horizon_clearance(mu_e, below: float = TAIL_BELOW, n_h: int = 128):
+    """The elevation above a surface's horizon (radians) at which a read of the level of width ``mu_e`` (any shape)
+    takes at most ``below`` of its light from beneath it (:func:`below_fraction`, which falls with the elevation;
+    π/2 where no elevation does)."""
+    mu_e = jnp.asarray(mu_e)
+    hs = jnp.linspace(0.0, 0.5 * jnp.pi, n_h, endpoint=False, dtype=mu_e.dtype)
+
+    def one(m):
+        return jnp.interp(-below, -below_fraction(m, hs), hs, right=0.5 * jnp.pi)
+    return jnp.vectorize(one)(mu_e)
 
 
 def polar_lobe_kernel(model, conductor: Conductor, cos_v, n_psi: int = 48, n_chi: int = 32, width=None):
@@ -269,6 +300,7 @@ def _tail_rows(family, mu, conductor, cos_v, taps, levels, mu_min, n_psi: int, n
     ``(s, o, w)`` of each tail tap, narrower first, then ∫ |K − mix| dω."""
     n_lv = levels.shape[0]
     i, j = (jnp.asarray(a) for a in np.triu_indices(n_lv))       # level pairs, i ≤ j (i = j: one tail tap)
+    clear = horizon_clearance(levels)                                # (L,) elevation each level's read needs
 
     def one(cv, t):
         K, ap, aq, dw, psi = polar_lobe_kernel(family(mu), conductor, cv, n_psi, n_chi, width=mu)
@@ -277,8 +309,12 @@ def _tail_rows(family, mu, conductor, cos_v, taps, levels, mu_min, n_psi: int, n
         Kd = K * dw
         e_lobe = jnp.sum(jnp.where(far, Kd, 0.0))
         o_t = jnp.sum(jnp.where(far, Kd * ap, 0.0)) / jnp.maximum(e_lobe, 1e-30)
-        x = jnp.sin(aq / 2) ** 2 + jnp.cos(aq) * jnp.sin((ap - o_t) / 2) ** 2
-        Ft = jax.vmap(lambda mt: prefilter_kernel(x, mt))(levels)                  # (L, n_psi, n_chi)
+        # each level read at o_t, or turned further towards N until its centre (at θv − o from N) is as high above
+        # the horizon as the level's width needs (horizon_clearance), never past N
+        th = jnp.arccos(jnp.clip(cv, -1.0, 1.0))
+        o_l = jnp.clip(th - 0.5 * jnp.pi + clear, o_t, jnp.maximum(o_t, th))      # (L,)
+        x = jnp.sin(aq / 2)[None] ** 2 + jnp.cos(aq)[None] * jnp.sin((ap[None] - o_l[:, None, None]) / 2) ** 2
+        Ft = jax.vmap(prefilter_kernel)(x, levels)                                 # (L, n_psi, n_chi)
         # the cells whose energies the mix matches: the rings around R, and below the horizon (L·N ≤ 0, N = z),
         # where the lobe has none but a wide read, symmetric about its direction, reaches (a bright floor seen
         # through the surface); the mix (1 − Σw) F3 + Σ w_l F_l has cell energies r3 + Σ w_l D_l, linear in w
@@ -312,7 +348,7 @@ def _tail_rows(family, mu, conductor, cos_v, taps, levels, mu_min, n_psi: int, n
         l1c = jnp.sum(jnp.abs(v[:, None, :] - cand[..., None] * u[:, None, :]), -1)
         best = jnp.argmin(l1c, -1)
         wi = jnp.take_along_axis(cand, best[:, None], -1)[:, 0]
-        wj = (e_far - wi * di) / dj_
+        wj = jnp.maximum((e_far - wi * di) / dj_, 0.0)                              # ≥ 0 but for rounding
         err = jnp.where(ok, jnp.take_along_axis(l1c, best[:, None], -1)[:, 0], jnp.inf)
         pair = i != j
         wi, wj = jnp.where(pair, wi, jnp.minimum(e_far / jnp.where(ok, di, 1.0), 0.9)), jnp.where(pair, wj, 0.0)
@@ -323,7 +359,7 @@ def _tail_rows(family, mu, conductor, cos_v, taps, levels, mu_min, n_psi: int, n
         l1 = jnp.sum(jnp.abs((1.0 - wi - wj) * F3 + wi * Fi + wj * Fj - K) * dw)
         s_i = jnp.where(wi > 0, jnp.log(levels[i[k]] / mu), 0.0)
         s_j = jnp.where(wj > 0, jnp.log(levels[j[k]] / mu), 0.0)
-        return jnp.stack([s_i, o_t, wi, s_j, o_t, wj, l1])
+        return jnp.stack([s_i, o_l[i[k]], wi, s_j, o_l[j[k]], wj, l1])
     return jax.vmap(one)(cos_v, taps)
 
 
@@ -339,7 +375,11 @@ def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int =
     more radii than one prefiltered level holds. The tail taps are up to :data:`N_TAIL` further reads of the
     environment at wider prefiltered levels: the shader reads (1 − Σ_t w_t) Σ_j w_j L̃_j + Σ_t w_t L̃_t. On the
     polar grid of :func:`polar_lobe_kernel` (which reaches the tails) their offset is the in-plane mean angle
-    of the lobe's light beyond :data:`TAIL_FROM` μ from R; their weights (≥ 0, Σ ≤ 0.9) put the lobe's energy
+    of the lobe's light beyond :data:`TAIL_FROM` μ from R, or, for a level too wide for that direction's height
+    above the surface's horizon, the offset that lifts it to the height where at most :data:`TAIL_BELOW` of its
+    read lies below the horizon (:func:`horizon_clearance`): off normal view the lobe's far light is cut off
+    by the horizon on R's side and lies towards N, and a read reaching under the horizon shows what the
+    surface hides (under a studio light its bright floor, up to a fifth of a facet's light); their weights (≥ 0, Σ ≤ 0.9) put the lobe's energy
     beyond that radius back; their levels (a pair among the prefiltered levels wider than μ, ``mus``, or one)
     and the split between them are those whose mix misplaces the least light (L1) over the rings
     :data:`TAIL_RINGS` around R and one more cell, below the horizon: the lobe has no light there, but a wide
@@ -391,8 +431,8 @@ def core_taps(base: np.ndarray, mus, c: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: The functions whose source text keys the tail table (:func:`jkatana.interactive.tables.cached_tail_fit`).
-TAIL_SOURCES = (view_frame, polar_lobe_kernel, weighted_tap_kernel, tail_kernel, _ring_energy, _tail_rows,
-                tail_fit)
+TAIL_SOURCES = (view_frame, polar_lobe_kernel, weighted_tap_kernel, tail_kernel, _ring_energy, below_fraction,
+                horizon_clearance, _tail_rows, tail_fit)
 
 
 #: The fitted pattern is used where its filter width μ_e spans at least this many texels of the map.
