@@ -100,7 +100,8 @@ def test_tail_fit_keeps_a_heavy_tail_above_the_horizon(iron):
     core, _ = TP.core_taps(T.family_tables(iron, MU_LEVELS, 64, base)["taps"], MU_LEVELS, c)
     k = int(np.argmin(np.abs(MU_LEVELS - 0.05)))
     rows = np.asarray(TP._tail_rows(family, jnp.asarray(0.05), iron, jnp.asarray([0.6, 0.8]),
-                                    jnp.asarray(core[k, [38, 50]]), jnp.asarray(MU_LEVELS), jnp.asarray(MU_LEVELS[0]),
+                                    jnp.asarray(core[k, [38, 50]]), jnp.asarray(MU_LEVELS),
+                                    jnp.asarray(TP.horizon_clearance(MU_LEVELS)), jnp.asarray(MU_LEVELS[0]),
                                     48, 32))
     for cv, row, t in zip((0.6, 0.8), rows, core[k, [38, 50]]):
         tail = row[:-1].reshape(TP.N_TAIL, 3)
@@ -127,7 +128,7 @@ def test_tail_fit_keeps_a_heavy_tail_above_the_horizon(iron):
         for s_t, o_t, _ in tail:
             mu_t = 0.05 * np.exp(s_t)
             height = 0.5 * np.pi - np.arccos(cv) + o_t
-            got = float(TP.below_fraction(jnp.asarray(mu_t, jnp.float32), jnp.asarray(height, jnp.float32)))
+            got = float(TP.below_fraction(mu_t, height))
             assert got <= TP.TAIL_BELOW + 2e-3, (cv, mu_t, got)
         assert tail[1, 1] > tail[0, 1] or cv > 0.7, tail                 # the wider read turned further
 
@@ -144,11 +145,11 @@ def test_below_fraction_is_the_kernels_light_from_beneath_a_horizon(mu_e):
         c = np.array([np.cos(h), 0.0, np.sin(h)])
         k = np.asarray(TP.prefilter_kernel(jnp.asarray((1.0 - D @ c) / 2.0), jnp.asarray(mu_e)), np.float64) * dw
         want = k[D[..., 2] < 0].sum() / k.sum()
-        got = float(TP.below_fraction(jnp.asarray(mu_e), h))
+        got = float(TP.below_fraction(mu_e, h))
         assert abs(got - want) < 2e-3, (mu_e, h, got, want)
-    clear = float(TP.horizon_clearance(jnp.asarray(mu_e)))
-    assert abs(float(TP.below_fraction(jnp.asarray(mu_e), clear)) - TP.TAIL_BELOW) < 2e-3
-    assert clear > 2.0 * mu_e and float(TP.horizon_clearance(jnp.asarray(1.4 * mu_e))) > clear
+    clear = float(TP.horizon_clearance(mu_e))
+    assert abs(float(TP.below_fraction(mu_e, clear)) - TP.TAIL_BELOW) < 2e-3
+    assert clear > 2.0 * mu_e and float(TP.horizon_clearance(1.4 * mu_e)) > clear
 
 
 @pytest.mark.slow

@@ -210,32 +210,39 @@ TAIL_RINGS = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 48.
 TAIL_BELOW = 0.05
 
 
-def below_fraction(mu_e, h, n_psi: int = 2048):
-    """The fraction of the prefilter kernel of width ``mu_e`` (a scalar; :func:`prefilter_kernel`) that lies beyond a
-    great circle at angular distance ``h`` (radians, 0 ≤ h < π/2, any shape) from its centre: the part of a read
-    centred at elevation h above a surface's horizon that comes from below it. The ring of radius ψ about the
-    centre lies beyond the circle over acos(tan h / tan ψ)/π of its length (0 for ψ ≤ h, all of it for ψ ≥ π − h);
-    the rings are summed with the kernel's weight 2π k(ψ) sin ψ (trapezoid rule on ψ = π t², dense at the peak)."""
-    mu_e, h = jnp.asarray(mu_e), jnp.asarray(h)
-    t = jnp.linspace(0.0, 1.0, n_psi, dtype=mu_e.dtype)
+@jax.jit
+def _kernel_rings(mu_e, t):
+    """2π k(ψ) sin ψ dψ/dt of the prefilter kernels of widths ``mu_e (L,)`` at ψ = π t², ``(L, len(t))``."""
     psi = jnp.pi * t * t
-    w = prefilter_kernel(jnp.sin(0.5 * psi) ** 2, mu_e) * jnp.sin(psi) * (2.0 * jnp.pi * t)
-    psi_, w_, t_ = (a.reshape((n_psi,) + (1,) * h.ndim) for a in (psi, w, t))
-    b = jnp.sin(h) * jnp.cos(psi_) / jnp.maximum(jnp.cos(h) * jnp.sin(psi_), 1e-30)
-    part = jnp.arccos(jnp.clip(b, -1.0, 1.0)) / jnp.pi
-    return jnp.trapezoid(w_ * part, t_, axis=0) / jnp.trapezoid(w, t)
+    return jax.vmap(lambda m: prefilter_kernel(jnp.sin(0.5 * psi) ** 2, m))(mu_e) * jnp.sin(psi) * (4.0 * jnp.pi ** 2 * t)
 
 
-def horizon_clearance(mu_e, below: float = TAIL_BELOW, n_h: int = 128):
-    """The elevation above a surface's horizon (radians) at which a read of the level of width ``mu_e`` (any shape)
-    takes at most ``below`` of its light from beneath it (:func:`below_fraction`, which falls with the elevation;
-    π/2 where no elevation does)."""
-    mu_e = jnp.asarray(mu_e)
-    hs = jnp.linspace(0.0, 0.5 * jnp.pi, n_h, endpoint=False, dtype=mu_e.dtype)
+def below_fraction(mu_e, h, n_psi: int = 2048) -> np.ndarray:
+    """The fraction of the prefilter kernel of width ``mu_e`` (:func:`prefilter_kernel`; a scalar, or ``(L,)`` for a
+    leading axis of levels) that lies beyond a great circle at angular distance ``h`` (radians, 0 ≤ h < π/2, any
+    shape) from its centre: the part of a read centred at elevation h above a surface's horizon that comes from
+    below it. The ring of radius ψ about the centre lies beyond the circle over acos(tan h / tan ψ)/π of its length
+    (0 for ψ ≤ h, all of it for ψ ≥ π − h); the rings are summed with the kernel's weight 2π k(ψ) sin ψ (trapezoid
+    rule on ψ = π t², dense at the peak). NumPy float64 (a table of the levels, built once per fit)."""
+    mu_e, h = np.asarray(mu_e, np.float64), np.asarray(h, np.float64)
+    t = np.linspace(0.0, 1.0, n_psi)
+    w = np.asarray(_kernel_rings(jnp.asarray(np.atleast_1d(mu_e), jnp.float32), jnp.asarray(t, jnp.float32)), np.float64)
+    psi = (np.pi * t * t).reshape((n_psi,) + (1,) * h.ndim)
+    b = np.sin(h) * np.cos(psi) / np.maximum(np.cos(h) * np.sin(psi), 1e-30)
+    part = np.arccos(np.clip(b, -1.0, 1.0)) / np.pi                                # (n_psi, *h.shape)
+    out = np.trapezoid(w.reshape(w.shape + (1,) * h.ndim) * part, t, axis=1) / np.trapezoid(w, t, axis=1).reshape(
+        (-1,) + (1,) * h.ndim)
+    return out.reshape(mu_e.shape + h.shape)
 
-    def one(m):
-        return jnp.interp(-below, -below_fraction(m, hs), hs, right=0.5 * jnp.pi)
-    return jnp.vectorize(one)(mu_e)
+
+def horizon_clearance(mu_e, below: float = TAIL_BELOW, n_h: int = 128) -> np.ndarray:
+    """The elevation above a surface's horizon (radians) at which a read of the level of width ``mu_e`` (a scalar or
+    ``(L,)``) takes at most ``below`` of its light from beneath it (:func:`below_fraction`, which falls with the
+    elevation; π/2 where no elevation does)."""
+    mu_e = np.asarray(mu_e, np.float64)
+    hs = np.linspace(0.0, 0.5 * np.pi, n_h, endpoint=False)
+    f = below_fraction(mu_e, hs).reshape(-1, n_h)
+    return np.asarray([np.interp(-below, -fl, hs, right=0.5 * np.pi) for fl in f]).reshape(mu_e.shape)
 
 
 def polar_lobe_kernel(model, conductor: Conductor, cos_v, n_psi: int = 48, n_chi: int = 32, width=None):
@@ -294,13 +301,13 @@ def _ring_energy(Kdw, psi, mu):
 
 
 @functools.partial(jax.jit, static_argnames=("family", "n_psi", "n_chi"))
-def _tail_rows(family, mu, conductor, cos_v, taps, levels, mu_min, n_psi: int, n_chi: int):
+def _tail_rows(family, mu, conductor, cos_v, taps, levels, clear, mu_min, n_psi: int, n_chi: int):
     """The tail taps per cos θv for the lobe ``family(mu)`` read by the three taps ``taps (C, 1 + 2T)``
-    (weights, not logits), candidates the prefiltered ``levels``; see :func:`tail_fit`. Rows ``(C, 3 N_TAIL + 1)``:
+    (weights, not logits), candidates the prefiltered ``levels`` and the height above the horizon each needs
+    (``clear``, :func:`horizon_clearance`); see :func:`tail_fit`. Rows ``(C, 3 N_TAIL + 1)``:
     ``(s, o, w)`` of each tail tap, narrower first, then ∫ |K − mix| dω."""
     n_lv = levels.shape[0]
     i, j = (jnp.asarray(a) for a in np.triu_indices(n_lv))       # level pairs, i ≤ j (i = j: one tail tap)
-    clear = horizon_clearance(levels)                                # (L,) elevation each level's read needs
 
     def one(cv, t):
         K, ap, aq, dw, psi = polar_lobe_kernel(family(mu), conductor, cv, n_psi, n_chi, width=mu)
@@ -398,13 +405,14 @@ def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int =
     dt = conductor.n.dtype
     cos_c = jnp.asarray(np.maximum(np.linspace(0.0, 1.0, n_cos), 1e-3), dt)
     levels = jnp.asarray(np.asarray(mus, np.float64), dt)
+    clear = jnp.asarray(horizon_clearance(mus), dt)
     mu_min = jnp.asarray(float(np.min(mus)), dt)
     for m, family in enumerate(lobes):
         if family in PAPER_LOBES:
             continue
         for k, mu in enumerate(mus):
             rows = np.array(_tail_rows(family, jnp.asarray(mu, dt), conductor, cos_c,
-                                        jnp.asarray(taps[m, k], dt), levels, mu_min, n_psi, n_chi), np.float64)
+                                        jnp.asarray(taps[m, k], dt), levels, clear, mu_min, n_psi, n_chi), np.float64)
             tail[m, k], l1[m, k] = rows[:, :3 * N_TAIL].reshape(-1, N_TAIL, 3), rows[:, -1]
     return taps, tail, l1
 
@@ -431,8 +439,8 @@ def core_taps(base: np.ndarray, mus, c: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: The functions whose source text keys the tail table (:func:`jkatana.interactive.tables.cached_tail_fit`).
-TAIL_SOURCES = (view_frame, polar_lobe_kernel, weighted_tap_kernel, tail_kernel, _ring_energy, below_fraction,
-                horizon_clearance, _tail_rows, tail_fit)
+TAIL_SOURCES = (view_frame, polar_lobe_kernel, weighted_tap_kernel, tail_kernel, _ring_energy, _kernel_rings,
+                below_fraction, horizon_clearance, _tail_rows, tail_fit)
 
 
 #: The fitted pattern is used where its filter width μ_e spans at least this many texels of the map.
