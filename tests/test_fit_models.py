@@ -142,7 +142,8 @@ def test_correct_model_not_flagged_and_intervals_agree(geometry):
         assert 0.7 < (rhi - rlo) / (hi - lo) < 1.4  # without misfit the sandwich is the Laplace interval
 
 
-@pytest.mark.parametrize("mu_deg", [pytest.param(0.2, marks=pytest.mark.slow), pytest.param(0.5, marks=pytest.mark.slow), 1.5])
+@pytest.mark.parametrize("mu_deg", [pytest.param(0.2, marks=pytest.mark.slow),
+                                    pytest.param(0.5, marks=pytest.mark.slow), 1.5])
 def test_instrument_response_recovers_mu_below_at_above_the_aperture(geometry, mu_deg):
     """Aperture radius 0.5°: a lobe narrower than, equal to and wider than it is recovered with the response."""
     inst = (math.radians(0.25), math.radians(0.5), 8)

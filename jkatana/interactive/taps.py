@@ -214,7 +214,8 @@ TAIL_BELOW = 0.05
 def _kernel_rings(mu_e, t):
     """2π k(ψ) sin ψ dψ/dt of the prefilter kernels of widths ``mu_e (L,)`` at ψ = π t², ``(L, len(t))``."""
     psi = jnp.pi * t * t
-    return jax.vmap(lambda m: prefilter_kernel(jnp.sin(0.5 * psi) ** 2, m))(mu_e) * jnp.sin(psi) * (4.0 * jnp.pi ** 2 * t)
+    k = jax.vmap(lambda m: prefilter_kernel(jnp.sin(0.5 * psi) ** 2, m))(mu_e)
+    return k * jnp.sin(psi) * (4.0 * jnp.pi ** 2 * t)
 
 
 def below_fraction(mu_e, h, n_psi: int = 2048) -> np.ndarray:
@@ -223,15 +224,17 @@ def below_fraction(mu_e, h, n_psi: int = 2048) -> np.ndarray:
     shape) from its centre: the part of a read centred at elevation h above a surface's horizon that comes from
     below it. The ring of radius ψ about the centre lies beyond the circle over acos(tan h / tan ψ)/π of its length
     (0 for ψ ≤ h, all of it for ψ ≥ π − h); the rings are summed with the kernel's weight 2π k(ψ) sin ψ (trapezoid
-    rule on ψ = π t², dense at the peak). NumPy float64 (a table of the levels, built once per fit)."""
+    rule on ψ = π t², dense at the peak). The kernel is evaluated in float32 whatever JAX's default, the sums in
+    NumPy float64 (a table of the levels, built once per fit)."""
     mu_e, h = np.asarray(mu_e, np.float64), np.asarray(h, np.float64)
     t = np.linspace(0.0, 1.0, n_psi)
-    w = np.asarray(_kernel_rings(jnp.asarray(np.atleast_1d(mu_e), jnp.float32), jnp.asarray(t, jnp.float32)), np.float64)
+    w = _kernel_rings(jnp.asarray(np.atleast_1d(mu_e), jnp.float32), jnp.asarray(t, jnp.float32))
+    w = np.asarray(w, np.float64)
     psi = (np.pi * t * t).reshape((n_psi,) + (1,) * h.ndim)
     b = np.sin(h) * np.cos(psi) / np.maximum(np.cos(h) * np.sin(psi), 1e-30)
     part = np.arccos(np.clip(b, -1.0, 1.0)) / np.pi                                # (n_psi, *h.shape)
-    out = np.trapezoid(w.reshape(w.shape + (1,) * h.ndim) * part, t, axis=1) / np.trapezoid(w, t, axis=1).reshape(
-        (-1,) + (1,) * h.ndim)
+    lead = (-1,) + (1,) * h.ndim
+    out = np.trapezoid(w.reshape(w.shape + (1,) * h.ndim) * part, t, axis=1) / np.trapezoid(w, t, axis=1).reshape(lead)
     return out.reshape(mu_e.shape + h.shape)
 
 
@@ -381,18 +384,17 @@ def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int =
     dark. GTR at γ < 2 (Burley 2012) and a two-lobe mixture's haze reach further still: a power law spans
     more radii than one prefiltered level holds. The tail taps are up to :data:`N_TAIL` further reads of the
     environment at wider prefiltered levels: the shader reads (1 − Σ_t w_t) Σ_j w_j L̃_j + Σ_t w_t L̃_t. On the
-    polar grid of :func:`polar_lobe_kernel` (which reaches the tails) their offset is the in-plane mean angle
-    of the lobe's light beyond :data:`TAIL_FROM` μ from R, or, for a level too wide for that direction's height
-    above the surface's horizon, the offset that lifts it to the height where at most :data:`TAIL_BELOW` of its
-    read lies below the horizon (:func:`horizon_clearance`): off normal view the lobe's far light is cut off
-    by the horizon on R's side and lies towards N, and a read reaching under the horizon shows what the
-    surface hides (under a studio light its bright floor, up to a fifth of a facet's light); their weights (≥ 0, Σ ≤ 0.9) put the lobe's energy
-    beyond that radius back; their levels (a pair among the prefiltered levels wider than μ, ``mus``, or one)
-    and the split between them are those whose mix misplaces the least light (L1) over the rings
-    :data:`TAIL_RINGS` around R and one more cell, below the horizon: the lobe has no light there, but a wide
-    read, symmetric about its direction, reaches across it (a bright floor seen through the surface). No
-    iteration: each pair's optimum is at one of a few breakpoints, a choice among the levels the shader can
-    read.
+    polar grid of :func:`polar_lobe_kernel` (which reaches the tails) their offset is the in-plane mean angle of the
+    lobe's light beyond :data:`TAIL_FROM` μ from R, or, for a level too wide for that direction's height above the
+    surface's horizon, the offset that lifts it to the height where at most :data:`TAIL_BELOW` of its read lies
+    below the horizon (:func:`horizon_clearance`): off normal view the lobe's far light is cut off by the horizon on
+    R's side and lies towards N, and a read reaching under the horizon shows what the surface hides (under a studio
+    light its bright floor, up to a fifth of a facet's light); their weights (≥ 0, Σ ≤ 0.9) put the lobe's energy
+    beyond that radius back; their levels (a pair among the prefiltered levels wider than μ, ``mus``, or one) and
+    the split between them are those whose mix misplaces the least light (L1) over the rings :data:`TAIL_RINGS`
+    around R and one more cell, below the horizon: the lobe has no light there, but a wide read, symmetric about its
+    direction, reaches across it (a bright floor seen through the surface). No iteration: each pair's optimum is at
+    one of a few breakpoints, a choice among the levels the shader can read.
 
     **Returns** ``(taps, tail (2, n_mu, n_cos, N_TAIL, 3), l1 (2, n_mu, n_cos))``: ``taps`` unchanged
     (:func:`tap_fit`'s layout), the tail taps (s_t = log(μ_t/μ), offset o_t towards N, weight w_t; narrower
