@@ -210,31 +210,73 @@ TAIL_RINGS = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 48.
 TAIL_BELOW = 0.05
 
 
+#: Nodes of the prefilter kernels' radial profiles (:func:`kernel_profiles`), uniform in u = x^{1/4}, x = sin²(ψ/2),
+#: from the centre to the horizon (x = ½, where the kernel drops to zero): dense at the peak (the narrowest level,
+#: 0.0125 rad, falls to half its peak near node 270).
+N_PROFILE = 2048
+#: u at the kernel's horizon, the profiles' last node.
+_U_HORIZON = 0.5 ** 0.25
+#: Widths per call of :func:`_kernel_profiles` (every call the same shape: one compiled program for every use).
+_PROFILE_CHUNK = 256
+
+
 @jax.jit
-def _kernel_rings(mu_e, t):
-    """2π k(ψ) sin ψ dψ/dt of the prefilter kernels of widths ``mu_e (L,)`` at ψ = π t², ``(L, len(t))``."""
-    psi = jnp.pi * t * t
-    k = jax.vmap(lambda m: prefilter_kernel(jnp.sin(0.5 * psi) ** 2, m))(mu_e)
-    return k * jnp.sin(psi) * (4.0 * jnp.pi ** 2 * t)
+def _kernel_profiles(mu_e):
+    """:func:`prefilter_kernel` of widths ``mu_e (B,)`` at x = u⁴ for :data:`N_PROFILE` nodes u uniform on
+    [0, ½^{1/4}]."""
+    x = jnp.minimum(jnp.linspace(0.0, _U_HORIZON, N_PROFILE, dtype=mu_e.dtype) ** 4, 0.5)   # the last node on it
+    return jax.vmap(lambda m: prefilter_kernel(x, m))(mu_e)
 
 
-def below_fraction(mu_e, h, n_psi: int = 2048) -> np.ndarray:
+def profile_nodes() -> np.ndarray:
+    """The nodes u = x^{1/4} of :func:`kernel_profiles`."""
+    return np.linspace(0.0, _U_HORIZON, N_PROFILE)
+
+
+def kernel_profiles(mu_e) -> np.ndarray:
+    """The prefilter kernels of widths ``mu_e`` (any shape) as radial profiles ``(*mu_e.shape, N_PROFILE)``: their
+    values at x = sin²(ψ/2) = u⁴ for the nodes u of :func:`profile_nodes` (:func:`prefilter_kernel`, normalised to 1
+    over the sphere, where dω = 16π u³ du; zero beyond the last node, the horizon), read back anywhere by
+    :func:`profile_read`. Evaluated in float32 whatever JAX's default (the shader's precision; one compiled program
+    for every call and both precisions), returned in float64."""
+    mu_e = np.asarray(mu_e, np.float64)
+    flat = mu_e.ravel()
+    out = np.empty((flat.size, N_PROFILE))
+    for a in range(0, flat.size, _PROFILE_CHUNK):
+        part = flat[a:a + _PROFILE_CHUNK]
+        padded = np.pad(part, (0, _PROFILE_CHUNK - part.size), mode="edge")
+        out[a:a + part.size] = np.asarray(_kernel_profiles(jnp.asarray(padded, jnp.float32)), np.float64)[:part.size]
+    return out.reshape(mu_e.shape + (N_PROFILE,))
+
+
+def profile_read(prof: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Kernels tabulated by :func:`kernel_profiles`, ``prof (*lead, N_PROFILE)``, at directions ``x (*lead, m)``
+    (sin² of half the angle from each kernel's centre): linear in u = x^{1/4} up to the horizon, zero beyond it;
+    ``(*lead, m)``."""
+    lead = prof.shape[:-1]
+    pos = np.sqrt(np.sqrt(np.clip(x, 0.0, 1.0))) * ((N_PROFILE - 1) / _U_HORIZON)
+    i0 = np.minimum(pos.astype(np.int64), N_PROFILE - 2)
+    f = pos - i0
+    at = (np.arange(int(np.prod(lead, dtype=np.int64))) * N_PROFILE).reshape(lead + (1,)) + i0
+    flat = prof.reshape(-1)
+    return np.where(x <= 0.5, flat[at] * (1.0 - f) + flat[at + 1] * f, 0.0)
+
+
+def below_fraction(mu_e, h) -> np.ndarray:
     """The fraction of the prefilter kernel of width ``mu_e`` (:func:`prefilter_kernel`; a scalar, or ``(L,)`` for a
     leading axis of levels) that lies beyond a great circle at angular distance ``h`` (radians, 0 ≤ h < π/2, any
     shape) from its centre: the part of a read centred at elevation h above a surface's horizon that comes from
     below it. The ring of radius ψ about the centre lies beyond the circle over acos(tan h / tan ψ)/π of its length
-    (0 for ψ ≤ h, all of it for ψ ≥ π − h); the rings are summed with the kernel's weight 2π k(ψ) sin ψ (trapezoid
-    rule on ψ = π t², dense at the peak). The kernel is evaluated in float32 whatever JAX's default, the sums in
-    NumPy float64 (a table of the levels, built once per fit)."""
+    (0 for ψ ≤ h, all of it for ψ ≥ π − h); the rings are summed with the kernel's weight k(ψ) dω = 16π u³ k du on
+    its profile's nodes (:func:`kernel_profiles`, trapezoid rule)."""
     mu_e, h = np.asarray(mu_e, np.float64), np.asarray(h, np.float64)
-    t = np.linspace(0.0, 1.0, n_psi)
-    w = _kernel_rings(jnp.asarray(np.atleast_1d(mu_e), jnp.float32), jnp.asarray(t, jnp.float32))
-    w = np.asarray(w, np.float64)
-    psi = (np.pi * t * t).reshape((n_psi,) + (1,) * h.ndim)
+    u = profile_nodes()
+    w = kernel_profiles(np.atleast_1d(mu_e)) * (16.0 * np.pi * u ** 3)                # (L, n)
+    psi = (2.0 * np.arcsin(u * u)).reshape((N_PROFILE,) + (1,) * h.ndim)
     b = np.sin(h) * np.cos(psi) / np.maximum(np.cos(h) * np.sin(psi), 1e-30)
-    part = np.arccos(np.clip(b, -1.0, 1.0)) / np.pi                                # (n_psi, *h.shape)
+    part = np.arccos(np.clip(b, -1.0, 1.0)) / np.pi                                # (n, *h.shape)
     lead = (-1,) + (1,) * h.ndim
-    out = np.trapezoid(w.reshape(w.shape + (1,) * h.ndim) * part, t, axis=1) / np.trapezoid(w, t, axis=1).reshape(lead)
+    out = np.trapezoid(w.reshape(w.shape + (1,) * h.ndim) * part, u, axis=1) / np.trapezoid(w, u, axis=1).reshape(lead)
     return out.reshape(mu_e.shape + h.shape)
 
 
@@ -297,80 +339,98 @@ def tail_kernel(taps, tail, mu, ap, aq, mu_min: Float[ArrayLike, ""], mu_max: Fl
     return out
 
 
-def _ring_energy(Kdw, psi, mu):
-    """Σ K dω per ring of ψ/μ between :data:`TAIL_RINGS` (the energies the tail taps match)."""
-    ring = jnp.searchsorted(jnp.asarray(TAIL_RINGS[1:-1], psi.dtype), psi / mu)
-    return jnp.zeros(len(TAIL_RINGS) - 1, Kdw.dtype).at[ring.ravel()].add(Kdw.ravel())
-
-
 @functools.partial(jax.jit, static_argnames=("family", "n_psi", "n_chi"))
-def _tail_rows(family, mu, conductor, cos_v, taps, levels, clear, mu_min, n_psi: int, n_chi: int):
+def _polar_kernels(family, mu, conductor, cos_v, n_psi: int, n_chi: int):
+    """:func:`polar_lobe_kernel` of ``family(mu)`` at each of ``cos_v (C,)``: ``(K, a_par, a_perp, dω, ψ)``, each
+    ``(C, n_psi, n_chi)`` (the only part of the tail fit that evaluates the lobe: one compilation per family)."""
+    return jax.vmap(lambda cv: polar_lobe_kernel(family(mu), conductor, cv, n_psi, n_chi, width=mu))(cos_v)
+
+
+def _tail_rows(family, mu, conductor, cos_v, taps, levels, clear, mu_min, n_psi: int, n_chi: int,
+               level_profiles: np.ndarray | None = None) -> np.ndarray:
     """The tail taps per cos θv for the lobe ``family(mu)`` read by the three taps ``taps (C, 1 + 2T)``
     (weights, not logits), candidates the prefiltered ``levels`` and the height above the horizon each needs
     (``clear``, :func:`horizon_clearance`); see :func:`tail_fit`. Rows ``(C, 3 N_TAIL + 1)``:
-    ``(s, o, w)`` of each tail tap, narrower first, then ∫ |K − mix| dω."""
-    n_lv = levels.shape[0]
-    i, j = (jnp.asarray(a) for a in np.triu_indices(n_lv))       # level pairs, i ≤ j (i = j: one tail tap)
+    ``(s, o, w)`` of each tail tap, narrower first, then ∫ |K − mix| dω.
 
-    def one(cv, t):
-        K, ap, aq, dw, psi = polar_lobe_kernel(family(mu), conductor, cv, n_psi, n_chi, width=mu)
-        F3 = weighted_tap_kernel(t, mu, ap, aq, mu_min)
-        far = psi > TAIL_FROM * mu
-        Kd = K * dw
-        e_lobe = jnp.sum(jnp.where(far, Kd, 0.0))
-        o_t = jnp.sum(jnp.where(far, Kd * ap, 0.0)) / jnp.maximum(e_lobe, 1e-30)
-        # each level read at o_t, or turned further towards N until its centre (at θv − o from N) is as high above
-        # the horizon as the level's width needs (horizon_clearance), never past N
-        th = jnp.arccos(jnp.clip(cv, -1.0, 1.0))
-        o_l = jnp.clip(th - 0.5 * jnp.pi + clear, o_t, jnp.maximum(o_t, th))      # (L,)
-        x = jnp.sin(aq / 2)[None] ** 2 + jnp.cos(aq)[None] * jnp.sin((ap[None] - o_l[:, None, None]) / 2) ** 2
-        Ft = jax.vmap(prefilter_kernel)(x, levels)                                 # (L, n_psi, n_chi)
-        # the cells whose energies the mix matches: the rings around R, and below the horizon (L·N ≤ 0, N = z),
-        # where the lobe has none but a wide read, symmetric about its direction, reaches (a bright floor seen
-        # through the surface); the mix (1 − Σw) F3 + Σ w_l F_l has cell energies r3 + Σ w_l D_l, linear in w
-        _, R, tv, yv = view_frame(cv)
-        below = jnp.cos(aq) * (jnp.cos(ap) * R[2] + jnp.sin(ap) * tv[2]) + jnp.sin(aq) * yv[2] <= 0.0
+    The lobe's kernel comes from JAX (:func:`_polar_kernels`); the reads of the levels and of the three taps are
+    the prefilter kernel's profiles (:func:`kernel_profiles`, ``level_profiles`` those of ``levels`` when the
+    caller has them) and the choice among them runs in NumPy, float64: no compilation beyond the lobe's own."""
+    mu, mu_min = float(mu), float(mu_min)
+    levels, clear = np.asarray(levels, np.float64), np.asarray(clear, np.float64)
+    taps, cos_v = np.asarray(taps, np.float64), np.asarray(cos_v, np.float64)
+    dt = conductor.n.dtype
+    C, n_lv = len(cos_v), len(levels)
+    K, ap, aq, dw, psi = (np.asarray(a, np.float64).reshape(C, -1) for a in
+                          _polar_kernels(family, jnp.asarray(mu, dt), conductor, jnp.asarray(cos_v, dt), n_psi, n_chi))
+    prof = kernel_profiles(levels) if level_profiles is None else level_profiles
+    # sin²(α/2) of the angle α between a grid direction and a read at angle o from R in the plane of incidence:
+    # sin²(a_perp/2) + cos a_perp sin²((a_par − o)/2), with sin((a − o)/2) expanded (one sine per node, not per read)
+    s2, sa, ca, cq = np.sin(aq / 2) ** 2, np.sin(ap / 2), np.cos(ap / 2), np.cos(aq)
 
-        def cells(f):
-            return jnp.concatenate([_ring_energy(f * dw, psi, mu), jnp.sum(jnp.where(below, f * dw, 0.0))[None]])
-        r3 = cells(F3)
-        D = jax.vmap(cells)(Ft) - r3                                               # (L, cells)
-        b = cells(K) - r3                                                          # the lobe: 0 below
-        # the weights put the lobe's energy beyond TAIL_FROM μ back exactly (Σ_t w_t d_t = e, d_t the energy
-        # there that level t's read adds over the three taps'; weights ≥ 0, Σ ≤ 0.9). Along that line a pair's
-        # cell residuals are v − w_i u, and their L1 norm (what the mix misplaces, bounding its error under any
-        # environment of bounded radiance) is convex and piecewise linear in w_i: its minimum lies where a
-        # residual vanishes (w_i = v_c/u_c) or at an end of the feasible interval (either level alone)
-        e_far = e_lobe - jnp.sum(jnp.where(far, F3 * dw, 0.0))
-        d = jax.vmap(lambda f: jnp.sum(jnp.where(far, f * dw, 0.0)))(Ft) - (e_lobe - e_far)      # (L,)
-        di, dj = d[i], d[j]
-        ok = (di > 1e-6) & (dj > 1e-6) & (levels[i] > mu) & (levels[j] > mu)
-        dj_ = jnp.where(ok, dj, 1.0)
-        u = D[i] - (di / dj_)[:, None] * D[j]                                    # (pairs, cells)
-        v = b[None] - (e_far / dj_)[:, None] * D[j]
-        # feasible w_i: w_j = (e − w_i d_i)/d_j ≥ 0, w_i ≥ 0, w_i + w_j ≤ 0.9
-        hi = jnp.minimum(e_far / jnp.where(ok, di, 1.0),
-                         jnp.where(dj > di, (0.9 - e_far / dj_) / jnp.where(dj > di, 1.0 - di / dj_, 1.0), jnp.inf))
-        lo = jnp.where(dj > di, 0.0, jnp.maximum(0.0, (0.9 - e_far / dj_) / jnp.where(dj < di, 1.0 - di / dj_, -1.0)))
-        ok = ok & (hi >= lo)
-        cand = jnp.concatenate([v / jnp.where(jnp.abs(u) > 1e-30, u, 1e-30), lo[:, None], hi[:, None]], -1)
-        cand = jnp.clip(cand, lo[:, None], hi[:, None])                         # (pairs, cells + 2)
-        l1c = jnp.sum(jnp.abs(v[:, None, :] - cand[..., None] * u[:, None, :]), -1)
-        best = jnp.argmin(l1c, -1)
-        wi = jnp.take_along_axis(cand, best[:, None], -1)[:, 0]
-        wj = jnp.maximum((e_far - wi * di) / dj_, 0.0)                              # ≥ 0 but for rounding
-        err = jnp.where(ok, jnp.take_along_axis(l1c, best[:, None], -1)[:, 0], jnp.inf)
-        pair = i != j
-        wi, wj = jnp.where(pair, wi, jnp.minimum(e_far / jnp.where(ok, di, 1.0), 0.9)), jnp.where(pair, wj, 0.0)
-        k = jnp.argmin(err)
-        usable = jnp.isfinite(err[k]) & (e_far > 1e-6)
-        wi, wj = jnp.where(usable, wi[k], 0.0), jnp.where(usable, wj[k], 0.0)
-        Fi, Fj = Ft[i[k]], Ft[j[k]]
-        l1 = jnp.sum(jnp.abs((1.0 - wi - wj) * F3 + wi * Fi + wj * Fj - K) * dw)
-        s_i = jnp.where(wi > 0, jnp.log(levels[i[k]] / mu), 0.0)
-        s_j = jnp.where(wj > 0, jnp.log(levels[j[k]] / mu), 0.0)
-        return jnp.stack([s_i, o_l[i[k]], wi, s_j, o_l[j[k]], wj, l1])
-    return jax.vmap(one)(cos_v, taps)
+    def reads(o):                                                                  # o (C, n) → (C, n, nodes)
+        d = sa[:, None] * np.cos(o / 2)[..., None] - ca[:, None] * np.sin(o / 2)[..., None]
+        return s2[:, None] + cq[:, None] * d * d
+    T = (taps.shape[-1] - 1) // 2
+    mu_e = np.maximum(mu * np.exp(taps[:, 0]), mu_min)                             # the three taps' level
+    F3 = np.einsum("ct,ctp->cp", taps[:, 1 + T:],
+                   profile_read(np.repeat(kernel_profiles(mu_e)[:, None], T, 1), reads(taps[:, 1:1 + T])))
+    far = psi > TAIL_FROM * mu
+    Kd = K * dw
+    e_lobe = np.sum(np.where(far, Kd, 0.0), -1)
+    o_t = np.sum(np.where(far, Kd * ap, 0.0), -1) / np.maximum(e_lobe, 1e-30)
+    # each level read at o_t, or turned further towards N until its centre (at θv − o from N) is as high above the
+    # horizon as the level's width needs (horizon_clearance), never past N
+    th = np.arccos(np.clip(cos_v, -1.0, 1.0))
+    o_l = np.clip(th[:, None] - 0.5 * np.pi + clear, o_t[:, None], np.maximum(o_t, th)[:, None])      # (C, L)
+    Ft = profile_read(np.broadcast_to(prof, (C,) + prof.shape), reads(o_l))                         # (C, L, nodes)
+    # the cells whose energies the mix matches: the rings around R, and below the horizon (L·N ≤ 0, N = z), where
+    # the lobe has none but a wide read, symmetric about its direction, reaches (a bright floor seen through the
+    # surface); the mix (1 − Σw) F3 + Σ w_l F_l has cell energies r3 + Σ w_l D_l, linear in w
+    _, R, tv, yv = view_frame(cos_v, np)
+    below = cq * (np.cos(ap) * R[:, 2:] + np.sin(ap) * tv[:, 2:]) + np.sin(aq) * yv[:, 2:] <= 0.0
+    ring = np.searchsorted(np.asarray(TAIL_RINGS[1:-1]), psi / mu)
+    cells = np.concatenate([ring[..., None] == np.arange(len(TAIL_RINGS) - 1), below[..., None]], -1) * dw[..., None]
+    r3 = np.matmul(F3[:, None], cells)[:, 0]                                       # (C, cells)
+    D = np.matmul(Ft, cells) - r3[:, None]                                         # (C, L, cells)
+    b = np.matmul(K[:, None], cells)[:, 0] - r3                                    # the lobe: 0 below
+    # the weights put the lobe's energy beyond TAIL_FROM μ back exactly (Σ_t w_t d_t = e, d_t the energy there
+    # that level t's read adds over the three taps'; weights ≥ 0, Σ ≤ 0.9). Along that line a pair's cell residuals
+    # are v − w_i u, and their L1 norm (what the mix misplaces, bounding its error under any environment of bounded
+    # radiance) is convex and piecewise linear in w_i: its minimum lies where a residual vanishes (w_i = v_c/u_c) or
+    # at an end of the feasible interval (either level alone)
+    e_far = (e_lobe - np.sum(np.where(far, F3 * dw, 0.0), -1))[:, None]           # (C, 1)
+    d = np.matmul(Ft, np.where(far, dw, 0.0)[..., None])[..., 0] - (e_lobe[:, None] - e_far)    # (C, L)
+    i, j = np.triu_indices(n_lv)                                                   # level pairs, i ≤ j (i = j: one)
+    di, dj = d[:, i], d[:, j]
+    ok = (di > 1e-6) & (dj > 1e-6) & (levels[i] > mu) & (levels[j] > mu)
+    dj_ = np.where(ok, dj, 1.0)
+    u = D[:, i] - (di / dj_)[..., None] * D[:, j]                                  # (C, pairs, cells)
+    v = b[:, None] - (e_far / dj_)[..., None] * D[:, j]
+    # feasible w_i: w_j = (e − w_i d_i)/d_j ≥ 0, w_i ≥ 0, w_i + w_j ≤ 0.9
+    wider = dj > di
+    hi = np.minimum(e_far / np.where(ok, di, 1.0),
+                    np.where(wider, (0.9 - e_far / dj_) / np.where(wider, 1.0 - di / dj_, 1.0), np.inf))
+    lo = np.where(wider, 0.0, np.maximum(0.0, (0.9 - e_far / dj_) / np.where(dj < di, 1.0 - di / dj_, -1.0)))
+    ok &= hi >= lo
+    cand = np.concatenate([v / np.where(np.abs(u) > 1e-30, u, 1e-30), lo[..., None], hi[..., None]], -1)
+    cand = np.clip(cand, lo[..., None], hi[..., None])                             # (C, pairs, cells + 2)
+    l1c = np.sum(np.abs(v[:, :, None, :] - cand[..., None] * u[:, :, None, :]), -1)
+    best = np.argmin(l1c, -1)[..., None]
+    wi = np.take_along_axis(cand, best, -1)[..., 0]
+    wj = np.maximum((e_far - wi * di) / dj_, 0.0)                                   # ≥ 0 but for rounding
+    err = np.where(ok, np.take_along_axis(l1c, best, -1)[..., 0], np.inf)
+    pair = i != j
+    wi, wj = np.where(pair, wi, np.minimum(e_far / np.where(ok, di, 1.0), 0.9)), np.where(pair, wj, 0.0)
+    c, k = np.arange(C), np.argmin(err, -1)
+    usable = np.isfinite(err[c, k]) & (e_far[:, 0] > 1e-6)
+    wi, wj = np.where(usable, wi[c, k], 0.0), np.where(usable, wj[c, k], 0.0)
+    mix = (1.0 - wi - wj)[:, None] * F3 + wi[:, None] * Ft[c, i[k]] + wj[:, None] * Ft[c, j[k]]
+    l1 = np.sum(np.abs(mix - K) * dw, -1)
+    s_i = np.where(wi > 0, np.log(levels[i[k]] / mu), 0.0)
+    s_j = np.where(wj > 0, np.log(levels[j[k]] / mu), 0.0)
+    return np.stack([s_i, o_l[c, i[k]], wi, s_j, o_l[c, j[k]], wj, l1], -1)
+
 
 
 def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int = 64, lobes: tuple = PAPER_LOBES,
@@ -404,17 +464,14 @@ def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int =
     taps = np.array(taps, np.float64)
     tail = np.zeros(taps.shape[:3] + (N_TAIL, 3))
     l1 = np.zeros(taps.shape[:3])
-    dt = conductor.n.dtype
-    cos_c = jnp.asarray(np.maximum(np.linspace(0.0, 1.0, n_cos), 1e-3), dt)
-    levels = jnp.asarray(np.asarray(mus, np.float64), dt)
-    clear = jnp.asarray(horizon_clearance(mus), dt)
-    mu_min = jnp.asarray(float(np.min(mus)), dt)
+    cos_c = np.maximum(np.linspace(0.0, 1.0, n_cos), 1e-3)
+    levels = np.asarray(mus, np.float64)
+    clear, prof = horizon_clearance(levels), kernel_profiles(levels)
     for m, family in enumerate(lobes):
         if family in PAPER_LOBES:
             continue
-        for k, mu in enumerate(mus):
-            rows = np.array(_tail_rows(family, jnp.asarray(mu, dt), conductor, cos_c,
-                                        jnp.asarray(taps[m, k], dt), levels, clear, mu_min, n_psi, n_chi), np.float64)
+        for k, mu in enumerate(levels):
+            rows = _tail_rows(family, mu, conductor, cos_c, taps[m, k], levels, clear, levels.min(), n_psi, n_chi, prof)
             tail[m, k], l1[m, k] = rows[:, :3 * N_TAIL].reshape(-1, N_TAIL, 3), rows[:, -1]
     return taps, tail, l1
 
@@ -441,8 +498,8 @@ def core_taps(base: np.ndarray, mus, c: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: The functions whose source text keys the tail table (:func:`jkatana.interactive.tables.cached_tail_fit`).
-TAIL_SOURCES = (view_frame, polar_lobe_kernel, weighted_tap_kernel, tail_kernel, _ring_energy, _kernel_rings,
-                below_fraction, horizon_clearance, _tail_rows, tail_fit)
+TAIL_SOURCES = (view_frame, polar_lobe_kernel, _kernel_profiles, kernel_profiles, profile_read, below_fraction,
+                horizon_clearance, _polar_kernels, _tail_rows, tail_fit)
 
 
 #: The fitted pattern is used where its filter width μ_e spans at least this many texels of the map.
