@@ -250,15 +250,15 @@ def kernel_profiles(mu_e) -> np.ndarray:
 
 
 def profile_read(prof: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Kernels tabulated by :func:`kernel_profiles`, ``prof (*lead, N_PROFILE)``, at directions ``x (*lead, m)``
-    (sin² of half the angle from each kernel's centre): linear in u = x^{1/4} up to the horizon, zero beyond it;
-    ``(*lead, m)``."""
-    lead = prof.shape[:-1]
+    """Kernels tabulated by :func:`kernel_profiles`, ``prof (*P, N_PROFILE)``, at directions ``x (*lead, m)`` (sin² of
+    half the angle from each kernel's centre; ``P`` broadcasts against ``lead``, as a level's profile serves every
+    view): linear in u = x^{1/4} up to the horizon, zero beyond it; ``(*lead, m)``."""
+    P = prof.shape[:-1]
     pos = np.sqrt(np.sqrt(np.clip(x, 0.0, 1.0))) * ((N_PROFILE - 1) / _U_HORIZON)
-    i0 = np.minimum(pos.astype(np.int64), N_PROFILE - 2)
+    i0 = np.minimum(pos.astype(np.int32), N_PROFILE - 2)
     f = pos - i0
-    at = (np.arange(int(np.prod(lead, dtype=np.int64))) * N_PROFILE).reshape(lead + (1,)) + i0
-    flat = prof.reshape(-1)
+    at = i0 + (np.arange(math.prod(P), dtype=np.int32) * N_PROFILE).reshape(P + (1,))
+    flat = np.ascontiguousarray(prof).reshape(-1)
     return np.where(x <= 0.5, flat[at] * (1.0 - f) + flat[at + 1] * f, 0.0)
 
 
@@ -387,8 +387,7 @@ def _tail_rows(family, mu, conductor, cos_v, taps, levels, clear, mu_min, n_psi:
         return s2[:, None] + cq[:, None] * d * d
     T = (taps.shape[-1] - 1) // 2
     mu_e = np.maximum(mu * np.exp(taps[:, 0]), mu_min)                             # the three taps' level
-    F3 = np.einsum("ct,ctp->cp", taps[:, 1 + T:],
-                   profile_read(np.repeat(kernel_profiles(mu_e)[:, None], T, 1), reads(taps[:, 1:1 + T])))
+    F3 = np.einsum("ct,ctp->cp", taps[:, 1 + T:], profile_read(kernel_profiles(mu_e)[:, None], reads(taps[:, 1:1 + T])))
     far = psi > TAIL_FROM * mu
     Kd = K * dw
     e_lobe = np.sum(np.where(far, Kd, 0.0), -1)
@@ -397,7 +396,7 @@ def _tail_rows(family, mu, conductor, cos_v, taps, levels, clear, mu_min, n_psi:
     # horizon as the level's width needs (horizon_clearance), never past N
     th = np.arccos(np.clip(cos_v, -1.0, 1.0))
     o_l = np.clip(th[:, None] - 0.5 * np.pi + clear, o_t[:, None], np.maximum(o_t, th)[:, None])      # (C, L)
-    Ft = profile_read(np.broadcast_to(prof, (C,) + prof.shape), reads(o_l))                         # (C, L, nodes)
+    Ft = profile_read(prof, reads(o_l))                                            # (C, L, nodes)
     # the cells whose energies the mix matches: the rings around R, and below the horizon (L·N ≤ 0, N = z), where
     # the lobe has none but a wide read, symmetric about its direction, reaches (a bright floor seen through the
     # surface); the mix (1 − Σw) F3 + Σ w_l F_l has cell energies r3 + Σ w_l D_l, linear in w
