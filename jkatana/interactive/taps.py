@@ -26,7 +26,7 @@ from jaxtyping import ArrayLike, Float
 from jkatana.interactive.levels import MU_LEVELS
 from jkatana.interactive.lobe_tables import PAPER_LOBES, lobe_lut, moment_taps
 from jkatana.light.fresnel_basis import fresnel_basis
-from jkatana.light.prefilter import LobeFamily, reflected_lobe
+from jkatana.light.prefilter import LobeFamily, lobe_of_width, reflected_kernel, reflected_lobe
 from jkatana.models import Conductor
 from jkatana.models.lobes import Gaussian
 
@@ -212,20 +212,11 @@ TAIL_BELOW = 0.05
 
 #: Nodes of the prefilter kernels' radial profiles (:func:`kernel_profiles`), uniform in u = x^{1/4}, x = sin²(ψ/2),
 #: from the centre to the horizon (x = ½, where the kernel drops to zero): dense at the peak (the narrowest level,
-#: 0.0125 rad, falls to half its peak near node 270).
-N_PROFILE = 2048
+#: 0.0125 rad, falls to half its peak near node 1090). As many as the prefilter's kernel tables
+#: (:func:`jkatana.light.prefilter.kernel_table`), whose compiled program they share.
+N_PROFILE = 8192
 #: u at the kernel's horizon, the profiles' last node.
 _U_HORIZON = 0.5 ** 0.25
-#: Widths per call of :func:`_kernel_profiles` (every call the same shape: one compiled program for every use).
-_PROFILE_CHUNK = 256
-
-
-@jax.jit
-def _kernel_profiles(mu_e):
-    """:func:`prefilter_kernel` of widths ``mu_e (B,)`` at x = u⁴ for :data:`N_PROFILE` nodes u uniform on
-    [0, ½^{1/4}]."""
-    x = jnp.minimum(jnp.linspace(0.0, _U_HORIZON, N_PROFILE, dtype=mu_e.dtype) ** 4, 0.5)   # the last node on it
-    return jax.vmap(lambda m: prefilter_kernel(x, m))(mu_e)
 
 
 def profile_nodes() -> np.ndarray:
@@ -235,18 +226,21 @@ def profile_nodes() -> np.ndarray:
 
 def kernel_profiles(mu_e) -> np.ndarray:
     """The prefilter kernels of widths ``mu_e`` (any shape) as radial profiles ``(*mu_e.shape, N_PROFILE)``: their
-    values at x = sin²(ψ/2) = u⁴ for the nodes u of :func:`profile_nodes` (:func:`prefilter_kernel`, normalised to 1
-    over the sphere, where dω = 16π u³ du; zero beyond the last node, the horizon), read back anywhere by
-    :func:`profile_read`. Evaluated in float32 whatever JAX's default (the shader's precision; one compiled program
-    for every call and both precisions), returned in float64."""
+    values at x = sin²(ψ/2) = u⁴ for the nodes u of :func:`profile_nodes`, zero beyond the last (the horizon), read
+    back anywhere by :func:`profile_read`. Each is the paper's Gaussian lobe's :func:`reflected_lobe` (through
+    :func:`~jkatana.light.prefilter.reflected_kernel`, the program that prefilters the environment: no compilation
+    of its own) normalised to 1 over the sphere, where dω = 16π u³ du (trapezoid rule): :func:`prefilter_kernel`."""
     mu_e = np.asarray(mu_e, np.float64)
-    flat = mu_e.ravel()
-    out = np.empty((flat.size, N_PROFILE))
-    for a in range(0, flat.size, _PROFILE_CHUNK):
-        part = flat[a:a + _PROFILE_CHUNK]
-        padded = np.pad(part, (0, _PROFILE_CHUNK - part.size), mode="edge")
-        out[a:a + part.size] = np.asarray(_kernel_profiles(jnp.asarray(padded, jnp.float32)), np.float64)[:part.size]
-    return out.reshape(mu_e.shape + (N_PROFILE,))
+    u = profile_nodes()
+    x, dw = np.minimum(u ** 4, 0.5), 16.0 * np.pi * u ** 3              # the last node on the horizon
+    widths, which = np.unique(mu_e.ravel(), return_inverse=True)
+    if widths.size == 0:
+        return np.zeros(mu_e.shape + (N_PROFILE,))
+    lobes = [lobe_of_width(Gaussian, float(m)) for m in widths]
+    xs = jnp.asarray(x, jnp.result_type(*jax.tree.leaves(lobes[0])))
+    out = np.asarray([np.asarray(k) for k in [reflected_kernel(lobe, xs) for lobe in lobes]], np.float64)
+    out /= np.trapezoid(out * dw, u, axis=-1)[:, None]
+    return out[which].reshape(mu_e.shape + (N_PROFILE,))
 
 
 def profile_read(prof: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -511,7 +505,7 @@ def core_taps(base: np.ndarray, mus, c: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: The functions whose source text keys the tail table (:func:`jkatana.interactive.tables.cached_tail_fit`).
-TAIL_SOURCES = (view_frame, _SpectralSum, polar_lobe_kernel, _kernel_profiles, kernel_profiles, profile_read,
+TAIL_SOURCES = (view_frame, _SpectralSum, polar_lobe_kernel, kernel_profiles, profile_read,
                 below_fraction, horizon_clearance, _polar_kernels, _tail_rows, tail_fit)
 
 

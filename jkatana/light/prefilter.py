@@ -97,7 +97,9 @@ def reflected_lobe(lobe: Lobe, sin2_half: Float[ArrayLike, "*n"]) -> Float[Array
     return lobe.f_cos(L, V)
 
 
-_reflected_jit = eqx.filter_jit(reflected_lobe)
+#: :func:`reflected_lobe` compiled once per lobe family, shape and dtype: the prefilter's kernel tables and the
+#: interactive tail fit's kernel profiles (:func:`jkatana.interactive.taps.kernel_profiles`) share its programs.
+reflected_kernel = eqx.filter_jit(reflected_lobe)
 
 
 _build_jit = eqx.filter_jit(lambda family, mu: family(mu))  # one compilation per family, not one per operation
@@ -123,7 +125,7 @@ def kernel_table(lobe: Lobe, rel: float = 1e-7, n: int = 8192) -> tuple[np.ndarr
     for _ in range(60):
         x = np.linspace(0.0, math.sqrt(top), n) ** 2
         # the horizon's node takes the value just above it: the kernel's cut there stays sharp
-        k = np.asarray(_reflected_jit(lobe, jnp.asarray(np.minimum(x, 0.5 - 1e-12), dt)), np.float64)
+        k = np.asarray(reflected_kernel(lobe, jnp.asarray(np.minimum(x, 0.5 - 1e-12), dt)), np.float64)
         peak = float(np.max(k)) if k.size else 0.0
         if not (np.isfinite(peak) and peak > 0 and np.all(np.isfinite(k))):
             raise InputError(f"the lobe {lobe.to_params()} has no finite reflected kernel at normal incidence",
@@ -329,7 +331,7 @@ def brute_force_convolution(env: EnvMap, d, mu: float, sub: int = 8, lobe: LobeF
     ph = (np.arange(W)[:, None] + t[None, :]) * (2 * math.pi / W) - math.pi  # (W, s), absolute φ
     x = (np.sin((th - theta_d) / 2) ** 2)[:, None, :, None] \
         + math.sin(theta_d) * np.sin(th)[:, None, :, None] * (np.sin((ph - phi_d) / 2) ** 2)[None, :, None, :]
-    k = np.asarray(_reflected_jit(lob, jnp.asarray(x, dt)), np.float64) * np.sin(th)[:, None, :, None]
+    k = np.asarray(reflected_kernel(lob, jnp.asarray(x, dt)), np.float64) * np.sin(th)[:, None, :, None]
     omega = np.cos(rows * math.pi / H) - np.cos((rows + 1) * math.pi / H)  # the texels' exact solid angles / Δφ
     K = k.mean(axis=(2, 3)) * (omega / np.sin(th).mean(axis=1))[:, None]  # ∝ ∫_texel K dω
     return np.einsum("rw,rwl->l", K, L[rows]) / K.sum()
