@@ -304,9 +304,8 @@ def polar_lobe_kernel(model, conductor: Conductor, cos_v, n_psi: int = 48, n_chi
     and azimuth χ from the plane of incidence (χ = 0 towards N), so that L = cos ψ R + sin ψ (cos χ t +
     sin χ y) with t, y as :func:`lobe_kernel`'s, dω = sin ψ dψ dχ. The kernel is the lobe's f_r cos θi
     (``model.brdf_cos`` summed over λ, :class:`_SpectralSum`) at V = (sin θv, 0, cos θv), normalised so that
-    Σ K dω = 1: unlike
-    :func:`lobe_kernel`'s ±14 μ box it holds a long-tailed lobe's far tails (GGX, GTR), whose light the
-    lobe table's energy (:func:`~jkatana.interactive.lobe_tables.lobe_integral` with ``tails``) counts.
+    Σ K dω = 1: unlike :func:`lobe_kernel`'s ±14 μ box it holds a long-tailed lobe's far tails (GGX, GTR), whose
+    light the lobe table's energy (:func:`~jkatana.interactive.lobe_tables.lobe_integral` with ``tails``) counts.
 
     **Returns** ``(K, a_par, a_perp, dω, ψ)``, each ``(n_psi, n_chi)``; a_par, a_perp as :func:`lobe_kernel`'s.
     """
@@ -437,7 +436,6 @@ def _tail_rows(family, mu, conductor, cos_v, taps, levels, clear, mu_min, n_psi:
     s_i = np.where(wi > 0, np.log(levels[i[k]] / mu), 0.0)
     s_j = np.where(wj > 0, np.log(levels[j[k]] / mu), 0.0)
     return np.stack([s_i, o_l[c, i[k]], wi, s_j, o_l[c, j[k]], wj, l1], -1)
-
 
 
 def tail_fit(conductor: Conductor, taps: np.ndarray, mus=MU_LEVELS, n_cos: int = 64, lobes: tuple = PAPER_LOBES,
