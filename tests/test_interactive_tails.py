@@ -277,3 +277,15 @@ def A_frame(glr, st, sc):
         return r.render(glr.build_scene(sc.mesh, sc.view))
     finally:
         r.delete()
+
+
+def test_table_keys_read_the_source_of_functions_only():
+    """The tap, tail and lobe tables are keyed by the source text of the code that builds them, read on the bake's
+    threads. inspect.getsource of a class parses its whole module, which CPython 3.11 cannot do on two threads at
+    once (SystemError: AST constructor recursion depth mismatch): the keys name functions only."""
+    import inspect
+
+    from jkatana.interactive.lobe_tables import LUT_SOURCES
+
+    for f in (*TP.FIT_SOURCES, *TP.TAIL_SOURCES, *LUT_SOURCES):
+        assert inspect.isfunction(inspect.unwrap(f)), f

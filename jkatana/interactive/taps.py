@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import math
+import types
 
 import jax
 import jax.numpy as jnp
@@ -284,17 +285,16 @@ def horizon_clearance(mu_e, below: float = TAIL_BELOW, n_h: int = 128) -> np.nda
     return np.asarray([np.interp(-below, -fl, hs, right=0.5 * np.pi) for fl in f]).reshape(mu_e.shape)
 
 
-class _SpectralSum:
+def _spectral_sum(conductor: Conductor, n: int = 1025):
     """A conductor's Fresnel factor summed over its wavelengths, Σ_λ F(cos θ, λ), as a one-band conductor that a
-    lobe's ``brdf_cos`` takes: the sum tabulated on ``n`` cosines and read linearly (F is smooth in cos θ: the polar
-    kernels agree with the full spectral sum to 1e-5 of their peak, at a sixty-first of the Fresnel work)."""
-
-    def __init__(self, conductor: Conductor, n: int = 1025):
-        self.cos = jnp.linspace(0.0, 1.0, n, dtype=conductor.n.dtype)
-        self.total = jnp.sum(conductor.fresnel(self.cos), -1)
-
-    def fresnel(self, cos_theta):
-        return jnp.interp(jnp.clip(cos_theta, 0.0, 1.0), self.cos, self.total)[..., None]
+    lobe's ``brdf_cos`` takes (an object with its ``fresnel``): the sum tabulated on ``n`` cosines and read linearly
+    (F is smooth in cos θ: the polar kernels agree with the full spectral sum to 1e-5 of their peak, at a
+    sixty-first of the Fresnel work). A function, not a class: the tail table's key reads its source, and
+    :func:`inspect.getsource` of a class parses the whole module, which CPython 3.11 cannot do on two threads at
+    once."""
+    cos = jnp.linspace(0.0, 1.0, n, dtype=conductor.n.dtype)
+    total = jnp.sum(conductor.fresnel(cos), -1)
+    return types.SimpleNamespace(fresnel=lambda c: jnp.interp(jnp.clip(c, 0.0, 1.0), cos, total)[..., None])
 
 
 def polar_lobe_kernel(model, conductor: Conductor, cos_v, n_psi: int = 48, n_chi: int = 32, width=None):
@@ -303,7 +303,7 @@ def polar_lobe_kernel(model, conductor: Conductor, cos_v, n_psi: int = 48, n_chi
     Angle ψ from R (ψ = ψ_max u², u uniform: nodes dense at the peak; ψ_max = min(:data:`TAIL_REACH` μ, π))
     and azimuth χ from the plane of incidence (χ = 0 towards N), so that L = cos ψ R + sin ψ (cos χ t +
     sin χ y) with t, y as :func:`lobe_kernel`'s, dω = sin ψ dψ dχ. The kernel is the lobe's f_r cos θi
-    (``model.brdf_cos`` summed over λ, :class:`_SpectralSum`) at V = (sin θv, 0, cos θv), normalised so that
+    (``model.brdf_cos`` summed over λ, :func:`_spectral_sum`) at V = (sin θv, 0, cos θv), normalised so that
     Σ K dω = 1: unlike :func:`lobe_kernel`'s ±14 μ box it holds a long-tailed lobe's far tails (GGX, GTR), whose
     light the lobe table's energy (:func:`~jkatana.interactive.lobe_tables.lobe_integral` with ``tails``) counts.
 
@@ -319,7 +319,7 @@ def polar_lobe_kernel(model, conductor: Conductor, cos_v, n_psi: int = 48, n_chi
     psi, ch = jnp.meshgrid(top * u * u, chi, indexing="ij")
     st, ct = jnp.sin(psi), jnp.cos(psi)
     L = ct[..., None] * R + (st * jnp.cos(ch))[..., None] * t + (st * jnp.sin(ch))[..., None] * y
-    f = model.brdf_cos(L, jnp.broadcast_to(V, L.shape), _SpectralSum(conductor))[..., 0]
+    f = model.brdf_cos(L, jnp.broadcast_to(V, L.shape), _spectral_sum(conductor))[..., 0]
     dw = st * (2 * top * u / n_psi)[:, None] * (2 * jnp.pi / n_chi)
     K = f / jnp.maximum(jnp.sum(f * dw), 1e-30)
     a_par = jnp.arctan2(st * jnp.cos(ch), ct)
@@ -503,7 +503,7 @@ def core_taps(base: np.ndarray, mus, c: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: The functions whose source text keys the tail table (:func:`jkatana.interactive.tables.cached_tail_fit`).
-TAIL_SOURCES = (view_frame, _SpectralSum, polar_lobe_kernel, kernel_profiles, profile_read,
+TAIL_SOURCES = (view_frame, _spectral_sum, polar_lobe_kernel, kernel_profiles, profile_read,
                 below_fraction, horizon_clearance, _polar_kernels, _tail_rows, tail_fit)
 
 
